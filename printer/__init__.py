@@ -1,0 +1,1 @@
+"""Printer link: Marlin-protocol serial host, capability queries, virtual printer."""

@@ -1,0 +1,1 @@
+"""Embedded slicer: a closed mesh (mm) in, Marlin-flavoured G-code out."""

@@ -1,0 +1,27 @@
+"""The console script is installed and answers as a user would call it."""
+
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def run_cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "daemon", *args], capture_output=True, text=True, timeout=120
+    )
+
+
+def test_version_matches_distribution():
+    expected = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["version"]
+    out = run_cli("--version")
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == f"preflight {expected}"
+
+
+def test_no_command_prints_usage_and_fails():
+    out = run_cli()
+    assert out.returncode == 2
+    assert "usage: preflight" in out.stderr
