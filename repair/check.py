@@ -1,0 +1,388 @@
+"""Printability check: prove a triangle mesh is a printable solid.
+
+A mesh ``(vertices, faces)`` (units mm; ``vertices`` float (n, 3), ``faces`` int (m, 3))
+is *printable* when it is
+
+- **closed**: no undirected edge is used by only one face;
+- **edge-manifold**: no undirected edge is used by more than two faces;
+- **consistently oriented**: each edge used by two faces is traversed once in each direction;
+- of **positive volume** (signed volume by the divergence theorem, outward normals);
+- free of **degenerate faces**: no repeated vertex index and no three exactly collinear
+  corners (decided with exact arithmetic on the given coordinates, no tolerance);
+- free of **duplicate faces** (two faces on the same three vertices);
+- free of **self-intersections**: tested with CGAL's exact kernel through libigl
+  (``igl.copyleft.cgal.remesh_self_intersections(..., detect_only=True)``). Faces that
+  share a vertex or an edge and otherwise only touch along it are not intersecting; any
+  other contact (crossing, touching at a point, coplanar overlap) is.
+
+A binary STL stores float32: pass ``as_float32=True`` (or check
+``round_to_float32(vertices)``) to verify the coordinates that are actually written.
+All work is vectorised numpy except the exact intersection test (C++).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "Printability",
+    "check_printable",
+    "degenerate_face_mask",
+    "intersecting_face_pairs",
+    "round_to_float32",
+    "weld_exact",
+]
+
+
+@dataclass(frozen=True)
+class Printability:
+    """The verdict of :func:`check_printable`: named booleans and the counts behind them.
+
+    Counts are of undirected edges (``boundary_edges``, ``nonmanifold_edges``,
+    ``misoriented_edges``), of faces (``degenerate_faces``, ``duplicate_faces``,
+    ``triangles``), of unordered face pairs (``intersecting_pairs``) and of edge-connected
+    face components (``components``). ``volume`` is the signed volume in mm³.
+    ``float32`` says the check ran on float32-rounded (as written to STL) coordinates.
+    """
+
+    closed: bool
+    edge_manifold: bool
+    oriented: bool
+    positive_volume: bool
+    no_degenerate_faces: bool
+    no_duplicate_faces: bool
+    no_self_intersections: bool
+    triangles: int
+    boundary_edges: int
+    nonmanifold_edges: int
+    misoriented_edges: int
+    degenerate_faces: int
+    duplicate_faces: int
+    intersecting_pairs: int
+    components: int
+    volume: float
+    float32: bool = False
+
+    @property
+    def ok(self) -> bool:
+        """True when every check passed (and the mesh has at least one triangle)."""
+        return (
+            self.triangles > 0
+            and self.closed
+            and self.edge_manifold
+            and self.oriented
+            and self.positive_volume
+            and self.no_degenerate_faces
+            and self.no_duplicate_faces
+            and self.no_self_intersections
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-serialisable dict of every field plus ``"ok"``."""
+        d = dataclasses.asdict(self)
+        d["ok"] = self.ok
+        return d
+
+    def failures(self) -> list[str]:
+        """Human-readable reasons the mesh is not printable (empty when ``ok``)."""
+        out: list[str] = []
+        if self.triangles == 0:
+            out.append("the mesh has no triangles")
+            return out
+        if not self.closed:
+            out.append(f"not closed: {self.boundary_edges} boundary edge(s)")
+        if not self.edge_manifold:
+            out.append(f"not edge-manifold: {self.nonmanifold_edges} edge(s) shared by >2 faces")
+        if not self.oriented:
+            out.append(
+                f"inconsistently oriented: {self.misoriented_edges} edge(s) traversed "
+                "twice in the same direction"
+            )
+        if not self.positive_volume:
+            out.append(f"volume is not positive ({self.volume:.6g} mm³)")
+        if not self.no_degenerate_faces:
+            out.append(f"{self.degenerate_faces} degenerate (zero-area) face(s)")
+        if not self.no_duplicate_faces:
+            out.append(f"{self.duplicate_faces} duplicate face(s)")
+        if not self.no_self_intersections:
+            out.append(f"self-intersecting: {self.intersecting_pairs} intersecting face pair(s)")
+        return out
+
+
+def round_to_float32(vertices: np.ndarray) -> np.ndarray:
+    """Vertices rounded to float32 (as a binary STL stores them), returned as float64."""
+    return np.asarray(vertices, dtype=np.float64).astype(np.float32).astype(np.float64)
+
+
+def weld_exact(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Merge vertices with exactly equal coordinates; faces are re-indexed, not dropped.
+
+    Returns ``(unique_vertices, faces)``; the order of the unique vertices is unspecified.
+    Units unchanged. ``-0.0`` and ``+0.0`` are the same coordinate.
+    """
+    v = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    if len(v) == 0:
+        return v, f
+    # +0.0 and -0.0 are the same point: normalise, then compare exact bit patterns.
+    v = v + 0.0
+    bits = v.view(np.uint64)
+    # Sort by a 64-bit hash of the three coordinates (one argsort instead of a lexsort),
+    # then verify: rows with equal hashes must be bit-identical, else fall back.
+    h = bits[:, 0] * np.uint64(0x9E3779B97F4A7C15)
+    h ^= bits[:, 1] * np.uint64(0xC2B2AE3D27D4EB4F) + (h >> np.uint64(29))
+    h ^= bits[:, 2] * np.uint64(0x165667B19E3779F9) + (h >> np.uint64(31))
+    order = np.argsort(h, kind="stable")
+    hs = h[order]
+    same_hash = hs[1:] == hs[:-1]
+    sb = bits[order]
+    same_row = np.all(sb[1:] == sb[:-1], axis=1)
+    if np.any(same_hash & ~same_row):
+        order = np.lexsort((bits[:, 2], bits[:, 1], bits[:, 0]))
+        sb = bits[order]
+        same_row = np.all(sb[1:] == sb[:-1], axis=1)
+    new_group = np.r_[True, ~same_row]
+    ids = np.cumsum(new_group) - 1
+    remap = np.empty(len(v), dtype=np.int64)
+    remap[order] = ids
+    return v[order[new_group]], remap[f]
+
+
+# --------------------------------------------------------------------------- topology
+
+
+def _edge_stats(faces: np.ndarray, n_vertices: int) -> tuple[int, int, int, int]:
+    """(boundary, nonmanifold, misoriented, components) from the directed half-edges."""
+    m = len(faces)
+    a = faces.reshape(-1)
+    b = faces[:, [1, 2, 0]].reshape(-1)
+    lo = np.minimum(a, b)
+    hi = np.maximum(a, b)
+    key = lo * np.int64(max(n_vertices, 1)) + hi
+    order = np.argsort(key)
+    skey = key[order]
+    first = np.r_[True, skey[1:] != skey[:-1]]
+    starts = np.flatnonzero(first)
+    counts = np.diff(np.r_[starts, len(skey)])
+    fwd = np.add.reduceat((a < b)[order].astype(np.int64), starts)
+    boundary = int(np.count_nonzero(counts == 1))
+    nonmanifold = int(np.count_nonzero(counts > 2))
+    misoriented = int(np.count_nonzero((counts == 2) & (fwd != 1)))
+
+    # Edge-connected components: link each half-edge's face to the next use of the same
+    # undirected edge (consecutive in the sorted order), then label the face graph.
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    link = np.flatnonzero(~first)
+    fa = order[link - 1] // 3
+    fb = order[link] // 3
+    graph = coo_matrix((np.ones(len(link), dtype=np.int8), (fa, fb)), shape=(m, m))
+    components = int(connected_components(graph, directed=False)[0])
+    return boundary, nonmanifold, misoriented, components
+
+
+def _sorted_face_keys(faces: np.ndarray) -> np.ndarray:
+    """One sortable key per face identifying its vertex set (orientation ignored)."""
+    lo = faces.min(axis=1)
+    hi = faces.max(axis=1)
+    mid = faces.sum(axis=1) - lo - hi
+    n = int(hi.max()) + 1 if len(faces) else 1
+    if n < 2_000_000:  # n**3 < 2**63
+        return (lo * n + mid) * n + hi
+    s = np.stack([lo, mid, hi], axis=1)
+    return np.ascontiguousarray(s).view(np.dtype((np.void, 24))).reshape(-1)
+
+
+def _first_of_duplicates(faces: np.ndarray) -> np.ndarray:
+    """Sorted indices of the first face of every distinct vertex set."""
+    key = _sorted_face_keys(faces)
+    order = np.argsort(key, kind="stable")
+    sk = key[order]
+    return np.sort(order[np.r_[True, sk[1:] != sk[:-1]]])
+
+
+def _duplicate_faces(faces: np.ndarray) -> int:
+    """Faces on the same vertex triple as an earlier face (any orientation)."""
+    if len(faces) < 2:
+        return 0
+    sk = np.sort(_sorted_face_keys(faces))
+    return int(np.count_nonzero(sk[1:] == sk[:-1]))
+
+
+# --------------------------------------------------------------------------- degeneracy
+
+# Shewchuk's bound for a 2x2 orientation determinant evaluated in doubles from
+# differences of doubles: when |det| exceeds it, the sign (hence non-zero) is exact.
+_EPS = np.ldexp(1.0, -53)
+_ORIENT2D_ERRBOUND = (3.0 + 16.0 * _EPS) * _EPS
+
+
+def _exact_int_coords(p: np.ndarray) -> np.ndarray:
+    """Float64 array -> object array of Python ints, all scaled by one common power of 2."""
+    mant, exp = np.frexp(p)  # p = mant * 2**exp, 0.5 <= |mant| < 1
+    imant = np.ldexp(mant, 53).astype(np.int64)  # exact: 53-bit integer mantissa
+    exp = exp.astype(np.int64) - 53
+    nz = imant != 0
+    emin = int(exp[nz].min()) if np.any(nz) else 0
+    shift = np.where(nz, exp - emin, 0)
+    out = imant.astype(object) * (np.full(shift.shape, 2, dtype=object) ** shift.astype(object))
+    return out
+
+
+def degenerate_face_mask(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Boolean mask (m,) of faces with a repeated index or exactly collinear corners.
+
+    Decided exactly on the given float64 coordinates: a floating-point filter settles
+    almost every face, the rest are evaluated with integer arithmetic. No tolerance.
+    """
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    f0, f1, f2 = faces[:, 0], faces[:, 1], faces[:, 2]
+    repeated = (f0 == f1) | (f1 == f2) | (f2 == f0)
+    a, b, c = vertices[f0], vertices[f1], vertices[f2]
+    u = b - a
+    w = c - a
+    # The cross product is zero exactly iff all three 2D orientations are zero.
+    certain_nonzero = np.zeros(len(faces), dtype=bool)
+    for i, j in ((1, 2), (2, 0), (0, 1)):
+        left = u[:, i] * w[:, j]
+        right = u[:, j] * w[:, i]
+        det = left - right
+        bound = _ORIENT2D_ERRBOUND * (np.abs(left) + np.abs(right))
+        certain_nonzero |= (det != 0.0) & (np.abs(det) > bound)
+    unsure = np.flatnonzero(~certain_nonzero & ~repeated)
+    degenerate = repeated.copy()
+    if len(unsure):
+        pts = np.stack([a[unsure], b[unsure], c[unsure]], axis=1)  # (k, 3, 3)
+        ints = _exact_int_coords(pts)
+        ua = ints[:, 1, :] - ints[:, 0, :]
+        wa = ints[:, 2, :] - ints[:, 0, :]
+        zero = np.ones(len(unsure), dtype=bool)
+        for i, j in ((1, 2), (2, 0), (0, 1)):
+            d = ua[:, i] * wa[:, j] - ua[:, j] * wa[:, i]
+            zero &= d == 0
+        degenerate[unsure] = zero
+    return degenerate
+
+
+# --------------------------------------------------------------------------- geometry
+
+
+def _signed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """Signed enclosed volume in mm³ (positive for outward-oriented closed meshes)."""
+    if len(faces) == 0:
+        return 0.0
+    # Centre the coordinates (bounding box of all vertices) to limit cancellation.
+    centre = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
+    a = vertices[faces[:, 0]] - centre
+    b = vertices[faces[:, 1]] - centre
+    c = vertices[faces[:, 2]] - centre
+    return float(np.einsum("ij,ij->", a, np.cross(b, c)) / 6.0)
+
+
+def intersecting_face_pairs(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Unordered pairs (k, 2) of faces that intersect, by CGAL's exact predicates.
+
+    Faces must be non-degenerate and not combinatorial duplicates (libigl skips those).
+    Faces sharing a vertex/edge count only if they meet beyond the shared element.
+    Pairs are sorted (i < j) and unique, as indices into ``faces``.
+    """
+    if len(faces) < 2:
+        return np.zeros((0, 2), dtype=np.int64)
+    import igl.copyleft.cgal as cgal
+
+    v = np.ascontiguousarray(vertices, dtype=np.float64)
+    f = np.ascontiguousarray(faces, dtype=np.int64)
+    pairs = cgal.remesh_self_intersections(v, f, detect_only=True)[2]
+    if len(pairs) == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    pairs = np.sort(np.asarray(pairs, dtype=np.int64), axis=1)
+    return np.unique(pairs, axis=0)
+
+
+# --------------------------------------------------------------------------- entry point
+
+
+def check_printable(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    *,
+    as_float32: bool = False,
+) -> Printability:
+    """Check that ``(vertices, faces)`` is a printable solid; see the module docstring.
+
+    ``vertices``: (n, 3) float coordinates in mm, all finite. ``faces``: (m, 3) integer
+    indices into ``vertices``. With ``as_float32=True`` the coordinates are first rounded
+    to float32 and exactly coincident vertices merged, i.e. the check runs on exactly the
+    mesh that :func:`repair.io.write_stl` writes and :func:`repair.io.load_mesh` reads back.
+
+    Raises ``ValueError`` for malformed input (bad shapes, out-of-range indices,
+    non-finite coordinates); a mesh that is merely broken gets a verdict, not an error.
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces)
+    if v.ndim != 2 or (v.size and v.shape[1] != 3):
+        raise ValueError(f"vertices must have shape (n, 3), got {v.shape}")
+    if f.size == 0:
+        f = f.reshape(0, 3)
+    if f.ndim != 2 or f.shape[1] != 3:
+        raise ValueError(f"faces must have shape (m, 3), got {f.shape}")
+    if f.size and not np.issubdtype(f.dtype, np.integer):
+        raise ValueError(f"faces must be integer indices, got {f.dtype}")
+    f = f.astype(np.int64, copy=False)
+    v = v.reshape(-1, 3)
+    if len(f) and (f.min() < 0 or f.max() >= len(v)):
+        raise ValueError("face indices out of range")
+    if not np.all(np.isfinite(v)):
+        raise ValueError("vertex coordinates are not all finite")
+    if as_float32:
+        v, f = weld_exact(round_to_float32(v), f)
+
+    m = len(f)
+    if m == 0:
+        return Printability(
+            closed=False, edge_manifold=True, oriented=True, positive_volume=False,
+            no_degenerate_faces=True, no_duplicate_faces=True, no_self_intersections=True,
+            triangles=0, boundary_edges=0, nonmanifold_edges=0, misoriented_edges=0,
+            degenerate_faces=0, duplicate_faces=0, intersecting_pairs=0, components=0,
+            volume=0.0, float32=as_float32,
+        )  # fmt: skip
+
+    boundary, nonmanifold, misoriented, components = _edge_stats(f, len(v))
+    degenerate = degenerate_face_mask(v, f)
+    n_degenerate = int(np.count_nonzero(degenerate))
+    n_duplicate = _duplicate_faces(f)
+    volume = _signed_volume(v, f)
+
+    # The exact intersection test needs proper triangles, each vertex triple once.
+    keep = np.flatnonzero(~degenerate)
+    fk = f[keep]
+    if n_duplicate:
+        keep = keep[_first_of_duplicates(fk)]
+        fk = f[keep]
+    pairs = intersecting_face_pairs(v, fk)
+
+    return Printability(
+        closed=boundary == 0,
+        edge_manifold=nonmanifold == 0,
+        oriented=misoriented == 0,
+        positive_volume=volume > 0.0,
+        no_degenerate_faces=n_degenerate == 0,
+        no_duplicate_faces=n_duplicate == 0,
+        no_self_intersections=len(pairs) == 0,
+        triangles=m,
+        boundary_edges=boundary,
+        nonmanifold_edges=nonmanifold,
+        misoriented_edges=misoriented,
+        degenerate_faces=n_degenerate,
+        duplicate_faces=n_duplicate,
+        intersecting_pairs=int(len(pairs)),
+        components=components,
+        volume=volume,
+        float32=as_float32,
+    )

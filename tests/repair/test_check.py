@@ -1,0 +1,216 @@
+"""check_printable on meshes whose verdict is known by construction."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from repair.check import (
+    check_printable,
+    degenerate_face_mask,
+    round_to_float32,
+    weld_exact,
+)
+
+
+def box(lo=(0.0, 0.0, 0.0), hi=(1.0, 1.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
+    """A closed, outward-oriented axis-aligned box (8 vertices, 12 triangles), mm."""
+    lo = np.asarray(lo, float)
+    hi = np.asarray(hi, float)
+    m = trimesh.creation.box(bounds=np.array([lo, hi]))
+    return np.asarray(m.vertices, float), np.asarray(m.faces, np.int64)
+
+
+def join(*meshes):
+    vs, fs, n = [], [], 0
+    for v, f in meshes:
+        vs.append(v)
+        fs.append(f + n)
+        n += len(v)
+    return np.vstack(vs), np.vstack(fs)
+
+
+def test_closed_cube_passes():
+    v, f = box()
+    p = check_printable(v, f)
+    assert p.ok, p.failures()
+    assert p.failures() == []
+    assert p.triangles == 12
+    assert p.components == 1
+    assert p.volume == pytest.approx(1.0, rel=1e-12)
+    d = p.to_dict()
+    assert d["ok"] is True and d["intersecting_pairs"] == 0 and d["boundary_edges"] == 0
+
+
+def test_sphere_and_torus_pass():
+    for m in (
+        trimesh.creation.icosphere(subdivisions=4, radius=10.0),
+        trimesh.creation.torus(20.0, 5.0, major_sections=64, minor_sections=32),
+    ):
+        p = check_printable(m.vertices, m.faces)
+        assert p.ok, p.failures()
+        assert p.volume == pytest.approx(m.volume, rel=1e-9)
+
+
+def test_cube_with_a_face_removed_is_not_closed():
+    v, f = box()
+    p = check_printable(v, f[1:])
+    assert not p.ok
+    assert not p.closed
+    assert p.boundary_edges == 3
+    assert any("not closed" in s for s in p.failures())
+
+
+def test_one_flipped_face_is_misoriented():
+    v, f = box()
+    f = f.copy()
+    f[4] = f[4][::-1]
+    p = check_printable(v, f)
+    assert not p.oriented and not p.ok
+    assert p.misoriented_edges == 3
+    assert p.closed and p.edge_manifold
+
+
+def test_all_faces_flipped_has_negative_volume():
+    v, f = box(hi=(2.0, 3.0, 4.0))
+    p = check_printable(v, f[:, ::-1])
+    assert p.closed and p.oriented and p.edge_manifold
+    assert p.volume == pytest.approx(-24.0)
+    assert not p.positive_volume and not p.ok
+    assert any("volume" in s for s in p.failures())
+
+
+def test_interpenetrating_cubes_self_intersect():
+    v, f = join(box(), box((0.5, 0.5, 0.5), (1.5, 1.5, 1.5)))
+    p = check_printable(v, f)
+    # Each shell is closed and oriented on its own: only the intersection test catches it.
+    assert p.closed and p.edge_manifold and p.oriented and p.positive_volume
+    assert not p.no_self_intersections and not p.ok
+    assert p.intersecting_pairs > 0
+    assert p.components == 2
+
+
+def test_disjoint_and_nested_shells():
+    # Two separate cubes: printable, two components.
+    v, f = join(box(), box((3, 0, 0), (4, 1, 1)))
+    p = check_printable(v, f)
+    assert p.ok and p.components == 2 and p.volume == pytest.approx(2.0)
+    # A hollow box (inner shell inverted) is a legitimate solid with a cavity.
+    vi, fi = box((1, 1, 1), (2, 2, 2))
+    v, f = join(box((0, 0, 0), (3, 3, 3)), (vi, fi[:, ::-1]))
+    p = check_printable(v, f)
+    assert p.ok, p.failures()
+    assert p.volume == pytest.approx(26.0)
+
+
+def test_touching_unwelded_cubes_count_as_intersecting():
+    # Face-to-face contact between separate shells is a self-contact, not a solid.
+    v, f = join(box(), box((1, 0.25, 0.25), (2, 0.75, 0.75)))
+    p = check_printable(v, f)
+    assert not p.no_self_intersections
+
+
+def test_fold_across_a_shared_edge_counts_as_intersecting():
+    # Two triangles on a shared edge, coplanar and overlapping: a fold.
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0.3, 0.3, 0]], float)
+    p = check_printable(v, np.array([[0, 1, 2], [1, 0, 3]]))
+    assert p.intersecting_pairs == 1
+    # The same pair hinged properly along the shared edge does not intersect.
+    v[3] = (0.3, -0.3, 0.0)
+    assert check_printable(v, np.array([[0, 1, 2], [1, 0, 3]])).intersecting_pairs == 0
+
+
+def cube_with_sliver():
+    """A closed cube whose edge a-b has its midpoint m on one side only, patched by the
+    zero-area face (a, b, m): closed, manifold, oriented, but with one degenerate face."""
+    v, f = box()
+    # find a face (a, b, c) and its neighbour across edge (a, b)
+    a, b, c = f[0]
+    nb = [i for i in range(1, 12) if {a, b} <= set(f[i])][0]
+    m = len(v)
+    v = np.vstack([v, 0.5 * (v[a] + v[b])])
+    f = np.vstack([np.delete(f, 0, axis=0), [[a, m, c], [m, b, c], [a, b, m]]])
+    assert nb >= 1
+    return v, f
+
+
+def test_degenerate_face_fails():
+    v, f = cube_with_sliver()
+    p = check_printable(v, f)
+    assert p.closed and p.edge_manifold and p.oriented and p.positive_volume
+    assert p.degenerate_faces == 1 and not p.no_degenerate_faces and not p.ok
+    # Without the sliver, m is a T-junction: both halves touch the unsplit neighbour
+    # face at m, beyond the vertex they share with it, which is a contact.
+    assert p.intersecting_pairs == 2
+
+
+def test_repeated_index_face_is_degenerate():
+    v, f = box()
+    p = check_printable(v, np.vstack([f, [[0, 0, 1]]]))
+    assert p.degenerate_faces == 1 and not p.ok
+
+
+def test_degeneracy_is_decided_exactly():
+    a = np.array([0.1, 0.2, 0.3])
+    # 0, a, 2a, 4a are exactly collinear in doubles (scaling by 2 is exact)...
+    v = np.array([a, 2 * a, 4 * a, 4 * a])
+    # ... and nudging one coordinate by one ulp makes the triangle proper.
+    v[3, 2] = np.nextafter(v[3, 2], 1.0)
+    mask = degenerate_face_mask(v, np.array([[0, 1, 2], [0, 1, 3]]))
+    assert mask.tolist() == [True, False]
+    # Tiny but proper triangles far from the origin are not degenerate.
+    big = 1e6
+    v = np.array([[big, big, big], [big + 1e-9, big, big], [big, big + 1e-9, big]])
+    assert degenerate_face_mask(v, np.array([[0, 1, 2]])).tolist() == [False]
+
+
+def test_duplicate_faces_fail():
+    # Two back-to-back copies of one triangle: closed, oriented, zero volume, and the
+    # exact intersection test skips combinatorial duplicates, so it is counted here.
+    v, f = box()
+    tri = np.array([[0, 1, 2], [0, 2, 1]]) + len(v)
+    v2 = np.vstack([v, [[5, 0, 0], [6, 0, 0], [5, 1, 0]]])
+    p = check_printable(v2, np.vstack([f, tri]))
+    assert p.duplicate_faces == 1 and not p.ok
+
+
+def test_float32_rounding_can_create_an_intersection():
+    # A second box 1e-9 mm away from the first: separate in doubles, but float32 has a
+    # spacing of ~1.2e-7 at 1.0, so the written file has the boxes touching.
+    v, f = join(box(), box((1 + 1e-9, 0.25, 0.25), (2, 0.75, 0.75)))
+    exact = check_printable(v, f)
+    assert exact.ok, exact.failures()
+    written = check_printable(v, f, as_float32=True)
+    assert written.float32
+    assert not written.ok and not written.no_self_intersections
+    # the helper gives the same rounded coordinates
+    assert round_to_float32(v)[9, 0] == 1.0
+
+
+def test_float32_weld_merges_collapsed_vertices():
+    v = np.array([[1.0, 0, 0], [1.0 + 1e-12, 0, 0], [0, 1.0, 0]])
+    uv, uf = weld_exact(round_to_float32(v), np.array([[0, 1, 2]]))
+    assert len(uv) == 2
+    assert uf[0, 0] == uf[0, 1]
+    # -0.0 and +0.0 are the same point
+    uv, _ = weld_exact(np.array([[0.0, 0, 0], [-0.0, 0, 0]]), np.array([[0, 1, 1]]))
+    assert len(uv) == 1
+
+
+def test_empty_and_malformed_input():
+    p = check_printable(np.zeros((0, 3)), np.zeros((0, 3), np.int64))
+    assert not p.ok and p.triangles == 0 and p.failures()
+    with pytest.raises(ValueError):
+        check_printable(np.zeros((3, 3)), np.array([[0, 1, 3]]))
+    with pytest.raises(ValueError):
+        check_printable(np.array([[0, 0, np.nan], [1, 0, 0], [0, 1, 0]]), np.array([[0, 1, 2]]))
+
+
+@pytest.mark.slow
+def test_large_clean_mesh_passes():
+    m = trimesh.creation.torus(10.0, 3.0, major_sections=500, minor_sections=250)
+    assert len(m.faces) == 250_000
+    p = check_printable(m.vertices, m.faces, as_float32=True)
+    assert p.ok, p.failures()
+    assert p.components == 1
