@@ -1,0 +1,238 @@
+"""The embedded slicer's entry points: a closed mesh (mm) in, G-code and a summary out.
+
+``slice_mesh`` places the model (dropped onto z = 0, centred on the bed), slices it with
+manifold3d at mid-layer heights, plans shells/skins/infill per layer, orders travels and emits
+G-code with M73 progress. ``summary`` holds layers, filament_mm, filament_cm3, filament_g and
+estimated_seconds (trapezoidal motion estimate; heating time is not included).
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path as FsPath
+from typing import Any
+
+import numpy as np
+
+from slicer.errors import SliceError
+from slicer.profile import Profile
+
+__all__ = ["SliceError", "SliceResult", "slice_mesh", "slice_file"]
+
+Progress = Callable[[str, float], None] | None
+
+
+@dataclass(frozen=True)
+class SliceResult:
+    """G-code text and a JSON-serialisable summary of the job."""
+
+    gcode: str
+    summary: dict[str, Any]
+
+
+def _to_manifold(vertices: np.ndarray, faces: np.ndarray):
+    from manifold3d import Manifold, Mesh
+
+    mesh = Mesh(vert_properties=np.ascontiguousarray(vertices, dtype=np.float32),
+                tri_verts=np.ascontiguousarray(faces, dtype=np.uint32))
+    man = Manifold(mesh)
+    status = man.status()
+    if str(status) != "Error.NoError":
+        raise SliceError(f"mesh is not a closed manifold solid ({str(status).split('.')[-1]}); "
+                         "repair it first")
+    if man.is_empty() or man.volume() <= 0:
+        raise SliceError("mesh encloses no volume")
+    return man
+
+
+def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progress = None
+               ) -> SliceResult:
+    """Slice a closed triangle mesh (mm) with ``profile``; raises SliceError on bad input."""
+    from slicer import geometry as geo
+    from slicer.gcode import GcodeWriter, fan_command, m73, render_template, start_block
+    from slicer.ordering import order_paths
+    from slicer.planner import LayerPlan, infill_paths, plan_shells, skin_regions, skirt_paths
+
+    def report(stage: str, fraction: float) -> None:
+        if progress is not None:
+            progress(stage, float(min(max(fraction, 0.0), 1.0)))
+
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces)
+    if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3 or len(f) == 0:
+        raise SliceError("mesh has no triangles")
+    if not np.isfinite(v).all():
+        raise SliceError("mesh has non-finite vertex coordinates")
+    if f.min() < 0 or f.max() >= len(v):
+        raise SliceError("mesh faces index missing vertices")
+    v, f = geo.merge_vertices(v, f.astype(np.int64))
+    v, size = geo.place_on_bed(v, profile.build_volume)
+    man = _to_manifold(v, f)
+    tops = geo.layer_tops(float(size[2]), profile.first_layer_height, profile.layer_height)
+    if len(tops) == 0:
+        raise SliceError(f"model is only {size[2]:.3f} mm tall, thinner than half a first layer")
+    heights = np.diff(tops, prepend=0.0)
+    mids = tops - heights / 2
+    n = len(tops)
+    res = profile.resolution
+
+    sections = []
+    for i, z in enumerate(mids):
+        sections.append(man.slice(float(z)).simplify(res))
+        if i % 25 == 0:
+            report("slice", i / n * 0.2)
+    del man
+
+    widths = [profile.first_layer_line_width if i == 0 else profile.line_width for i in range(n)]
+    shells = []
+    for i in range(n):
+        shells.append(plan_shells(sections[i], widths[i], float(heights[i]), profile.perimeters,
+                                  profile.thin_walls, res))
+        if i % 25 == 0:
+            report("shells", 0.2 + i / n * 0.2)
+    spacing = [geo.bead_spacing(widths[i], float(heights[i])) for i in range(n)]
+    solids = skin_regions([s.inner for s in shells], sections, profile.top_layers,
+                          profile.bottom_layers, spacing, profile.infill_percent >= 100)
+    report("skins", 0.45)
+
+    plans: list[LayerPlan] = []
+    for i in range(n):
+        sh = shells[i]
+        paths = []
+        if i < profile.skirt_height:
+            paths.extend(skirt_paths(profile, sections[0], widths[i], float(heights[i])))
+        paths.extend(sh.loops)
+        paths.extend(sh.thin)
+        paths.extend(infill_paths(profile, i, sh.inner, solids[i], widths[i], float(heights[i])))
+        plans.append(LayerPlan(i, float(tops[i]), float(heights[i]), paths,
+                               geo.contours(sections[i])))
+        shells[i] = None  # free as we go
+        if i % 25 == 0:
+            report("infill", 0.45 + i / n * 0.2)
+    del shells, solids, sections
+
+    writer = GcodeWriter(profile)
+    pos = np.array([0.0, 0.0])
+    bodies: list[str] = []
+    seconds: list[float] = []
+    filament = 0.0
+    for i, plan in enumerate(plans):
+        ordered, _ = order_paths(plan.paths, pos)
+        code = writer.layer(plan, ordered, pos)
+        bodies.append(code.text)
+        seconds.append(code.seconds + 0.1)  # Z move and layer change
+        filament += code.filament_mm
+        pos = code.end_pos
+        plan.paths = []
+        if i % 10 == 0:
+            report("gcode", 0.65 + i / n * 0.35)
+    if filament <= 0:
+        raise SliceError("nothing to print: the model produced no extrusions")
+
+    total = float(sum(seconds))
+    p = profile
+    values = dict(p.to_dict())
+    values.update(
+        layer_count=n, max_z=float(tops[-1]),
+        park_z=float(min(tops[-1] + 10.0, p.build_volume[2])),
+        park_y=float(p.build_volume[1] * 0.9),
+        travel_feedrate=p.travel_speed * 60.0,
+    )
+    try:
+        head = start_block(p, values)
+        tail = render_template(p.end_gcode, values)
+    except ValueError as exc:
+        raise SliceError(str(exc)) from None
+
+    cm3 = filament * p.filament_area / 1000.0
+    summary = {
+        "layers": n,
+        "filament_mm": round(filament, 2),
+        "filament_cm3": round(cm3, 3),
+        "filament_g": round(cm3 * p.filament_density, 2),
+        "estimated_seconds": round(total, 1),
+        "height_mm": round(float(tops[-1]), 3),
+        "size_mm": [round(float(s), 3) for s in size],
+        "slicer": "embedded",
+    }
+    parts: list[str] = []
+    if p.comments:
+        parts.append(
+            "; generated by preflight embedded slicer\n"
+            f"; layers: {n}, filament: {filament:.1f} mm ({cm3:.2f} cm3), "
+            f"estimated time: {total:.0f} s\n"
+            f"; nozzle {p.nozzle_diameter} mm, layer {p.layer_height} mm, "
+            f"line {p.line_width} mm, infill {p.infill_percent:g}% {p.infill_pattern}\n"
+        )
+    parts.append(head)
+    done = 0.0
+    z_feed = 600.0
+    for i, body in enumerate(bodies):
+        z = tops[i]
+        parts.append(f";LAYER:{i}\n;Z:{z:.3f}\n" if p.comments else "")
+        parts.append(m73(100.0 * done / total if total > 0 else 0, total - done))
+        if i == 1:
+            if p.temperature != p.first_layer_temperature:
+                parts.append(f"M104 S{p.temperature:.0f}\n")
+            if p.bed_temperature != p.first_layer_bed_temperature:
+                parts.append(f"M140 S{p.bed_temperature:.0f}\n")
+        if i == p.disable_fan_first_layers:
+            parts.append(fan_command(p.fan_speed))
+        parts.append(f"G1 Z{z:.3f} F{z_feed:.0f}\n")
+        parts.append(body)
+        done += seconds[i]
+    parts.append("M73 P100 R0\n")
+    parts.append(tail)
+    report("done", 1.0)
+    return SliceResult("".join(parts), summary)
+
+
+def _load_mesh(path: FsPath) -> tuple[np.ndarray, np.ndarray]:
+    try:
+        from repair.io import load_mesh  # type: ignore[import-not-found]
+    except ImportError:
+        load_mesh = None
+    if load_mesh is not None:
+        try:
+            mesh = load_mesh(path)
+        except ValueError as exc:
+            raise SliceError(str(exc)) from None
+        return np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    import trimesh
+
+    if not path.is_file():
+        raise SliceError(f"no such file: {path}")
+    try:
+        mesh = trimesh.load(str(path), force="mesh")
+    except Exception as exc:  # trimesh raises many types for bad files
+        raise SliceError(f"cannot read {path.name}: {exc}") from None
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise SliceError(f"{path.name} holds no triangles")
+    return np.asarray(mesh.vertices), np.asarray(mesh.faces)
+
+
+def slice_file(in_path: str | os.PathLike, out_path: str | os.PathLike, profile: Profile, *,
+               progress: Progress = None) -> dict[str, Any]:
+    """Slice a mesh file into G-code at ``out_path`` (written atomically); returns the summary."""
+    src = FsPath(in_path)
+    dst = FsPath(out_path)
+    vertices, faces = _load_mesh(src)
+    result = slice_mesh(vertices, faces, profile, progress=progress)
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{dst.name}.", dir=str(dst.parent))
+    try:
+        with os.fdopen(fd, "w", encoding="ascii", newline="\n") as fh:
+            fh.write(result.gcode)
+        os.replace(tmp, dst)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+    summary = dict(result.summary)
+    summary["output"] = str(dst)
+    return summary

@@ -1,0 +1,162 @@
+"""Geometry helpers for the slicer: placement, layer heights, slicing, 2-D hatching.
+
+Units are mm. Heavy work is done by manifold3d (slicing, offsets, booleans) or vectorised
+numpy (hatch-line clipping); nothing here loops over triangles or polygon vertices in Python.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from slicer.errors import SliceError
+
+
+def bead_spacing(width: float, height: float) -> float:
+    """Centre-to-centre distance of touching beads: w − h·(1 − π/4) (rounded-rectangle bead)."""
+    return width - height * (1.0 - math.pi / 4.0)
+
+
+def bead_area(width: float, height: float) -> float:
+    """Cross-section of one bead, mm²: h·(w − h·(1 − π/4))."""
+    return height * bead_spacing(width, height)
+
+
+def merge_vertices(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Weld bit-identical vertices (STL soup → indexed mesh); drops degenerate faces."""
+    uniq, inverse = np.unique(vertices, axis=0, return_inverse=True)
+    f = inverse.reshape(-1)[faces]
+    keep = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])
+    return uniq, f[keep]
+
+
+def place_on_bed(
+    vertices: np.ndarray, build_volume: tuple[float, float, float]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Drop the model onto z = 0 and centre its bounding box on the bed.
+
+    Returns (placed vertices, size xyz). Raises SliceError when the model is larger than the
+    build volume; the message gives both sizes.
+    """
+    lo = vertices.min(axis=0)
+    hi = vertices.max(axis=0)
+    size = hi - lo
+    bv = np.asarray(build_volume, dtype=np.float64)
+    if np.any(size > bv + 1e-9):
+        raise SliceError(
+            "model is {:.1f} × {:.1f} × {:.1f} mm, larger than the build volume "
+            "{:.0f} × {:.0f} × {:.0f} mm".format(*size, *bv)
+        )
+    shift = np.array([bv[0] / 2 - (lo[0] + hi[0]) / 2, bv[1] / 2 - (lo[1] + hi[1]) / 2, -lo[2]])
+    return vertices + shift, size
+
+
+def layer_tops(height: float, first_layer_height: float, layer_height: float) -> np.ndarray:
+    """Top z of every layer (mm). Layer k is printed if its mid-plane lies below ``height``."""
+    if height <= 0:
+        return np.zeros(0)
+    if first_layer_height / 2 >= height:
+        return np.zeros(0)
+    n_rest = int(math.floor((height - first_layer_height) / layer_height + 0.5 - 1e-9))
+    n_rest = max(n_rest, 0)
+    # the mid-plane of the last layer must still be inside the model
+    while n_rest > 0 and first_layer_height + (n_rest - 0.5) * layer_height >= height:
+        n_rest -= 1
+    return first_layer_height + layer_height * np.arange(0, n_rest + 1, dtype=np.float64)
+
+
+def contours(cs) -> list[np.ndarray]:
+    """Contours of a CrossSection as float64 (n, 2) arrays (outer CCW, holes CW)."""
+    return [np.asarray(p, dtype=np.float64) for p in cs.to_polygons() if len(p) >= 3]
+
+
+def polygon_edges(polys: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """All edges of closed polygons as two (E, 2) arrays of start and end points."""
+    if not polys:
+        z = np.zeros((0, 2))
+        return z, z
+    a = np.concatenate(polys)
+    b = np.concatenate([np.roll(p, -1, axis=0) for p in polys])
+    return a, b
+
+
+def hatch(
+    polys: list[np.ndarray], angle_deg: float, spacing: float, phase: float = 0.0,
+    min_length: float = 0.0,
+) -> np.ndarray:
+    """Clip the parallel lines ``y' = phase + k·spacing`` (in a frame rotated by ``angle_deg``)
+    against the even-odd interior of ``polys``.
+
+    Returns segments (k, 2, 2) in bed coordinates, sorted by scanline then position, every
+    other scanline reversed (serpentine), so that consecutive segments are near each other.
+    Vectorised: cost is O(edges + crossings) numpy work.
+    """
+    a, b = polygon_edges(polys)
+    if len(a) == 0 or spacing <= 0:
+        return np.zeros((0, 2, 2))
+    th = math.radians(angle_deg)
+    c, s = math.cos(th), math.sin(th)
+    rot = np.array([[c, -s], [s, c]])  # columns: rotated-frame axes in bed coordinates
+    ra = a @ rot
+    rb = b @ rot
+    y0, y1 = ra[:, 1], rb[:, 1]
+    ylo = np.minimum(y0, y1)
+    yhi = np.maximum(y0, y1)
+    kmin = np.ceil((ylo - phase) / spacing).astype(np.int64)
+    kmax = np.ceil((yhi - phase) / spacing).astype(np.int64) - 1  # half-open [ylo, yhi)
+    count = np.maximum(kmax - kmin + 1, 0)
+    total = int(count.sum())
+    if total == 0:
+        return np.zeros((0, 2, 2))
+    edge = np.repeat(np.arange(len(a)), count)
+    starts = np.cumsum(count) - count
+    k = kmin[edge] + (np.arange(total) - np.repeat(starts, count))
+    y = phase + k * spacing
+    t = (y - y0[edge]) / (y1[edge] - y0[edge])
+    x = ra[edge, 0] + t * (rb[edge, 0] - ra[edge, 0])
+    order = np.lexsort((x, k))
+    k = k[order]
+    x = x[order]
+    if len(k) % 2:  # numerically inconsistent input; drop the odd crossing out safely
+        k = k[:-1]
+        x = x[:-1]
+    k0, k1 = k[0::2], k[1::2]
+    x0, x1 = x[0::2], x[1::2]
+    ok = (k0 == k1) & (x1 - x0 > max(min_length, 1e-6))
+    k0, x0, x1 = k0[ok], x0[ok], x1[ok]
+    yy = phase + k0 * spacing
+    # serpentine: reverse direction on odd scanlines
+    flip = (k0 % 2) == 1
+    xs = np.where(flip, x1, x0)
+    xe = np.where(flip, x0, x1)
+    seg = np.empty((len(k0), 2, 2))
+    seg[:, 0, 0], seg[:, 0, 1] = xs, yy
+    seg[:, 1, 0], seg[:, 1, 1] = xe, yy
+    return seg @ rot.T
+
+
+def segments_cross(
+    p: np.ndarray, q: np.ndarray, a: np.ndarray, b: np.ndarray, chunk: int = 2_000_000
+) -> np.ndarray:
+    """For each segment p[i]→q[i], does it properly cross any edge a[j]→b[j]? (bool (n,))."""
+    n, m = len(p), len(a)
+    out = np.zeros(n, dtype=bool)
+    if n == 0 or m == 0:
+        return out
+    step = max(1, chunk // m)
+    for i0 in range(0, n, step):
+        P, Q = p[i0:i0 + step, None, :], q[i0:i0 + step, None, :]
+        A, B = a[None], b[None]
+
+        def orient(u, v, w):
+            return (v[..., 0] - u[..., 0]) * (w[..., 1] - u[..., 1]) - (
+                v[..., 1] - u[..., 1]) * (w[..., 0] - u[..., 0])
+
+        d1 = orient(P, Q, A)
+        d2 = orient(P, Q, B)
+        d3 = orient(A, B, P)
+        d4 = orient(A, B, Q)
+        hit = (d1 * d2 < 0) & (d3 * d4 < 0)
+        out[i0:i0 + step] = hit.any(axis=1)
+    return out

@@ -1,0 +1,206 @@
+"""Per-layer toolpath planning: perimeters, thin walls, top/bottom skins, infill, skirt.
+
+Units mm. Every layer's cross-section is a manifold3d CrossSection; shells are inward offsets
+at the bead spacing ``s = w − h·(1 − π/4)`` so that touching beads fill the area exactly.
+Parts of a region too narrow for a full loop (thinner than two spacings, e.g. a repaired
+sheet exactly one nozzle thick) are never dropped: they become *thin walls*, printed as a loop
+around the region's middle with beads of half the local width, which deposits the region's
+area.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from manifold3d import CrossSection, JoinType, OpType
+
+from slicer.geometry import bead_spacing, contours, hatch
+from slicer.profile import Profile
+
+MITER = JoinType.Miter
+
+
+@dataclass(slots=True)
+class Path:
+    """One extrusion path: points (n, 2) mm; ``closed`` loops return to their first point."""
+
+    points: np.ndarray
+    closed: bool
+    width: float
+    role: str
+
+
+@dataclass(slots=True)
+class LayerPlan:
+    """Everything printed at one layer (z = top of the layer, mm)."""
+
+    index: int
+    z: float
+    height: float
+    paths: list[Path] = field(default_factory=list)
+    outline: list[np.ndarray] = field(default_factory=list)
+
+
+@dataclass(slots=True)
+class _Shells:
+    loops: list[Path]
+    thin: list[Path]
+    inner: CrossSection  # region left for infill
+
+
+def _loops(cs: CrossSection, width: float, role: str) -> list[Path]:
+    return [Path(p, True, width, role) for p in contours(cs)]
+
+
+def _thin_paths(lost: CrossSection, spacing: float, height: float) -> list[Path]:
+    """Print each narrow component as a loop around its middle with half-width beads."""
+    out: list[Path] = []
+    if lost.is_empty():
+        return out
+    min_area = 0.5 * spacing * spacing
+    for comp in lost.decompose():
+        area = comp.area()
+        if area < min_area:
+            continue
+        polys = contours(comp)
+        perim = sum(float(np.linalg.norm(np.diff(p, axis=0, append=p[:1]), axis=1).sum())
+                    for p in polys)
+        if perim <= 0:
+            continue
+        t = 2.0 * area / perim  # mean width of a strip
+        if t < 0.2 * spacing:
+            continue
+        core = comp.offset(-t / 4.0, MITER).simplify(spacing * 0.03)
+        if core.is_empty():
+            continue
+        width = t / 2.0 + height * (1.0 - math.pi / 4.0)  # spacing of this bead = t / 2
+        out.extend(Path(p, True, width, "thin_wall") for p in contours(core))
+    return out
+
+
+def plan_shells(
+    section: CrossSection, width: float, height: float, perimeters: int, thin_walls: bool,
+    resolution: float,
+) -> _Shells:
+    """Perimeter loops (outermost first), thin-wall loops and the region left for infill."""
+    s = bead_spacing(width, height)
+    half = s / 2.0
+    region = section
+    loops: list[Path] = []
+    lost_parts: list[CrossSection] = []
+    for k in range(perimeters):
+        if region.is_empty():
+            break
+        centre = region.offset(-half, MITER)
+        # parts of the centre-line region narrower than one spacing would make a loop whose
+        # two sides overlap: treat them as thin walls instead
+        inner = centre.offset(-half, MITER)
+        ok = inner.offset(half, MITER) if not inner.is_empty() else inner
+        if not ok.is_empty():
+            ok = ok.simplify(resolution)
+            loops.extend(_loops(ok, width, "external_perimeter" if k == 0 else "perimeter"))
+            covered = ok.offset(half, MITER)
+            lost_parts.append(region - covered)
+            region = inner
+        else:
+            lost_parts.append(region)
+            region = CrossSection()
+    thin: list[Path] = []
+    if thin_walls and lost_parts:
+        lost = CrossSection.batch_boolean(lost_parts, OpType.Add) if len(lost_parts) > 1 \
+            else lost_parts[0]
+        thin = _thin_paths(lost, s, height)
+    return _Shells(loops, thin, region)
+
+
+def skin_regions(
+    inner: list[CrossSection], sections: list[CrossSection], top: int, bottom: int,
+    spacing: list[float], all_solid: bool,
+) -> list[CrossSection]:
+    """Solid part of each layer's infill region: what is not covered by the ``top`` layers
+    above and the ``bottom`` layers below (outside the model counts as uncovered)."""
+    n = len(inner)
+    out: list[CrossSection] = []
+    for i in range(n):
+        r = inner[i]
+        if r.is_empty() or all_solid:
+            out.append(r)
+            continue
+        if i - bottom < 0 or i + top >= n:
+            out.append(r)
+            continue
+        neigh = [sections[j] for j in range(i - bottom, i + top + 1) if j != i]
+        cover = CrossSection.batch_boolean(neigh, OpType.Intersect) if len(neigh) > 1 \
+            else neigh[0]
+        solid = r - cover
+        if solid.is_empty():
+            out.append(solid)
+            continue
+        s = spacing[i]
+        # drop slivers, then grow a little into the sparse region to anchor the skin
+        solid = solid.offset(-s / 2, MITER)
+        if solid.is_empty():
+            out.append(solid)
+            continue
+        out.append(solid.offset(1.5 * s, MITER) ^ r)
+    return out
+
+
+def _hatch_paths(region: CrossSection, angles: list[float], spacing: float, width: float,
+                 role: str, min_length: float) -> list[Path]:
+    if region.is_empty():
+        return []
+    polys = contours(region)
+    out: list[Path] = []
+    for ang in angles:
+        segs = hatch(polys, ang, spacing, 0.0, min_length)
+        out.extend(Path(seg, False, width, role) for seg in segs)
+    return out
+
+
+def infill_paths(
+    profile: Profile, layer_index: int, region: CrossSection, solid: CrossSection,
+    width: float, height: float,
+) -> list[Path]:
+    """Solid (100 %, alternating ±angle) and sparse (rectilinear/grid at infill_percent)."""
+    s = bead_spacing(width, height)
+    base = profile.infill_angle
+    alt = base if layer_index % 2 == 0 else base + 90.0
+    out = _hatch_paths(solid, [alt], s, width, "solid_infill", 0.25 * s)
+    pct = profile.infill_percent
+    if pct <= 0 or region.is_empty():
+        return out
+    sparse = region - solid if not solid.is_empty() else region
+    if sparse.is_empty():
+        return out
+    if pct >= 100:
+        return out + _hatch_paths(sparse, [alt], s, width, "solid_infill", 0.25 * s)
+    if profile.infill_pattern == "grid":
+        return out + _hatch_paths(sparse, [base, base + 90.0], 2.0 * s * 100.0 / pct, width,
+                                  "sparse_infill", s)
+    return out + _hatch_paths(sparse, [alt], s * 100.0 / pct, width, "sparse_infill", s)
+
+
+def skirt_paths(profile: Profile, first: CrossSection, width: float, height: float
+                ) -> list[Path]:
+    """Skirt loops around the first layer's convex hull, dropped if they would leave the bed."""
+    if profile.skirts <= 0 or first.is_empty():
+        return []
+    s = bead_spacing(width, height)
+    hull = first.hull()
+    bx, by = profile.build_volume[0], profile.build_volume[1]
+    out: list[Path] = []
+    for j in range(profile.skirts):
+        ring = hull.offset(profile.skirt_distance + s / 2 + j * s, JoinType.Round)
+        polys = contours(ring.simplify(profile.resolution))
+        if not polys:
+            continue
+        pts = np.concatenate(polys)
+        m = width / 2
+        if pts[:, 0].min() < m or pts[:, 1].min() < m or pts[:, 0].max() > bx - m \
+                or pts[:, 1].max() > by - m:
+            break
+        out.extend(Path(p, True, width, "skirt") for p in polys)
+    return out[::-1]  # outermost first
