@@ -102,9 +102,8 @@ class GcodeWriter:
             out.append("G92 E0\n")
             self.e_abs = 0.0
         # travels and whether each needs a retraction
-        starts = np.array([o[0][0] for o in ordered]) if ordered else np.zeros((0, 2))
-        prev = np.vstack([pos[None], np.array([o[0][-1] for o in ordered[:-1]])]) \
-            if ordered else np.zeros((0, 2))
+        starts = np.array([o[0][0] for o in ordered]).reshape(-1, 2)
+        prev = np.array([pos] + [o[0][-1] for o in ordered[:-1]]).reshape(-1, 2)[:len(starts)]
         dist = np.hypot(*(starts - prev).T) if len(starts) else np.zeros(0)
         retract = dist > p.retract_min_travel
         short = np.flatnonzero(~retract & (dist > 1e-6))

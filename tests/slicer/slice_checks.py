@@ -1,0 +1,113 @@
+"""Model builders and geometric checks for the slicer tests (independent of slicer code).
+
+Models are closed manifold solids in mm built with trimesh/manifold3d. Checks replay the
+G-code (gcode_replay) and compare the deposited beads with the model's own cross-sections.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import trimesh
+from gcode_replay import Replay
+from manifold3d import CrossSection, FillRule, Manifold, Mesh
+
+BEAD_SHAPE = 1.0 - math.pi / 4.0  # rounded-rectangle bead: area = h·(w − h·BEAD_SHAPE)
+
+
+def manifold_of(vertices, faces) -> Manifold:
+    return Manifold(Mesh(vert_properties=np.asarray(vertices, np.float32),
+                         tri_verts=np.asarray(faces, np.uint32)))
+
+
+def mesh_of(m: Manifold) -> tuple[np.ndarray, np.ndarray]:
+    mesh = m.to_mesh()
+    return np.asarray(mesh.vert_properties[:, :3], float), np.asarray(mesh.tri_verts, np.int64)
+
+
+def cube(size=20.0):
+    b = trimesh.creation.box((size, size, size))
+    return b.vertices, b.faces
+
+
+def sphere(radius=10.0, subdivisions=4):
+    s = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
+    return s.vertices, s.faces
+
+
+def part_with_holes():
+    plate = Manifold.cube([30, 20, 6])
+    hole = Manifold.cylinder(20, 3.0, 3.0, 48).translate([8, 10, -5])
+    hole2 = Manifold.cylinder(20, 2.0, 2.0, 40).translate([22, 10, -5])
+    return mesh_of(plate - hole - hole2)
+
+
+def hollow_box(wall=0.8):
+    outer = Manifold.cube([20, 20, 12])
+    inner = Manifold.cube([20 - 2 * wall, 20 - 2 * wall, 20]).translate([wall, wall, 1.0])
+    return mesh_of(outer - inner)
+
+
+def bridge_part():
+    """Two pillars joined by a 16 mm bridge, plus a 5 mm overhanging ledge."""
+    left = Manifold.cube([4, 8, 10])
+    right = Manifold.cube([4, 8, 10]).translate([20, 0, 0])
+    deck = Manifold.cube([29, 8, 2]).translate([0, 0, 10])
+    return mesh_of(left + right + deck)
+
+
+def thin_pin(diameter=2.0, height=25.0):
+    return mesh_of(Manifold.cylinder(height, diameter / 2, diameter / 2, 32))
+
+
+def sheet(thickness=0.4, length=20.0, height=10.0):
+    """A repaired sheet: a plate exactly ``thickness`` thick, standing up."""
+    return mesh_of(Manifold.cube([thickness, length, height]))
+
+
+# ---------------------------------------------------------------------------------------
+def placed(vertices, faces, bed_xy):
+    """The placement the slicer promises: dropped onto z = 0, bbox centred on the bed."""
+    v = np.asarray(vertices, float)
+    lo, hi = v.min(0), v.max(0)
+    shift = np.array([bed_xy[0] / 2 - (lo[0] + hi[0]) / 2, bed_xy[1] / 2 - (lo[1] + hi[1]) / 2,
+                      -lo[2]])
+    return manifold_of(v + shift, faces)
+
+
+def expected_layers(height, first, layer):
+    """Count of layers whose mid-plane lies inside a model ``height`` tall."""
+    count = 0
+    while True:
+        mid = first / 2 if count == 0 else first + (count - 0.5) * layer
+        if mid >= height - 1e-9:
+            return count
+        count += 1
+
+
+def _octagon(c, r):
+    a = np.linspace(0, 2 * np.pi, 9)[:-1]
+    return np.stack([c[0] + r * np.cos(a), c[1] + r * np.sin(a)], axis=1)
+
+
+def bead_footprint(rep: Replay, idx: np.ndarray, height: float, filament_diameter: float
+                   ) -> CrossSection:
+    """Union of the beads of moves ``idx``; each bead's width follows from its E."""
+    p0 = rep.start[idx, :2]
+    p1 = rep.end[idx, :2]
+    d = p1 - p0
+    length = np.hypot(d[:, 0], d[:, 1])
+    area_fil = math.pi * (filament_diameter / 2) ** 2
+    width = rep.de[idx] * area_fil / (length * height) + height * BEAD_SHAPE
+    n = np.stack([-d[:, 1], d[:, 0]], axis=1) / length[:, None] * (width[:, None] / 2)
+    rects = np.stack([p0 - n, p1 - n, p1 + n, p0 + n], axis=1)
+    contours = list(rects)
+    # round joints: an octagon (inscribed, so never larger than the bead) at every end
+    for c, w in zip(p1, width, strict=True):
+        contours.append(_octagon(c, w / 2))
+    return CrossSection(contours, FillRule.Positive)
+
+
+def layer_heights(zs: list[float]) -> list[float]:
+    return [zs[0]] + [b - a for a, b in zip(zs[:-1], zs[1:], strict=True)]
