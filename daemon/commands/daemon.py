@@ -1,0 +1,226 @@
+"""CLI: ``preflight run``, ``preflight status``, ``preflight jobs ...``, ``preflight demo``.
+
+The CLI talks to the running daemon through the SQLite journal: it reads jobs
+and the daemon's status row directly, and writes print / requeue / cancel
+requests as rows that the daemon polls (every 0.2 s) and answers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+
+CONFIG_HELP = ("TOML config file (default: $PREFLIGHT_CONFIG, else /etc/preflight/preflight.toml, "
+               "else built-in defaults)")
+
+
+def _fail(msg: str, code: int = 1) -> int:
+    print(f"preflight: {msg}", file=sys.stderr)
+    return code
+
+
+def _config_arg(p: argparse.ArgumentParser, *, suppress: bool = False) -> None:
+    p.add_argument("--config", "-c", metavar="FILE", help=CONFIG_HELP,
+                   default=argparse.SUPPRESS if suppress else None)
+
+
+def _load(args: argparse.Namespace):
+    import os
+
+    from daemon.config import load_config
+
+    path = getattr(args, "config", None) or os.environ.get("PREFLIGHT_CONFIG") or None
+    return load_config(path)
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser("run", help="run the daemon in the foreground",
+                              description="Watch the spool folder, repair, slice and print.")
+    _config_arg(p)
+    p.set_defaults(func=cmd_run)
+
+    p = subparsers.add_parser("status", help="show the running daemon's status")
+    _config_arg(p)
+    p.add_argument("--json", action="store_true", help="print the status as JSON")
+    p.set_defaults(func=cmd_status)
+
+    p = subparsers.add_parser("jobs", help="list, show, print, requeue or cancel jobs")
+    _config_arg(p)
+    jsub = p.add_subparsers(dest="jobs_command", metavar="ACTION")
+    q = jsub.add_parser("list", help="list jobs (newest last)")
+    _config_arg(q, suppress=True)
+    q.add_argument("--all", action="store_true", help="all jobs, not only the last 50")
+    q.add_argument("--json", action="store_true")
+    q.set_defaults(func=cmd_jobs_list)
+    q = jsub.add_parser("show", help="show one job with its reports and history")
+    _config_arg(q, suppress=True)
+    q.add_argument("id", type=int)
+    q.add_argument("--json", action="store_true")
+    q.set_defaults(func=cmd_jobs_show)
+    for action, text in (("print", "print a ready job (when auto_print is off)"),
+                         ("requeue", "re-send an interrupted print, or redo a failed/cancelled "
+                                     "job"),
+                         ("cancel", "cancel a job; a running print stops with cooldown and "
+                                    "motors off")):
+        q = jsub.add_parser(action, help=text)
+        _config_arg(q, suppress=True)
+        q.add_argument("id", type=int)
+        q.add_argument("--wait", type=float, default=15.0, metavar="S",
+                       help="seconds to wait for the daemon's answer (default 15)")
+        q.set_defaults(func=cmd_jobs_request, action=action)
+    p.set_defaults(func=lambda a, _p=p: (_p.print_help(sys.stderr), 2)[1])
+
+    p = subparsers.add_parser("demo", help="run the daemon on a temporary spool with the "
+                                           "virtual printer and print a shipped broken model")
+    p.add_argument("--keep", action="store_true", help="keep the temporary folder")
+    p.add_argument("--speedup", type=float, default=None,
+                   help="virtual printer speed-up factor")
+    p.set_defaults(func=cmd_demo)
+
+
+# --- run ---------------------------------------------------------------------------------
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from daemon.config import ConfigError, check_profile, setup_logging
+
+    try:
+        cfg = _load(args)
+        check_profile(cfg)
+    except ConfigError as e:
+        return _fail(str(e), 2)
+    setup_logging(cfg.daemon.log_level)
+    from daemon.service import AlreadyRunning, Daemon
+
+    try:
+        d = Daemon(cfg)
+    except AlreadyRunning as e:
+        return _fail(str(e))
+    except OSError as e:
+        return _fail(f"cannot set up {e.filename or 'the state/spool folders'}: {e.strerror}")
+    return d.run()
+
+
+# --- status and jobs ---------------------------------------------------------------------
+
+def _journal(args: argparse.Namespace):
+    from daemon.config import ConfigError
+    from daemon.journal import Journal
+
+    try:
+        cfg = _load(args)
+    except ConfigError as e:
+        raise SystemExit(_fail(str(e), 2)) from None
+    if not cfg.journal_path.exists():
+        raise SystemExit(_fail(f"no journal at {cfg.journal_path}: the daemon has never run with "
+                               f"this configuration ({cfg.source})"))
+    return cfg, Journal(cfg.journal_path, readonly=True)
+
+
+def cmd_status(args: argparse.Namespace) -> int:
+    from daemon.service import Daemon, daemon_alive
+
+    cfg, j = _journal(args)
+    st = j.get_meta("status")
+    alive = daemon_alive(st)
+    if args.json:
+        print(json.dumps({"alive": alive, **(st or {})}, indent=2))
+        return 0 if alive else 3
+    if not alive:
+        last = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(st["heartbeat"])) if st else "?"
+        print(f"preflight daemon: not running (last seen {last})")
+        counts = j.counts()
+        print("jobs: " + (", ".join(f"{v} {k}" for k, v in sorted(counts.items())) or "none"))
+        return 3
+    print(f"preflight daemon: running (pid {st['pid']}, since "
+          f"{time.strftime('%H:%M:%S', time.localtime(st['started']))}, config {st['config']})")
+    print(Daemon.status_line(st))
+    p = st.get("printer") or {}
+    info = p.get("info") or {}
+    if info:
+        bv = info.get("build_volume")
+        print(f"printer: {p.get('port')} - {info.get('firmware')}, nozzle "
+              f"{info.get('nozzle_diameter')} mm ({info.get('nozzle_source')}), build volume "
+              f"{' x '.join(f'{v:g}' for v in bv) + ' mm' if bv else 'unknown'}")
+    elif p.get("message"):
+        print(f"printer: {p.get('port')} - {p.get('state')}: {p['message']}")
+    print(f"spool: {st['spool']} ({st.get('waiting_files', 0)} file(s) being written)")
+    print("jobs: " + (", ".join(f"{v} {k}" for k, v in sorted(st["jobs"].items())) or "none"))
+    return 0
+
+
+def _job_line(job) -> str:
+    prog = ""
+    if job.progress is not None and str(job.state) in ("repairing", "slicing", "printing"):
+        prog = f" {100 * job.progress:.0f}%"
+    when = time.strftime("%m-%d %H:%M", time.localtime(job.updated))
+    reason = f"  {job.reason}" if job.reason and str(job.state) != "done" else ""
+    return f"{job.id:>5}  {str(job.state) + prog:<16} {when}  {job.source_name}{reason}"
+
+
+def cmd_jobs_list(args: argparse.Namespace) -> int:
+    _, j = _journal(args)
+    jobs = j.jobs(limit=None if args.all else 50)
+    if args.json:
+        print(json.dumps([x.to_dict() for x in jobs], indent=2, default=str))
+        return 0
+    if not jobs:
+        print("no jobs")
+        return 0
+    print(f"{'ID':>5}  {'STATE':<16} {'UPDATED':<11}  FILE")
+    for job in jobs:
+        print(_job_line(job))
+    return 0
+
+
+def cmd_jobs_show(args: argparse.Namespace) -> int:
+    from daemon.report import report_dict, report_text
+
+    _, j = _journal(args)
+    job = j.get(args.id)
+    if job is None:
+        return _fail(f"there is no job {args.id}")
+    hist = j.history(job.id)
+    if args.json:
+        print(json.dumps(report_dict(job, hist), indent=2, default=str))
+        return 0
+    sys.stdout.write(report_text(job, hist))
+    if job.outputs:
+        for k, v in sorted(job.outputs.items()):
+            print(f"  {k}: {v}")
+    return 0
+
+
+def cmd_jobs_request(args: argparse.Namespace) -> int:
+    from daemon.service import daemon_alive
+
+    cfg, j = _journal(args)
+    from daemon.journal import Journal
+
+    if j.get(args.id) is None:
+        return _fail(f"there is no job {args.id}")
+    jw = Journal(cfg.journal_path)
+    req = jw.add_request(args.id, args.action)
+    if not daemon_alive(jw.get_meta("status")):
+        return _fail(f"the daemon is not running; the {args.action} request for job {args.id} "
+                     "is recorded and will be carried out when it starts", 3)
+    end = time.monotonic() + args.wait
+    while time.monotonic() < end:
+        r = jw.request(req)
+        if r and r["handled"]:
+            if r["ok"]:
+                print(r["message"])
+                return 0
+            return _fail(r["message"])
+        time.sleep(0.1)
+    return _fail(f"the daemon did not answer within {args.wait:g} s; the request stays recorded")
+
+
+# --- demo --------------------------------------------------------------------------------
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from daemon.demo import run_demo
+
+    return run_demo(keep=args.keep, speedup=args.speedup)
+

@@ -1,0 +1,299 @@
+"""The job journal: one SQLite database (WAL) shared by the daemon and the CLI.
+
+Tables:
+- ``jobs``: one row per dropped file, its state, paths, ε and its source, the
+  printer info, the reports (JSON text) and the reason of a failure.
+- ``transitions``: every state change with its time (seconds since the epoch).
+- ``requests``: CLI -> daemon requests (print / requeue / cancel), polled by the daemon.
+- ``meta``: key/value; the daemon's status and heartbeat, the last printer info.
+
+The state machine of :mod:`daemon.states` is enforced in :meth:`Journal.transition`.
+All methods are thread-safe (one connection, one lock).
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from daemon.states import JobState, check_transition
+
+SCHEMA = """
+CREATE TABLE IF NOT EXISTS jobs (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    name TEXT NOT NULL,            -- sanitised file name
+    source_name TEXT NOT NULL,     -- the name as dropped
+    kind TEXT NOT NULL,            -- 'mesh' | 'gcode'
+    state TEXT NOT NULL,
+    created REAL NOT NULL,
+    updated REAL NOT NULL,
+    work_dir TEXT,
+    input_path TEXT,
+    repaired_path TEXT,
+    gcode_path TEXT,
+    epsilon REAL,
+    epsilon_source TEXT,
+    printer_info TEXT,
+    repair_report TEXT,
+    slice_summary TEXT,
+    print_result TEXT,
+    reason TEXT,
+    attempts INTEGER NOT NULL DEFAULT 0,
+    print_requested INTEGER NOT NULL DEFAULT 0,
+    progress REAL,
+    outputs TEXT
+);
+CREATE INDEX IF NOT EXISTS jobs_state ON jobs(state);
+CREATE TABLE IF NOT EXISTS transitions (
+    job_id INTEGER NOT NULL,
+    from_state TEXT,
+    to_state TEXT NOT NULL,
+    at REAL NOT NULL,
+    note TEXT
+);
+CREATE INDEX IF NOT EXISTS transitions_job ON transitions(job_id);
+CREATE TABLE IF NOT EXISTS requests (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    job_id INTEGER NOT NULL,
+    action TEXT NOT NULL,
+    created REAL NOT NULL,
+    handled REAL,
+    ok INTEGER,
+    message TEXT
+);
+CREATE TABLE IF NOT EXISTS meta (
+    key TEXT PRIMARY KEY,
+    value TEXT NOT NULL
+);
+"""
+
+JSON_FIELDS = ("printer_info", "repair_report", "slice_summary", "print_result", "outputs")
+
+
+@dataclass(frozen=True)
+class Job:
+    """One row of ``jobs``; JSON fields are decoded."""
+
+    id: int
+    name: str
+    source_name: str
+    kind: str
+    state: JobState
+    created: float
+    updated: float
+    work_dir: str | None
+    input_path: str | None
+    repaired_path: str | None
+    gcode_path: str | None
+    epsilon: float | None
+    epsilon_source: str | None
+    printer_info: dict | None
+    repair_report: dict | None
+    slice_summary: dict | None
+    print_result: dict | None
+    reason: str | None
+    attempts: int
+    print_requested: bool
+    progress: float | None
+    outputs: dict | None
+
+    def to_dict(self) -> dict[str, Any]:
+        d = dict(self.__dict__)
+        d["state"] = str(self.state)
+        return d
+
+
+class Journal:
+    """Thread-safe access to the journal database at ``path``."""
+
+    def __init__(self, path: str | Path, *, readonly: bool = False) -> None:
+        self.path = Path(path)
+        if not readonly:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._lock = threading.RLock()
+        self._db = sqlite3.connect(str(self.path), timeout=10.0, check_same_thread=False,
+                                   isolation_level=None)
+        self._db.row_factory = sqlite3.Row
+        self._db.execute("PRAGMA busy_timeout = 10000")
+        if not readonly:
+            self._db.execute("PRAGMA journal_mode = WAL")
+            self._db.execute("PRAGMA synchronous = FULL")
+            self._db.executescript(SCHEMA)
+
+    def close(self) -> None:
+        with self._lock:
+            self._db.close()
+
+    # -- low level ------------------------------------------------------------------------
+    def _tx(self):
+        return _Tx(self)
+
+    @staticmethod
+    def _row_to_job(row: sqlite3.Row) -> Job:
+        d = dict(row)
+        for f in JSON_FIELDS:
+            d[f] = json.loads(d[f]) if d[f] else None
+        d["state"] = JobState(d["state"])
+        d["print_requested"] = bool(d["print_requested"])
+        return Job(**d)
+
+    # -- jobs -----------------------------------------------------------------------------
+    def add_job(self, *, name: str, source_name: str, kind: str, work_dir: str,
+                input_path: str, state: JobState = JobState.QUEUED, reason: str | None = None,
+                print_requested: bool = False) -> int:
+        now = time.time()
+        with self._tx() as db:
+            cur = db.execute(
+                "INSERT INTO jobs (name, source_name, kind, state, created, updated, work_dir,"
+                " input_path, reason, print_requested) VALUES (?,?,?,?,?,?,?,?,?,?)",
+                (name, source_name, kind, str(JobState.QUEUED), now, now, work_dir, input_path,
+                 None, int(print_requested)))
+            job_id = int(cur.lastrowid)
+            db.execute("INSERT INTO transitions VALUES (?,?,?,?,?)",
+                       (job_id, None, str(JobState.QUEUED), now, "file taken from the spool"))
+            if state != JobState.QUEUED:
+                check_transition(JobState.QUEUED, state)
+                db.execute("UPDATE jobs SET state=?, reason=? WHERE id=?",
+                           (str(state), reason, job_id))
+                db.execute("INSERT INTO transitions VALUES (?,?,?,?,?)",
+                           (job_id, str(JobState.QUEUED), str(state), now, reason))
+        return job_id
+
+    def get(self, job_id: int) -> Job | None:
+        with self._lock:
+            row = self._db.execute("SELECT * FROM jobs WHERE id=?", (job_id,)).fetchone()
+        return self._row_to_job(row) if row else None
+
+    def jobs(self, states: set[JobState] | None = None, *, limit: int | None = None) -> list[Job]:
+        q = "SELECT * FROM jobs"
+        args: list[Any] = []
+        if states:
+            q += f" WHERE state IN ({','.join('?' * len(states))})"
+            args += [str(s) for s in states]
+        q += " ORDER BY id"
+        if limit:
+            inner = q.replace(" ORDER BY id", " ORDER BY id DESC")
+            q = f"SELECT * FROM ({inner} LIMIT {int(limit)}) ORDER BY id"
+        with self._lock:
+            rows = self._db.execute(q, args).fetchall()
+        return [self._row_to_job(r) for r in rows]
+
+    def counts(self) -> dict[str, int]:
+        with self._lock:
+            rows = self._db.execute("SELECT state, COUNT(*) FROM jobs GROUP BY state").fetchall()
+        return {r[0]: r[1] for r in rows}
+
+    def transition(self, job_id: int, new: JobState, *, note: str | None = None,
+                   expect: JobState | set[JobState] | None = None, **fields: Any) -> Job:
+        """Move a job to ``new`` (checked against the state machine) and set ``fields``.
+
+        ``expect``: the state(s) the job must be in, else TransitionError (guards races
+        between the daemon and the CLI).
+        """
+        from daemon.states import TransitionError
+
+        now = time.time()
+        with self._tx() as db:
+            row = db.execute("SELECT state FROM jobs WHERE id=?", (job_id,)).fetchone()
+            if row is None:
+                raise KeyError(f"no job {job_id}")
+            old = JobState(row[0])
+            if expect is not None:
+                exp = {expect} if isinstance(expect, JobState) else set(expect)
+                if old not in exp:
+                    raise TransitionError(f"job {job_id} is {old}, not "
+                                          f"{' or '.join(sorted(map(str, exp)))}")
+            check_transition(old, new)
+            self._set(db, job_id, state=str(new), updated=now, **fields)
+            db.execute("INSERT INTO transitions VALUES (?,?,?,?,?)",
+                       (job_id, str(old), str(new), now, note))
+        job = self.get(job_id)
+        assert job is not None
+        return job
+
+    def update(self, job_id: int, **fields: Any) -> None:
+        """Set fields without a state change (progress, reports)."""
+        with self._tx() as db:
+            self._set(db, job_id, updated=time.time(), **fields)
+
+    @staticmethod
+    def _set(db: sqlite3.Connection, job_id: int, **fields: Any) -> None:
+        if not fields:
+            return
+        cols, vals = [], []
+        for k, v in fields.items():
+            if k in JSON_FIELDS and v is not None:
+                v = json.dumps(v)
+            if isinstance(v, bool):
+                v = int(v)
+            cols.append(f"{k}=?")
+            vals.append(v)
+        db.execute(f"UPDATE jobs SET {', '.join(cols)} WHERE id=?", (*vals, job_id))
+
+    def history(self, job_id: int) -> list[dict[str, Any]]:
+        with self._lock:
+            rows = self._db.execute(
+                "SELECT from_state, to_state, at, note FROM transitions WHERE job_id=?"
+                " ORDER BY rowid", (job_id,)).fetchall()
+        return [dict(r) for r in rows]
+
+    # -- requests -------------------------------------------------------------------------
+    def add_request(self, job_id: int, action: str) -> int:
+        with self._tx() as db:
+            cur = db.execute("INSERT INTO requests (job_id, action, created) VALUES (?,?,?)",
+                             (job_id, action, time.time()))
+            return int(cur.lastrowid)
+
+    def pending_requests(self) -> list[dict[str, Any]]:
+        with self._lock:
+            rows = self._db.execute(
+                "SELECT * FROM requests WHERE handled IS NULL ORDER BY id").fetchall()
+        return [dict(r) for r in rows]
+
+    def finish_request(self, req_id: int, ok: bool, message: str) -> None:
+        with self._tx() as db:
+            db.execute("UPDATE requests SET handled=?, ok=?, message=? WHERE id=?",
+                       (time.time(), int(ok), message, req_id))
+
+    def request(self, req_id: int) -> dict[str, Any] | None:
+        with self._lock:
+            row = self._db.execute("SELECT * FROM requests WHERE id=?", (req_id,)).fetchone()
+        return dict(row) if row else None
+
+    # -- meta -----------------------------------------------------------------------------
+    def set_meta(self, key: str, value: Any) -> None:
+        with self._tx() as db:
+            db.execute("INSERT INTO meta (key, value) VALUES (?, ?) ON CONFLICT(key)"
+                       " DO UPDATE SET value=excluded.value", (key, json.dumps(value)))
+
+    def get_meta(self, key: str, default: Any = None) -> Any:
+        with self._lock:
+            row = self._db.execute("SELECT value FROM meta WHERE key=?", (key,)).fetchone()
+        return json.loads(row[0]) if row else default
+
+
+class _Tx:
+    """``with journal._tx() as db``: an IMMEDIATE transaction under the journal's lock."""
+
+    def __init__(self, journal: Journal) -> None:
+        self.j = journal
+
+    def __enter__(self) -> sqlite3.Connection:
+        self.j._lock.acquire()
+        try:
+            self.j._db.execute("BEGIN IMMEDIATE")
+        except BaseException:
+            self.j._lock.release()
+            raise
+        return self.j._db
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        try:
+            self.j._db.execute("COMMIT" if exc_type is None else "ROLLBACK")
+        finally:
+            self.j._lock.release()

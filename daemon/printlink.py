@@ -1,0 +1,290 @@
+"""The printer side of the daemon: one thread per printer that keeps the link up
+(reconnecting with back-off), queries the printer once per connection, and
+streams ready jobs one at a time.
+
+A print that stops part-way (unplugged, reset, halted, the daemon stopping) marks
+its job **interrupted** with the reason; it is never re-sent by itself, only by
+``preflight jobs requeue ID``. A stream that failed before the first line was
+acknowledged leaves the job ready (nothing reached the printer).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from typing import Any
+
+from daemon.config import Config
+from daemon.journal import Job, Journal
+from daemon.pipeline import AnyEvent, Spool
+from daemon.safety import strip_gcode
+from daemon.states import JobState, TransitionError
+
+log = logging.getLogger("preflight.printer")
+S = JobState
+
+HALF_PRINTED = ("a half-printed part may be on the bed: remove it, then run "
+                "`preflight jobs requeue {id}` to print it again from the start")
+
+
+class PrinterLink(threading.Thread):
+    """Owns the printer connection; prints ready jobs with ``print_requested`` set."""
+
+    def __init__(self, cfg: Config, journal: Journal, spool: Spool, stop: threading.Event) -> None:
+        super().__init__(name="printer", daemon=True)
+        self.cfg = cfg
+        self.j = journal
+        self.spool = spool
+        self.stop_event = stop
+        self._lock = threading.Lock()
+        self._status: dict[str, Any] = {"state": "starting", "port": cfg.printer.port}
+        self._info: dict[str, Any] | None = None
+        self._cancel: dict[int, threading.Event] = {}
+        self.virtual = None
+        self.host = None
+        self.connections = 0
+        self.wake = threading.Event()
+
+    # -- shared state ---------------------------------------------------------------------
+    def status(self) -> dict[str, Any]:
+        with self._lock:
+            return dict(self._status)
+
+    def _set_status(self, **kw: Any) -> None:
+        with self._lock:
+            self._status.update(kw)
+
+    def last_info(self) -> dict[str, Any] | None:
+        """The info of the current connection, else the last one seen (journal)."""
+        with self._lock:
+            if self._info is not None:
+                return self._info
+        return self.j.get_meta("printer_info")
+
+    def cancel_job(self, job_id: int) -> bool:
+        with self._lock:
+            ev = self._cancel.get(job_id)
+        if ev is None:
+            return False
+        ev.set()
+        return True
+
+    # -- the thread -----------------------------------------------------------------------
+    def run(self) -> None:
+        delay = self.cfg.printer.reconnect_min_seconds
+        while not self.stop_event.is_set():
+            if self.host is None:
+                err = self._connect()
+                if err:
+                    self._set_status(state="waiting", message=err,
+                                     retry_in=round(delay, 1), since=time.time())
+                    log.warning("printer: %s; retrying in %.0f s", err, delay)
+                    self.stop_event.wait(delay)
+                    delay = min(delay * 2, self.cfg.printer.reconnect_max_seconds)
+                    continue
+                delay = self.cfg.printer.reconnect_min_seconds
+            job = self._next_job()
+            if job is None:
+                self.wake.wait(0.3)
+                self.wake.clear()
+                continue
+            try:
+                self._print(job)
+            except Exception as e:  # never let the printer thread die
+                log.exception("job %d: print failed", job.id)
+                self._finish_broken(job.id, f"internal error while printing: "
+                                            f"{type(e).__name__}: {e}", acked=1)
+                self._disconnect()
+        self._disconnect()
+        if self.virtual is not None:
+            try:
+                self.virtual.stop()
+            except Exception:
+                log.exception("stopping the virtual printer")
+
+    def _port(self) -> str:
+        port = self.cfg.printer.port
+        if port != "virtual":
+            return port
+        if self.virtual is None:
+            from printer.virtual import VirtualPrinter
+
+            pc = self.cfg.printer
+            self.virtual = VirtualPrinter(
+                firmware=pc.virtual_firmware, nozzle=pc.nozzle_diameter, baud=pc.baud,
+                speedup=pc.virtual_speedup,
+                log_path=str(pc.virtual_log) if pc.virtual_log else None)
+            self.virtual_port = self.virtual.start()
+            log.info("virtual printer on %s", self.virtual_port)
+        return self.virtual_port
+
+    def _connect(self) -> str | None:
+        """Open and handshake, query the info. Returns an error message or None."""
+        from printer.host import PrinterHost
+
+        from printer.errors import PrinterError
+
+        self._set_status(state="connecting", message=None)
+        host = None
+        try:
+            port = self._port()
+            pc = self.cfg.printer
+            host = PrinterHost(port, pc.baud, mode=pc.mode, nozzle_fallback=pc.nozzle_diameter,
+                               nozzle_macro=pc.nozzle_macro)
+            host.connect()
+            info = host.query_info().to_dict()
+        except (PrinterError, OSError) as e:
+            if host is not None:
+                try:
+                    host.close()
+                except Exception:
+                    pass
+            return str(e) or type(e).__name__
+        self.host = host
+        self.connections += 1
+        with self._lock:
+            self._info = info
+        self.j.set_meta("printer_info", info)
+        self._set_status(state="connected", message=None, info=info, connected_since=time.time(),
+                         connections=self.connections, retry_in=None)
+        log.info("printer connected on %s: %s, nozzle %s mm (%s)", port, info.get("firmware"),
+                 info.get("nozzle_diameter"), info.get("nozzle_source"))
+        return None
+
+    def _disconnect(self) -> None:
+        if self.host is not None:
+            try:
+                self.host.close()
+            except Exception:
+                log.exception("closing the printer")
+            self.host = None
+        with self._lock:
+            self._info = None
+
+    def _next_job(self) -> Job | None:
+        for job in self.j.jobs({S.READY}):
+            if job.print_requested:
+                return job
+        return None
+
+    # -- printing -------------------------------------------------------------------------
+    def _print(self, job: Job) -> None:
+        from printer.errors import PrinterError, StreamCancelled
+
+        info = self.last_info() or {}
+        if self._stale(job, info):
+            return
+        try:
+            with open(job.gcode_path or "", encoding="utf-8", errors="replace") as f:
+                lines = strip_gcode(f)
+        except OSError as e:
+            self.j.transition(job.id, S.FAILED, reason=f"cannot read the G-code: {e.strerror}")
+            self.spool.archive(job.id)
+            return
+        cancel = threading.Event()
+        with self._lock:
+            self._cancel[job.id] = cancel
+        try:
+            self.j.transition(job.id, S.PRINTING, expect=S.READY, note=f"{len(lines)} lines",
+                              printer_info=info, progress=0.0)
+        except TransitionError:
+            return  # cancelled in the meantime
+        acked = [0]
+        last = [0.0]
+        t0 = time.monotonic()
+        total = len(lines)
+        self._set_status(state="printing", job=job.id, progress=0.0)
+
+        def progress(done: int, tot: int) -> None:
+            acked[0] = done
+            now = time.monotonic()
+            if now - last[0] >= 0.5 or done >= tot:
+                last[0] = now
+                frac = done / tot if tot else 1.0
+                self._set_status(progress=round(frac, 4), lines_done=done, lines_total=tot)
+                self.j.update(job.id, progress=frac)
+
+        log.info("job %d: printing %d lines", job.id, total)
+        try:
+            result = self.host.stream(lines, progress=progress,
+                                      cancel=AnyEvent(cancel, self.stop_event))
+        except StreamCancelled as e:
+            secs = time.monotonic() - t0
+            pr = {"acked_lines": acked[0], "total_lines": total, "seconds": secs,
+                  "error": str(e)}
+            if cancel.is_set():
+                self._end(job.id, S.CANCELLED, "cancelled by user during the print (cooled down, "
+                          "motors off); " + HALF_PRINTED.format(id=job.id), pr)
+            else:
+                self._end(job.id, S.INTERRUPTED, "the daemon was stopped during the print "
+                          "(cooled down, motors off); " + HALF_PRINTED.format(id=job.id), pr)
+            return
+        except PrinterError as e:
+            secs = time.monotonic() - t0
+            pr = {"acked_lines": acked[0], "total_lines": total, "seconds": secs,
+                  "error": str(e)}
+            self._disconnect()
+            self._finish_broken(job.id, f"{e} after {acked[0]} of {total} lines", acked=acked[0],
+                                print_result=pr)
+            return
+        finally:
+            with self._lock:
+                self._cancel.pop(job.id, None)
+            self._set_status(state="connected" if self.host else "waiting", job=None,
+                             progress=None, lines_done=None, lines_total=None)
+        secs = time.monotonic() - t0
+        pr = {"acked_lines": total, "total_lines": total, "seconds": secs,
+              "result": _result_dict(result)}
+        self._end(job.id, S.DONE, None, pr)
+        log.info("job %d: printed %d lines in %.1f s", job.id, total, secs)
+
+    def _stale(self, job: Job, info: dict[str, Any]) -> bool:
+        """A mesh job sliced for another nozzle / bed than the connected printer: redo it."""
+        if job.kind != "mesh" or not info:
+            return False
+        old = job.printer_info or {}
+        why = None
+        nz = info.get("nozzle_diameter")
+        if (job.epsilon is not None and isinstance(nz, (int, float))
+                and abs(nz - job.epsilon) > 1e-6):
+            why = f"the printer now reports a {nz:g} mm nozzle (sliced for {job.epsilon:g} mm)"
+        elif old and old.get("build_volume") != info.get("build_volume"):
+            why = "the printer reports another build volume than the job was sliced for"
+        if why is None:
+            return False
+        self.j.transition(job.id, S.QUEUED, expect=S.READY, note=why + "; re-processing")
+        log.info("job %d: %s; re-processing", job.id, why)
+        return True
+
+    def _end(self, job_id: int, state: JobState, reason: str | None,
+             print_result: dict[str, Any]) -> None:
+        self.j.transition(job_id, state, note=reason, reason=reason, print_result=print_result,
+                          progress=1.0 if state == S.DONE else None)
+        self.spool.archive(job_id)
+
+    def _finish_broken(self, job_id: int, why: str, *, acked: int,
+                       print_result: dict[str, Any] | None = None) -> None:
+        job = self.j.get(job_id)
+        if job is None or job.state != S.PRINTING:
+            return
+        if acked == 0:
+            self.j.transition(job_id, S.READY, note=f"not started: {why}", progress=None)
+            log.warning("job %d: the print did not start (%s); it stays ready", job_id, why)
+            return
+        reason = f"print interrupted: {why}; " + HALF_PRINTED.format(id=job_id)
+        self._end(job_id, S.INTERRUPTED, reason, print_result or {})
+        log.warning("job %d: %s", job_id, reason)
+
+
+def _result_dict(result: Any) -> Any:
+    if result is None:
+        return None
+    if hasattr(result, "to_dict"):
+        return result.to_dict()
+    if hasattr(result, "__dataclass_fields__"):
+        import dataclasses
+
+        return {k: v for k, v in dataclasses.asdict(result).items()
+                if isinstance(v, (int, float, str, bool, type(None)))}
+    return str(result)

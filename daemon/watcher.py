@@ -1,0 +1,197 @@
+"""Spool watching: which files in the spool folder are complete and may be taken.
+
+A file is taken only once it is complete:
+
+- on Linux (inotify) after close-after-write (``IN_CLOSE_WRITE``) or after it was
+  renamed into the spool, and then ``close_grace_seconds`` without a new write;
+- a file found by a scan (at start-up, or on a network share watched by polling)
+  once its size and mtime have been stable for ``settle_seconds``;
+- a file that inotify saw being written but never saw closed (a lost event) only
+  after it has been stable for ``max(60 s, 12 x settle_seconds)``.
+
+Hidden files and partial names (``.part``, ``.tmp``, ``~``...) are ignored; only
+entries directly in the spool are considered (``done/``, ``failed/`` and the
+work area are sub-folders).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import stat
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from watchdog.events import (
+    FileClosedEvent,
+    FileSystemEvent,
+    FileSystemEventHandler,
+    FileSystemMovedEvent,
+)
+
+from daemon.safety import is_partial_name
+
+log = logging.getLogger("preflight.watcher")
+
+
+@dataclass
+class _Candidate:
+    first_seen: float
+    last_change: float
+    signature: tuple[int, int] | None = None
+    closed_at: float | None = None      # close-after-write or rename-in seen
+    writing: bool = False               # inotify saw writes without a close since
+
+
+class SpoolWatcher:
+    """Tracks candidate files in ``spool``; :meth:`due` returns the complete ones."""
+
+    def __init__(self, spool: Path, *, settle_seconds: float = 5.0,
+                 close_grace_seconds: float = 0.3, poll: bool = False) -> None:
+        self.spool = Path(spool)
+        self.settle = float(settle_seconds)
+        self.grace = float(close_grace_seconds)
+        self.poll = poll
+        self._lock = threading.Lock()
+        self._cands: dict[str, _Candidate] = {}
+        self._observer = None
+        self._last_scan = 0.0
+        self.wakeup = threading.Event()   # set when an event arrives
+
+    # -- lifecycle ------------------------------------------------------------------------
+    def start(self) -> None:
+        """Scan what is already waiting, then start watching."""
+        if self.poll:
+            from watchdog.observers.polling import PollingObserver as Obs
+        else:
+            from watchdog.observers import Observer as Obs
+        self._observer = Obs()
+        self._observer.schedule(_Handler(self), str(self.spool), recursive=False)
+        self._observer.daemon = True
+        self._observer.start()
+        self.scan()
+
+    def stop(self) -> None:
+        if self._observer is not None:
+            self._observer.stop()
+            self._observer.join(timeout=5)
+            self._observer = None
+
+    # -- events ---------------------------------------------------------------------------
+    def _relevant(self, path: str) -> str | None:
+        p = Path(path)
+        if p.parent != self.spool:
+            return None
+        if is_partial_name(p.name):
+            return None
+        return p.name
+
+    def on_event(self, event: FileSystemEvent) -> None:
+        if event.is_directory:
+            return
+        now = time.monotonic()
+        with self._lock:
+            if isinstance(event, FileSystemMovedEvent):
+                gone = self._relevant(event.src_path)
+                if gone:
+                    self._cands.pop(gone, None)
+                name = self._relevant(event.dest_path)
+                if name:
+                    c = self._cands.setdefault(name, _Candidate(now, now))
+                    c.closed_at, c.writing, c.last_change = now, False, now
+            else:
+                name = self._relevant(event.src_path)
+                if not name:
+                    return
+                if event.event_type == "deleted":
+                    self._cands.pop(name, None)
+                    return
+                c = self._cands.setdefault(name, _Candidate(now, now))
+                if isinstance(event, FileClosedEvent):
+                    c.closed_at, c.writing = now, False
+                elif self.poll:
+                    c.last_change = now
+                elif event.event_type == "created" or c.closed_at is None:
+                    c.writing, c.closed_at, c.last_change = True, None, now
+                else:  # written/touched again after a close (scp -p sets times): wait again
+                    c.last_change = now
+        self.wakeup.set()
+
+    def scan(self) -> None:
+        """Add every relevant entry of the spool that is not tracked yet."""
+        now = time.monotonic()
+        self._last_scan = now
+        try:
+            names = os.listdir(self.spool)
+        except FileNotFoundError:
+            return
+        with self._lock:
+            for n in names:
+                if is_partial_name(n) or n in self._cands:
+                    continue
+                try:
+                    st = os.lstat(self.spool / n)
+                except FileNotFoundError:
+                    continue
+                if stat.S_ISDIR(st.st_mode):
+                    continue
+                self._cands[n] = _Candidate(now, now)
+
+    def forget(self, name: str) -> None:
+        with self._lock:
+            self._cands.pop(name, None)
+
+    def pending(self) -> int:
+        with self._lock:
+            return len(self._cands)
+
+    # -- completeness ---------------------------------------------------------------------
+    def due(self) -> list[Path]:
+        """The candidates that are complete now (removed from tracking), oldest first."""
+        now = time.monotonic()
+        if now - self._last_scan >= max(1.0, self.settle):
+            self.scan()
+        ready: list[tuple[float, str]] = []
+        with self._lock:
+            for name, c in list(self._cands.items()):
+                try:
+                    st = os.lstat(self.spool / name)
+                except FileNotFoundError:
+                    del self._cands[name]
+                    continue
+                if not stat.S_ISREG(st.st_mode):
+                    if stat.S_ISDIR(st.st_mode):
+                        del self._cands[name]
+                    else:  # symlinks and other oddities: hand over, intake refuses them
+                        ready.append((c.first_seen, name))
+                        del self._cands[name]
+                    continue
+                sig = (st.st_size, st.st_mtime_ns)
+                if sig != c.signature:
+                    if c.signature is not None:
+                        c.last_change = now
+                    c.signature = sig
+                quiet = now - c.last_change
+                if c.closed_at is not None:
+                    ok = now - max(c.closed_at, c.last_change) >= self.grace
+                elif c.writing:
+                    ok = quiet >= max(60.0, 12 * self.settle)
+                else:
+                    ok = quiet >= self.settle and now - c.first_seen >= self.settle
+                if ok:
+                    ready.append((c.first_seen, name))
+                    del self._cands[name]
+        return [self.spool / n for _, n in sorted(ready)]
+
+
+class _Handler(FileSystemEventHandler):
+    def __init__(self, watcher: SpoolWatcher) -> None:
+        self.w = watcher
+
+    def on_any_event(self, event: FileSystemEvent) -> None:
+        try:
+            self.w.on_event(event)
+        except Exception:  # never let the observer thread die
+            log.exception("spool event %r", event)
