@@ -91,86 +91,123 @@ class GcodeWriter:
 
     def layer(self, plan: LayerPlan, ordered: list[tuple[np.ndarray, Path]],
               pos: np.ndarray) -> LayerCode:
-        """G-code for one layer starting at XY ``pos`` (Z move already emitted)."""
+        """G-code for one layer starting at XY ``pos`` (its Z move is emitted by the caller).
+
+        All segment lengths, E values and the time estimate are computed for the whole layer
+        at once; the text is produced by one ``%`` formatting of a layer-wide template.
+        """
         p = self.p
         first = plan.index == 0
         h = plan.height
         z = plan.z
-        out: list[str] = []
-        self.feed = -1.0  # the layer's Z move (emitted by the caller) changes the modal F
+        self.feed = -1.0  # the layer's Z move changes the modal F
+        head = ""
         if not p.relative_e:
-            out.append("G92 E0\n")
+            head = "G92 E0\n"
             self.e_abs = 0.0
-        # travels and whether each needs a retraction
-        starts = np.array([o[0][0] for o in ordered]).reshape(-1, 2)
-        prev = np.array([pos] + [o[0][-1] for o in ordered[:-1]]).reshape(-1, 2)[:len(starts)]
-        dist = np.hypot(*(starts - prev).T) if len(starts) else np.zeros(0)
-        retract = dist > p.retract_min_travel
-        short = np.flatnonzero(~retract & (dist > 1e-6))
+        pos = np.asarray(pos, dtype=np.float64)
+        if not ordered:
+            return LayerCode(head, 0.0, 0.0, pos)
+        counts = np.fromiter((len(o[0]) for o in ordered), dtype=np.int64, count=len(ordered))
+        pts = np.concatenate([o[0] for o in ordered])
+        ends = np.cumsum(counts)
+        begins = ends - counts
+        npaths = len(ordered)
+        speeds = np.array([self.speed(o[1].role, first) for o in ordered])
+        epm = np.array([self.e_per_mm(o[1].width, h) for o in ordered])
+
+        # travels into each path and whether they retract
+        prev = np.vstack([pos[None], pts[ends[:-1] - 1]])
+        starts = pts[begins]
+        dist = np.hypot(*(starts - prev).T)
+        moving = dist > 1e-6
+        retract = moving & (dist > p.retract_min_travel)
+        short = np.flatnonzero(moving & ~retract)
         if len(short) and plan.outline:
             a, b = polygon_edges(plan.outline)
             retract[short] = segments_cross(prev[short], starts[short], a, b)
         if p.retract_length <= 0:
             retract[:] = False
 
+        # extrusion segments (within paths), dropping ones too short to matter
+        seg = np.diff(pts, axis=0)
+        seglen = np.hypot(seg[:, 0], seg[:, 1])
+        inside = np.ones(len(seglen), dtype=bool)
+        inside[ends[:-1] - 1] = False  # boundary between paths: a travel, not a segment
+        keep = inside & (seglen > 1e-4)
+        seg_path = np.repeat(np.arange(npaths), counts)[1:]
+        kept = np.flatnonzero(keep)
+        kpath = seg_path[kept]
+        e = seglen[kept] * epm[kpath]
+        filament = float(e.sum())
+        m_per_path = np.bincount(kpath, minlength=npaths)
+        xy = pts[kept + 1]
+        block = np.empty((len(kept), 3))
+        block[:, :2] = xy
+        if p.relative_e:
+            block[:, 2] = e
+        else:
+            block[:, 2] = self.e_abs + np.cumsum(e)
+        flat = block.ravel().tolist()
+
         travel_f = p.travel_speed * 60.0
         r_feed = p.retract_speed * 60.0
-        seq_pts: list[np.ndarray] = [pos[None]]
-        seq_v: list[np.ndarray] = []
-        seq_a: list[np.ndarray] = []
-        extra_t = 0.0
-        filament = 0.0
-        for i, (pts, path) in enumerate(ordered):
-            if dist[i] > 1e-6:
+        lift = p.retract_lift
+        fmt: list[str] = [head]
+        vals: list[float] = []
+        cursor = 0
+        e_abs = self.e_abs
+        feed = -1.0
+        n_retract = 0
+        for i in range(npaths):
+            m = int(m_per_path[i])
+            if moving[i] and m:
                 if retract[i]:
-                    out.append(self._e_move(-p.retract_length, r_feed))
-                    extra_t += p.retract_length / p.retract_speed
-                    if p.retract_lift > 0:
-                        out.append(f"G1 Z{z + p.retract_lift:.3f} F{travel_f:.0f}\n")
-                        extra_t += 2 * p.retract_lift / p.travel_speed
-                out.append(f"G0 X{pts[0, 0]:.3f} Y{pts[0, 1]:.3f} F{travel_f:.0f}\n")
-                self.feed = travel_f
-                seq_pts.append(pts[:1])
-                seq_v.append(np.array([p.travel_speed]))
-                seq_a.append(np.array([p.travel_acceleration]))
+                    n_retract += 1
+                    if p.relative_e:
+                        fmt.append("G1 E%.5f F%.0f\n")
+                        vals += (-p.retract_length, r_feed)
+                    else:
+                        fmt.append("G1 E%.5f F%.0f\n")
+                        vals += (e_abs - p.retract_length, r_feed)
+                    if lift > 0:
+                        fmt.append("G1 Z%.3f F%.0f\n")
+                        vals += (z + lift, travel_f)
+                fmt.append("G0 X%.3f Y%.3f F%.0f\n")
+                vals += (float(starts[i, 0]), float(starts[i, 1]), travel_f)
+                feed = travel_f
                 if retract[i]:
-                    if p.retract_lift > 0:
-                        out.append(f"G1 Z{z:.3f} F{travel_f:.0f}\n")
-                    out.append(self._e_move(p.retract_length, r_feed))
-                    extra_t += p.retract_length / p.retract_speed
-            seg = np.diff(pts, axis=0)
-            seglen = np.hypot(seg[:, 0], seg[:, 1])
-            keep = seglen > 1e-4
-            if not keep.all():
-                pts = np.vstack([pts[:1], pts[1:][keep]])
-                seglen = seglen[keep]
-            m = len(seglen)
+                    if lift > 0:
+                        fmt.append("G1 Z%.3f F%.0f\n")
+                        vals += (z, travel_f)
+                    fmt.append("G1 E%.5f F%.0f\n")
+                    vals += (p.retract_length if p.relative_e else e_abs, r_feed)
+                    feed = r_feed
             if m == 0:
                 continue
-            v = self.speed(path.role, first)
-            f = v * 60.0
-            if f != self.feed:
-                out.append(f"G1 F{f:.0f}\n")
-                self.feed = f
-            e = seglen * self.e_per_mm(path.width, h)
-            filament += float(e.sum())
-            block = np.empty((m, 3))
-            block[:, :2] = pts[1:]
-            if p.relative_e:
-                block[:, 2] = e
-            else:
-                block[:, 2] = self.e_abs + np.cumsum(e)
-                self.e_abs = float(block[-1, 2])
-            out.append(("G1 X%.3f Y%.3f E%.5f\n" * m) % tuple(block.ravel().tolist()))
-            seq_pts.append(pts[1:])
-            seq_v.append(np.full(m, v))
-            seq_a.append(np.full(m, p.print_acceleration))
-            pos = pts[-1]
-        seconds = extra_t
-        if seq_v:
-            seconds += trapezoid_time(np.concatenate(seq_pts), np.concatenate(seq_v),
-                                      np.concatenate(seq_a), p.max_jerk)
-        return LayerCode("".join(out), seconds, filament, np.asarray(pos, dtype=np.float64))
+            f = float(speeds[i]) * 60.0
+            if f != feed:
+                fmt.append("G1 F%.0f\n")
+                vals.append(f)
+                feed = f
+            fmt.append("G1 X%.3f Y%.3f E%.5f\n" * m)
+            vals += flat[cursor:cursor + 3 * m]
+            cursor += 3 * m
+            if not p.relative_e:
+                e_abs = flat[cursor - 1]
+        self.e_abs = e_abs
+        text = "".join(fmt) % tuple(vals)
+
+        # time: the whole layer as one polyline (travels included)
+        seq = np.vstack([pos[None], pts])
+        v = np.repeat(speeds, counts)  # speed of the segment *ending* at each point
+        a = np.full(len(pts), p.print_acceleration)
+        v[begins] = p.travel_speed
+        a[begins] = p.travel_acceleration
+        seconds = trapezoid_time(seq, v, a, p.max_jerk)
+        seconds += n_retract * (2 * p.retract_length / p.retract_speed
+                                + (2 * lift / p.travel_speed if lift > 0 else 0.0))
+        return LayerCode(text, seconds, filament, pts[-1].copy())
 
 
 _HEAT_WAIT = re.compile(r"^\s*M109\b", re.MULTILINE | re.IGNORECASE)

@@ -18,42 +18,35 @@ def _nearest_neighbour(
     paths: list[Path], pos: np.ndarray
 ) -> tuple[list[tuple[np.ndarray, Path]], np.ndarray]:
     """Order ``paths`` greedily from ``pos``; returns (oriented points, path) and the end pos."""
-    pts_list, pid_list, idx_list = [], [], []
-    for i, p in enumerate(paths):
-        n = len(p.points)
-        if p.closed:
-            pts_list.append(p.points)
-            pid_list.append(np.full(n, i))
-            idx_list.append(np.arange(n))
-        else:
-            pts_list.append(p.points[[0, -1]])
-            pid_list.append(np.array([i, i]))
-            idx_list.append(np.array([0, -1]))
-    pts = np.concatenate(pts_list)
-    pid = np.concatenate(pid_list)
-    vidx = np.concatenate(idx_list)
-    alive = np.ones(len(pts), dtype=bool)
-    # point ranges per path, for killing a whole path at once
-    counts = np.array([len(a) for a in pts_list])
+    ends_only = [p.points if p.closed or len(p.points) == 2 else p.points[[0, -1]]
+                 for p in paths]
+    counts = np.fromiter((len(a) for a in ends_only), dtype=np.int64, count=len(paths))
+    pts = np.concatenate(ends_only)
+    px = np.ascontiguousarray(pts[:, 0])
+    py = np.ascontiguousarray(pts[:, 1])
     ends = np.cumsum(counts)
     begins = ends - counts
+    pid = np.repeat(np.arange(len(paths)), counts)
+    vidx = np.arange(len(pts)) - begins[pid]
+    dead = np.zeros(len(pts))
     out: list[tuple[np.ndarray, Path]] = []
+    x, y = float(pos[0]), float(pos[1])
     for _ in range(len(paths)):
-        d2 = np.einsum("ij,ij->i", pts - pos, pts - pos)
-        d2[~alive] = np.inf
-        j = int(np.argmin(d2))
+        dx = px - x
+        dy = py - y
+        j = int(np.argmin(dx * dx + dy * dy + dead))
         i = int(pid[j])
-        alive[begins[i]:ends[i]] = False
+        dead[begins[i]:ends[i]] = np.inf
         p = paths[i]
+        k = int(vidx[j])
         if p.closed:
-            k = int(vidx[j])
-            ring = np.concatenate([p.points[k:], p.points[:k + 1]]) if k else \
-                np.concatenate([p.points, p.points[:1]])
+            ring = np.concatenate([p.points[k:], p.points[:k + 1]])
             out.append((ring, p))
         else:
-            out.append((p.points if vidx[j] == 0 else p.points[::-1], p))
-        pos = out[-1][0][-1]
-    return out, pos
+            out.append((p.points if k == 0 else p.points[::-1], p))
+        last = out[-1][0][-1]
+        x, y = float(last[0]), float(last[1])
+    return out, np.array([x, y])
 
 
 def order_paths(paths: list[Path], pos: np.ndarray) -> tuple[list[tuple[np.ndarray, Path]],
