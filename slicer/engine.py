@@ -20,7 +20,7 @@ import numpy as np
 from slicer.errors import SliceError
 from slicer.profile import Profile
 
-__all__ = ["SliceError", "SliceResult", "slice_mesh", "slice_file"]
+__all__ = ["SliceError", "SliceResult", "slice_mesh", "slice_file", "write_gcode"]
 
 Progress = Callable[[str, float], None] | None
 
@@ -191,16 +191,7 @@ def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progres
 
 
 def _load_mesh(path: FsPath) -> tuple[np.ndarray, np.ndarray]:
-    try:
-        from repair.io import load_mesh  # type: ignore[import-not-found]
-    except ImportError:
-        load_mesh = None
-    if load_mesh is not None:
-        try:
-            mesh = load_mesh(path)
-        except ValueError as exc:
-            raise SliceError(str(exc)) from None
-        return np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    """Read a mesh file with trimesh (STL soup welded into an indexed mesh)."""
     import trimesh
 
     if not path.is_file():
@@ -221,11 +212,20 @@ def slice_file(in_path: str | os.PathLike, out_path: str | os.PathLike, profile:
     dst = FsPath(out_path)
     vertices, faces = _load_mesh(src)
     result = slice_mesh(vertices, faces, profile, progress=progress)
+    write_gcode(dst, result.gcode)
+    summary = dict(result.summary)
+    summary["output"] = str(dst)
+    return summary
+
+
+def write_gcode(path: str | os.PathLike, text: str) -> None:
+    """Write G-code atomically (temporary file in the same folder, then rename)."""
+    dst = FsPath(path)
     dst.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{dst.name}.", dir=str(dst.parent))
     try:
-        with os.fdopen(fd, "w", encoding="ascii", newline="\n") as fh:
-            fh.write(result.gcode)
+        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as fh:
+            fh.write(text)
         os.replace(tmp, dst)
     except BaseException:
         try:
@@ -233,6 +233,3 @@ def slice_file(in_path: str | os.PathLike, out_path: str | os.PathLike, profile:
         except OSError:
             pass
         raise
-    summary = dict(result.summary)
-    summary["output"] = str(dst)
-    return summary
