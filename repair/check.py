@@ -200,6 +200,8 @@ def _sorted_face_keys(faces: np.ndarray) -> np.ndarray:
 
 def _first_of_duplicates(faces: np.ndarray) -> np.ndarray:
     """Sorted indices of the first face of every distinct vertex set."""
+    if len(faces) == 0:
+        return np.zeros(0, dtype=np.int64)
     key = _sorted_face_keys(faces)
     order = np.argsort(key, kind="stable")
     sk = key[order]

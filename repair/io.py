@@ -1,0 +1,741 @@
+"""Mesh files in and out: STL (binary and ASCII), OBJ, PLY and 3MF in; binary STL out.
+
+Every reader returns a :class:`Mesh` in millimetres, or raises :class:`MeshReadError`
+with a one-line human-readable message. Readers weld nothing except what the format
+implies: STL is a triangle soup, so exactly coincident corners are merged (bit-for-bit
+equal coordinates, no tolerance); OBJ, PLY and 3MF index shared vertices already and are
+kept as they are. Degenerate triangles are kept (the repair turns them into wires);
+OBJ ``l`` polylines become degenerate triangles ``(a, b, b)`` for the same reason.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import re
+import tempfile
+import warnings
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO
+
+import numpy as np
+
+from repair.check import weld_exact
+
+__all__ = ["Mesh", "MeshReadError", "load_mesh", "write_stl", "SUPPORTED_SUFFIXES"]
+
+SUPPORTED_SUFFIXES = (".stl", ".obj", ".ply", ".3mf")
+
+#: Default cap on the total decompressed size of a 3MF archive when the caller gives no
+#: ``max_bytes`` (with ``max_bytes``, the cap is ``_3MF_EXPANSION * max_bytes``).
+DEFAULT_MAX_3MF_DECOMPRESSED = 1 << 30
+_3MF_EXPANSION = 20
+
+# 3MF model units, as factors to millimetres.
+_UNITS_MM = {
+    "micron": 0.001,
+    "millimeter": 1.0,
+    "centimeter": 10.0,
+    "inch": 25.4,
+    "foot": 304.8,
+    "meter": 1000.0,
+}
+
+_STL_DTYPE = np.dtype(
+    [("normal", "<f4", (3,)), ("v", "<f4", (3, 3)), ("attr", "<u2")]
+)  # 50 bytes per triangle
+
+_MAGIC = (
+    (b"\xff\xd8\xff", "a JPEG image"),
+    (b"\x89PNG\r\n\x1a\n", "a PNG image"),
+    (b"GIF8", "a GIF image"),
+    (b"%PDF", "a PDF document"),
+    (b"PK\x03\x04", "a zip archive"),
+    (b"\x1f\x8b", "a gzip archive"),
+    (b"BM", None),  # too short to be sure; only used with other evidence
+    (b"\x7fELF", "an executable"),
+)
+
+
+class MeshReadError(ValueError):
+    """A mesh file could not be read; ``str(err)`` is one human-readable line."""
+
+
+@dataclass(frozen=True, eq=False)
+class Mesh:
+    """A triangle mesh read from a file.
+
+    ``vertices``: float64 (n, 3) in mm, all finite. ``faces``: int64 (m, 3) indices into
+    ``vertices`` (may contain degenerate triangles). ``source_format``: one of
+    ``"stl-binary"``, ``"stl-ascii"``, ``"obj"``, ``"ply"``, ``"3mf"``. ``unit_scale``:
+    the factor that was applied to the file's coordinates to get mm (1.0 except for 3MF
+    files in other units).
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    source_format: str
+    unit_scale: float = 1.0
+
+    @property
+    def triangles(self) -> int:
+        return int(len(self.faces))
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _human_bytes(n: int) -> str:
+    for unit in ("bytes", "KiB", "MiB", "GiB"):
+        if n < 1024 or unit == "GiB":
+            return f"{n} {unit}" if unit == "bytes" else f"{n:.1f} {unit}"
+        n /= 1024
+    return f"{n} bytes"  # pragma: no cover
+
+
+def _sniff_foreign(head: bytes) -> str | None:
+    """Name of a well-known non-mesh format the bytes start with, if any."""
+    for magic, name in _MAGIC:
+        if name and head.startswith(magic):
+            return name
+    return None
+
+
+def _check_triangle_cap(n: int, max_triangles: int | None, what: str) -> None:
+    if max_triangles is not None and n > max_triangles:
+        raise MeshReadError(f"{what} has {n} triangles, over the limit of {max_triangles}")
+
+
+def _finish(
+    vertices: np.ndarray, faces: np.ndarray, fmt: str, name: str, unit_scale: float = 1.0
+) -> Mesh:
+    """Validate and package reader output."""
+    v = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
+    f = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
+    if len(f) == 0:
+        raise MeshReadError(f"{name}: the file contains no triangles")
+    if f.min() < 0 or f.max() >= len(v):
+        raise MeshReadError(f"{name}: a face refers to a vertex that does not exist")
+    bad = ~np.isfinite(v)
+    if bad.any():
+        # Only coordinates that faces use matter, but a NaN anywhere means a broken export.
+        bad_faces = np.flatnonzero(bad.any(axis=1)[f].any(axis=1))
+        where = (
+            f"{len(bad_faces)} triangle(s), first is #{bad_faces[0]}"
+            if len(bad_faces)
+            else "unused vertices"
+        )
+        raise MeshReadError(f"{name}: NaN or infinite coordinates in {where}")
+    return Mesh(vertices=v, faces=f, source_format=fmt, unit_scale=float(unit_scale))
+
+
+# --------------------------------------------------------------------------- STL
+
+
+def _stl_soup_to_mesh(tri: np.ndarray, fmt: str, name: str) -> Mesh:
+    """(m, 3, 3) triangle corners -> Mesh with exactly coincident corners merged."""
+    m = len(tri)
+    soup = np.ascontiguousarray(tri, dtype=np.float64).reshape(-1, 3)
+    if not np.isfinite(soup).all():
+        bad = np.flatnonzero(~np.isfinite(soup).all(axis=1)) // 3
+        raise MeshReadError(
+            f"{name}: NaN or infinite coordinates in {len(np.unique(bad))} triangle(s), "
+            f"first is #{bad[0]}"
+        )
+    v, f = weld_exact(soup, np.arange(3 * m, dtype=np.int64).reshape(m, 3))
+    return _finish(v, f, fmt, name)
+
+
+def _read_stl(data: bytes, name: str, max_triangles: int | None) -> Mesh:
+    size = len(data)
+    if size >= 84:
+        n = int(np.frombuffer(data, dtype="<u4", count=1, offset=80)[0])
+        expected = 84 + 50 * n
+        if expected == size:  # a binary STL, whatever its header says
+            _check_triangle_cap(n, max_triangles, name)
+            if n == 0:
+                raise MeshReadError(f"{name}: binary STL with 0 triangles")
+            rec = np.frombuffer(data, dtype=_STL_DTYPE, count=n, offset=84)
+            return _stl_soup_to_mesh(rec["v"], "stl-binary", name)
+    else:
+        n, expected = None, None
+
+    stripped = data[:1024].lstrip()
+    if stripped[:5].lower() == b"solid" and b"\0" not in data[:1024]:
+        if re.search(rb"(?i)\bfacet\b|\bendsolid\b", data[:4096]) or size < 4096:
+            return _read_stl_ascii(data, name, max_triangles)
+
+    foreign = _sniff_foreign(data[:16])
+    if foreign:
+        raise MeshReadError(f"{name}: not a mesh, it is {foreign}")
+    if n is None:
+        raise MeshReadError(f"{name}: not an STL file ({size} bytes is too short for one)")
+    if _looks_like_text(data[:4096]):
+        raise MeshReadError(f"{name}: not a mesh: a text file that is not an ASCII STL")
+    # Size disagrees with the header. A genuine but cut-off file has plausible
+    # coordinates in the triangles that are there; random bytes do not.
+    whole = max(0, min(n, (size - 84) // 50))
+    if whole:
+        rec = np.frombuffer(data, dtype=_STL_DTYPE, count=min(whole, 1000), offset=84)
+        with np.errstate(invalid="ignore", over="ignore"):
+            plausible = np.isfinite(rec["v"]).all() and np.abs(rec["v"]).max() < 1e7
+        if not plausible:
+            raise MeshReadError(
+                f"{name}: not a mesh: neither an ASCII STL nor a binary STL "
+                f"(header claims {n} triangles, coordinates are garbage)"
+            )
+    if size < expected:
+        raise MeshReadError(
+            f"{name}: truncated binary STL: header says {n} triangles "
+            f"({expected} bytes) but the file has {size} bytes (room for {whole})"
+        )
+    raise MeshReadError(
+        f"{name}: binary STL size mismatch: header says {n} triangles "
+        f"({expected} bytes) but the file has {size} bytes"
+    )
+
+
+def _looks_like_text(chunk: bytes) -> bool:
+    if not chunk or b"\0" in chunk:
+        return False
+    try:
+        chunk.decode("utf-8")
+    except UnicodeDecodeError:
+        # a multi-byte character may be cut at the end of the chunk
+        try:
+            chunk[:-4].decode("utf-8")
+        except UnicodeDecodeError:
+            return False
+    printable = sum(1 for b in chunk[:512] if b in b"\t\r\n" or 32 <= b < 127)
+    return printable >= 0.9 * min(len(chunk), 512)
+
+
+_SOLID_LINE = re.compile(rb"(?im)^[ \t]*(?:end)?solid\b[^\n]*$")
+_NORMAL = re.compile(rb"(?i)facet\s+normal(?:\s+\S+){3}")
+_KEYWORDS = re.compile(rb"(?i)\b(?:facet|outer\s+loop|endloop|endfacet|vertex)\b")
+
+
+def _parse_floats(text: bytes) -> np.ndarray | None:
+    """All whitespace-separated floats in ``text`` (C speed); None if any token is not."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        try:
+            return np.fromstring(text, dtype=np.float64, sep=" ")  # noqa: NPY201
+        except (DeprecationWarning, ValueError):
+            return None
+
+
+def _read_stl_ascii(data: bytes, name: str, max_triangles: int | None) -> Mesh:
+    body = _SOLID_LINE.sub(b" ", data)
+    lower = body.lower()
+    n_facets = lower.count(b"endfacet")
+    n_vertex = len(re.findall(rb"\bvertex\b", lower))
+    if n_facets == 0:
+        raise MeshReadError(f"{name}: ASCII STL with no facets")
+    if n_vertex != 3 * n_facets:
+        raise MeshReadError(
+            f"{name}: malformed ASCII STL: {n_facets} facets but {n_vertex} vertices "
+            "(every facet needs 3)"
+        )
+    _check_triangle_cap(n_facets, max_triangles, name)
+    body = _KEYWORDS.sub(b" ", _NORMAL.sub(b" ", body))
+    values = _parse_floats(body)
+    if values is None or len(values) != 9 * n_facets:
+        raise MeshReadError(f"{name}: malformed ASCII STL: unreadable vertex coordinates")
+    return _stl_soup_to_mesh(values.reshape(n_facets, 3, 3), "stl-ascii", name)
+
+
+# --------------------------------------------------------------------------- OBJ
+
+_OBJ_V = re.compile(rb"(?m)^[ \t]*v[ \t]+([^\n#]*)")
+_OBJ_F = re.compile(rb"(?m)^[ \t]*f[ \t]+([^\n#]*)")
+_OBJ_L = re.compile(rb"(?m)^[ \t]*l[ \t]+([^\n#]*)")
+_OBJ_SLASH = re.compile(rb"/[^\s]*")
+
+
+def _obj_index_lists(
+    matches: list[re.Match[bytes]], v_starts: np.ndarray, name: str
+) -> tuple[np.ndarray, np.ndarray]:
+    """Flat 0-based vertex indices and per-element counts for OBJ ``f``/``l`` records."""
+    if not matches:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    lines = [_OBJ_SLASH.sub(b"", mt.group(1)) for mt in matches]
+    counts = np.fromiter((len(s.split()) for s in lines), dtype=np.int64, count=len(lines))
+    flat = _parse_floats(b" ".join(lines))
+    if flat is None or len(flat) != counts.sum() or not np.all(flat == np.round(flat)):
+        raise MeshReadError(f"{name}: malformed OBJ: unreadable face indices")
+    idx = flat.astype(np.int64)
+    if np.any(idx == 0):
+        raise MeshReadError(f"{name}: malformed OBJ: vertex index 0 (OBJ counts from 1)")
+    # Negative indices count back from the vertices defined before that line.
+    positions = np.array([mt.start() for mt in matches], dtype=np.int64)
+    defined = np.searchsorted(v_starts, positions)
+    defined_per_index = np.repeat(defined, counts)
+    idx = np.where(idx < 0, defined_per_index + idx, idx - 1)
+    return idx, counts
+
+
+def _read_obj(data: bytes, name: str, max_triangles: int | None) -> Mesh:
+    if b"\\" in data:  # a backslash at the end of a line continues it
+        data = re.sub(rb"\\[ \t]*\r?\n", b" ", data)
+    v_matches = list(_OBJ_V.finditer(data))
+    if not v_matches:
+        raise MeshReadError(f"{name}: not a mesh: no OBJ vertices ('v' lines) found")
+    v_lines = [mt.group(1) for mt in v_matches]
+    widths = {len(s.split()) for s in v_lines}
+    if len(widths) == 1 and min(widths) >= 3:
+        flat = _parse_floats(b" ".join(v_lines))
+        if flat is None:
+            raise MeshReadError(f"{name}: malformed OBJ: unreadable vertex coordinates")
+        verts = flat.reshape(len(v_lines), -1)[:, :3]
+    else:
+        try:
+            verts = np.array([[float(t) for t in s.split()[:3]] for s in v_lines])
+        except ValueError:
+            raise MeshReadError(f"{name}: malformed OBJ: unreadable vertex coordinates") from None
+        if verts.ndim != 2 or verts.shape[1] != 3:
+            raise MeshReadError(f"{name}: malformed OBJ: a vertex has fewer than 3 coordinates")
+    v_starts = np.array([mt.start() for mt in v_matches], dtype=np.int64)
+
+    idx, counts = _obj_index_lists(list(_OBJ_F.finditer(data)), v_starts, name)
+    tris = []
+    if len(counts):
+        if np.any(counts < 3):
+            raise MeshReadError(f"{name}: malformed OBJ: a face with fewer than 3 vertices")
+        n_tri = int((counts - 2).sum())
+        _check_triangle_cap(n_tri, max_triangles, name)
+        # Fan-triangulate polygons: (p0, p_i, p_i+1), vectorised over all faces.
+        starts = np.r_[0, np.cumsum(counts)[:-1]]
+        owner = np.repeat(np.arange(len(counts)), counts - 2)
+        local = np.arange(n_tri) - np.repeat(np.cumsum(counts - 2) - (counts - 2), counts - 2)
+        base = starts[owner]
+        tris.append(np.stack([idx[base], idx[base + local + 1], idx[base + local + 2]], 1))
+    l_idx, l_counts = _obj_index_lists(list(_OBJ_L.finditer(data)), v_starts, name)
+    if len(l_counts):
+        # Polylines become degenerate triangles (a, b, b): the repair inflates them.
+        is_seg = np.ones(len(l_idx), bool)
+        is_seg[np.cumsum(l_counts) - 1] = False  # the last point of a polyline starts none
+        a = np.flatnonzero(is_seg)
+        tris.append(np.stack([l_idx[a], l_idx[a + 1], l_idx[a + 1]], 1))
+    if not tris:
+        raise MeshReadError(f"{name}: not a mesh: the OBJ file has no faces")
+    faces = np.vstack(tris)
+    _check_triangle_cap(len(faces), max_triangles, name)
+    if faces.min() < 0 or faces.max() >= len(verts):
+        raise MeshReadError(f"{name}: malformed OBJ: a face refers to a missing vertex")
+    return _finish(verts, faces, "obj", name)
+
+
+# --------------------------------------------------------------------------- PLY
+
+
+def _read_ply(data: bytes, name: str, max_triangles: int | None) -> Mesh:
+    if not data.startswith(b"ply"):
+        foreign = _sniff_foreign(data[:16])
+        raise MeshReadError(f"{name}: not a PLY file" + (f", it is {foreign}" if foreign else ""))
+    head = data[: min(len(data), 1 << 16)]
+    end = head.find(b"end_header")
+    if end < 0:
+        raise MeshReadError(f"{name}: malformed PLY: no end_header")
+    m = re.search(rb"(?m)^element[ \t]+face[ \t]+(\d+)", head[:end])
+    if not m or int(m.group(1)) == 0:
+        raise MeshReadError(f"{name}: not a mesh: the PLY file has no faces")
+    _check_triangle_cap(int(m.group(1)), max_triangles, name)
+    from trimesh.exchange.ply import load_ply
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            out = load_ply(io.BytesIO(data), fix_texture=False, skip_materials=True)
+        verts = np.asarray(out["vertices"], dtype=np.float64)
+        faces = np.asarray(out["faces"], dtype=np.int64)
+    except MeshReadError:
+        raise
+    except Exception as exc:  # trimesh raises many kinds on malformed input
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise MeshReadError(f"{name}: malformed PLY: {msg}") from None
+    if faces.ndim != 2 or faces.shape[1] != 3:
+        raise MeshReadError(f"{name}: malformed PLY: faces are not triangles")
+    _check_triangle_cap(len(faces), max_triangles, name)
+    return _finish(verts, faces, "ply", name)
+
+
+# --------------------------------------------------------------------------- 3MF
+
+_NS_CORE = "http://schemas.microsoft.com/3dmanufacturing/core/2015/02"
+_NS_PROD = "http://schemas.microsoft.com/3dmanufacturing/production/2015/06"
+_NS_RELS = "http://schemas.openxmlformats.org/package/2006/relationships"
+_REL_MODEL = "http://schemas.microsoft.com/3dmanufacturing/2013/01/3dmodel"
+
+
+class _Budget:
+    """A running limit on decompressed bytes read from a zip archive."""
+
+    def __init__(self, limit: int, name: str) -> None:
+        self.left = limit
+        self.limit = limit
+        self.name = name
+
+    def take(self, n: int) -> None:
+        self.left -= n
+        if self.left < 0:
+            raise MeshReadError(
+                f"{self.name}: 3MF decompresses to more than {_human_bytes(self.limit)}; "
+                "refusing (zip bomb?)"
+            )
+
+
+class _LimitedReader(io.RawIOBase):
+    """A read-only stream over a zip entry that charges every byte to a budget."""
+
+    def __init__(self, raw: IO[bytes], budget: _Budget) -> None:
+        self.raw = raw
+        self.budget = budget
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, buf) -> int:  # type: ignore[override]
+        chunk = self.raw.read(min(len(buf), 1 << 20))
+        self.budget.take(len(chunk))
+        buf[: len(chunk)] = chunk
+        return len(chunk)
+
+
+def _read_zip_entry(zf: zipfile.ZipFile, entry: str, budget: _Budget) -> bytes:
+    with zf.open(entry) as raw:
+        parts = []
+        while True:
+            chunk = raw.read(1 << 20)
+            if not chunk:
+                break
+            budget.take(len(chunk))
+            parts.append(chunk)
+    return b"".join(parts)
+
+
+def _parse_transform(text: str | None, name: str) -> np.ndarray | None:
+    """3MF transform "m00 m01 m02 m10 ... m32" -> 4x3 matrix (row-vector convention)."""
+    if not text:
+        return None
+    try:
+        vals = np.array([float(t) for t in text.split()], dtype=np.float64)
+    except ValueError:
+        raise MeshReadError(f"{name}: malformed 3MF: bad transform {text!r}") from None
+    if vals.shape != (12,) or not np.isfinite(vals).all():
+        raise MeshReadError(f"{name}: malformed 3MF: bad transform {text!r}")
+    return vals.reshape(4, 3)
+
+
+def _compose(outer: np.ndarray | None, inner: np.ndarray | None) -> np.ndarray | None:
+    """Transform applying ``inner`` first, then ``outer`` (4x3 row-vector matrices)."""
+    if outer is None:
+        return inner
+    if inner is None:
+        return outer
+    i4 = np.eye(4)
+    i4[:, :3] = inner
+    o4 = np.eye(4)
+    o4[:, :3] = outer
+    return (i4 @ o4)[:, :3]
+
+
+def _parse_3mf_model(
+    stream: IO[bytes], part: str, name: str, tri_count: list[int], max_triangles: int | None
+) -> tuple[str, dict, list]:
+    """Parse one .model part: (unit, objects, build items).
+
+    ``objects``: {id: ("mesh", vertices, faces) | ("components", [(path, id, T), ...])}.
+    """
+    import xml.etree.ElementTree as ET
+
+    core = "{" + _NS_CORE + "}"
+    prod_path = "{" + _NS_PROD + "}path"
+    unit = "millimeter"
+    objects: dict[str, tuple] = {}
+    items: list[tuple[str, str, np.ndarray | None]] = []
+    obj_id: str | None = None
+    xs: list[str] = []
+    tris: list[str] = []
+    comps: list[tuple[str, str, np.ndarray | None]] = []
+    has_mesh = False
+    try:
+        for event, el in ET.iterparse(stream, events=("start", "end")):
+            tag = el.tag
+            if event == "start":
+                if tag == core + "model":
+                    unit = el.get("unit", "millimeter")
+                elif tag == core + "object":
+                    obj_id = el.get("id")
+                    xs, tris, comps, has_mesh = [], [], [], False
+                elif tag == core + "mesh":
+                    has_mesh = True
+                continue
+            if tag == core + "vertex":
+                xs.append(f"{el.get('x')} {el.get('y')} {el.get('z')}")
+                el.clear()
+            elif tag == core + "triangle":
+                tris.append(f"{el.get('v1')} {el.get('v2')} {el.get('v3')}")
+                el.clear()
+                tri_count[0] += 1
+                if max_triangles is not None and tri_count[0] > max_triangles:
+                    raise MeshReadError(
+                        f"{name}: 3MF has more than {max_triangles} triangles, over the limit"
+                    )
+            elif tag == core + "component":
+                comps.append(
+                    (
+                        el.get(prod_path, part),
+                        el.get("objectid", ""),
+                        _parse_transform(el.get("transform"), name),
+                    )
+                )
+            elif tag == core + "object":
+                if obj_id is None:
+                    raise MeshReadError(f"{name}: malformed 3MF: an object without id")
+                if has_mesh:
+                    v = _parse_floats(" ".join(xs).encode())
+                    f = _parse_floats(" ".join(tris).encode())
+                    if v is None or f is None or len(v) != 3 * len(xs) or (len(f) != 3 * len(tris)):
+                        raise MeshReadError(
+                            f"{name}: malformed 3MF: unreadable vertices or triangles "
+                            f"in object {obj_id}"
+                        )
+                    objects[obj_id] = ("mesh", v.reshape(-1, 3), f.astype(np.int64).reshape(-1, 3))
+                else:
+                    objects[obj_id] = ("components", comps)
+                obj_id = None
+                el.clear()
+            elif tag == core + "item":
+                items.append(
+                    (
+                        el.get(prod_path, part),
+                        el.get("objectid", ""),
+                        _parse_transform(el.get("transform"), name),
+                    )
+                )
+    except ET.ParseError as exc:
+        raise MeshReadError(f"{name}: malformed 3MF: XML error in {part}: {exc}") from None
+    return unit, objects, items
+
+
+def _root_model_part(zf: zipfile.ZipFile, budget: _Budget, name: str) -> str:
+    names = set(zf.namelist())
+    if "_rels/.rels" in names:
+        import xml.etree.ElementTree as ET
+
+        try:
+            rels = ET.fromstring(_read_zip_entry(zf, "_rels/.rels", budget))
+        except ET.ParseError:
+            rels = None
+        if rels is not None:
+            for rel in rels.iter("{" + _NS_RELS + "}Relationship"):
+                if rel.get("Type") == _REL_MODEL:
+                    target = rel.get("Target", "").lstrip("/")
+                    if target in names:
+                        return "/" + target
+    for cand in ("3D/3dmodel.model",):
+        if cand in names:
+            return "/" + cand
+    models = sorted(n for n in names if n.lower().endswith(".model"))
+    if models:
+        return "/" + models[0]
+    raise MeshReadError(f"{name}: not a 3MF file: no 3D model part in the archive")
+
+
+def _read_3mf(path: Path, name: str, max_triangles: int | None, max_decompressed: int) -> Mesh:
+    budget = _Budget(max_decompressed, name)
+    try:
+        zf = zipfile.ZipFile(path)
+    except (zipfile.BadZipFile, OSError) as exc:
+        raise MeshReadError(f"{name}: not a 3MF file (not a valid zip archive: {exc})") from None
+    with zf:
+        root = _root_model_part(zf, budget, name)
+        tri_count = [0]
+        parts: dict[str, tuple[str, dict, list]] = {}
+        units = "millimeter"
+
+        def load_part(part: str) -> dict:
+            if part not in parts:
+                entry = part.lstrip("/")
+                try:
+                    info = zf.getinfo(entry)
+                except KeyError:
+                    raise MeshReadError(f"{name}: malformed 3MF: missing part {part}") from None
+                if info.file_size > budget.left:  # refuse before inflating anything
+                    raise MeshReadError(
+                        f"{name}: 3MF part {part} declares {_human_bytes(info.file_size)} "
+                        f"uncompressed, over the {_human_bytes(max_decompressed)} limit; "
+                        "refusing (zip bomb?)"
+                    )
+                try:
+                    with zf.open(info) as raw:
+                        reader = io.BufferedReader(_LimitedReader(raw, budget))
+                        parts[part] = _parse_3mf_model(reader, part, name, tri_count, max_triangles)
+                except (zipfile.BadZipFile, OSError, EOFError) as exc:
+                    raise MeshReadError(f"{name}: corrupt 3MF archive: {exc}") from None
+            return parts[part][1]
+
+        load_part(root)
+        units, _, items = parts[root]
+        if units not in _UNITS_MM:
+            raise MeshReadError(f"{name}: 3MF has an unknown unit {units!r}")
+        scale = _UNITS_MM[units]
+
+        out_v: list[np.ndarray] = []
+        out_f: list[np.ndarray] = []
+        n_out = [0, 0]  # vertices, triangles
+
+        def emit(part: str, oid: str, transform: np.ndarray | None, depth: int) -> None:
+            if depth > 32:
+                raise MeshReadError(f"{name}: malformed 3MF: components nested too deep")
+            objs = load_part(part)
+            if oid not in objs:
+                raise MeshReadError(f"{name}: malformed 3MF: no object {oid} in {part}")
+            obj = objs[oid]
+            if obj[0] == "mesh":
+                v, f = obj[1], obj[2]
+                if len(f) == 0:
+                    return
+                if f.min() < 0 or f.max() >= len(v):
+                    raise MeshReadError(
+                        f"{name}: malformed 3MF: a triangle refers to a missing vertex "
+                        f"in object {oid}"
+                    )
+                n_out[1] += len(f)
+                _check_triangle_cap(n_out[1], max_triangles, name)
+                if transform is not None:
+                    v = v @ transform[:3] + transform[3]
+                out_v.append(v)
+                out_f.append(f + n_out[0])
+                n_out[0] += len(v)
+            else:
+                for cpart, cid, ct in obj[1]:
+                    emit(cpart, cid, _compose(transform, ct), depth + 1)
+
+        if not items:
+            raise MeshReadError(f"{name}: 3MF has no build items (nothing to print)")
+        for ipart, iid, it in items:
+            emit(ipart, iid, it, 0)
+    if not out_f:
+        raise MeshReadError(f"{name}: the 3MF file contains no triangles")
+    vertices = np.vstack(out_v) * scale
+    return _finish(vertices, np.vstack(out_f), "3mf", name, unit_scale=scale)
+
+
+# --------------------------------------------------------------------------- public
+
+
+def load_mesh(
+    path: str | os.PathLike[str],
+    *,
+    max_bytes: int | None = None,
+    max_triangles: int | None = None,
+    max_decompressed: int | None = None,
+) -> Mesh:
+    """Read a mesh file (STL, OBJ, PLY, 3MF) into a :class:`Mesh` in millimetres.
+
+    ``max_bytes`` caps the file size; ``max_triangles`` caps the triangle count (checked
+    from headers before the bulk is parsed where the format allows). For 3MF, the total
+    decompressed size is capped at ``max_decompressed`` (default: 20 x ``max_bytes``, or
+    1 GiB without ``max_bytes``), counted while reading, so a zip bomb is refused early.
+    Raises :class:`MeshReadError` (one line) for anything that is not a readable mesh.
+    """
+    p = Path(path)
+    name = p.name
+    suffix = p.suffix.lower()
+    if suffix not in SUPPORTED_SUFFIXES:
+        raise MeshReadError(
+            f"{name}: unsupported file type {suffix or '(no extension)'!r}; "
+            f"expected one of {', '.join(SUPPORTED_SUFFIXES)}"
+        )
+    try:
+        size = p.stat().st_size
+        if p.is_dir():
+            raise MeshReadError(f"{name}: is a directory, not a mesh file")
+    except FileNotFoundError:
+        raise MeshReadError(f"{name}: no such file") from None
+    except PermissionError:
+        raise MeshReadError(f"{name}: permission denied") from None
+    if size == 0:
+        raise MeshReadError(f"{name}: the file is empty")
+    if max_bytes is not None and size > max_bytes:
+        raise MeshReadError(
+            f"{name}: file is {_human_bytes(size)}, over the {_human_bytes(max_bytes)} limit"
+        )
+    if suffix == ".3mf":
+        if max_decompressed is None:
+            max_decompressed = (
+                _3MF_EXPANSION * max_bytes
+                if max_bytes is not None
+                else DEFAULT_MAX_3MF_DECOMPRESSED
+            )
+        with open(p, "rb") as fh:
+            head = fh.read(4)
+        if head != b"PK\x03\x04":
+            foreign = _sniff_foreign(head)
+            raise MeshReadError(
+                f"{name}: not a 3MF file" + (f", it is {foreign}" if foreign else "")
+            )
+        return _read_3mf(p, name, max_triangles, max_decompressed)
+    try:
+        data = p.read_bytes()
+    except OSError as exc:
+        raise MeshReadError(f"{name}: cannot read: {exc.strerror or exc}") from None
+    if not data.strip():
+        raise MeshReadError(f"{name}: the file is empty (only whitespace)")
+    if suffix == ".stl":
+        return _read_stl(data, name, max_triangles)
+    foreign = _sniff_foreign(data[:16])
+    if foreign:
+        raise MeshReadError(f"{name}: not a mesh, it is {foreign}")
+    if suffix == ".obj":
+        if not _looks_like_text(data[:4096]):
+            raise MeshReadError(f"{name}: not a mesh: binary data in an OBJ file")
+        return _read_obj(data, name, max_triangles)
+    return _read_ply(data, name, max_triangles)
+
+
+def face_normals32(vertices32: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Unit normals (float32, (m, 3)) of the triangles; zero for degenerate ones."""
+    tri = vertices32[faces].astype(np.float64)
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        n = np.where(length > 0, n / length, 0.0)
+    return n.astype(np.float32)
+
+
+def write_stl(path: str | os.PathLike[str], vertices: np.ndarray, faces: np.ndarray) -> None:
+    """Write a binary STL (float32 coordinates in mm, per-face unit normals).
+
+    The file is written to a temporary name in the same folder and renamed into place, so
+    a reader never sees a half-written file. The 80-byte header never starts with
+    ``solid`` (which would confuse ASCII detection in other tools).
+    """
+    v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    if len(f) and (f.min() < 0 or f.max() >= len(v)):
+        raise ValueError("face indices out of range")
+    v32 = v.astype(np.float32)
+    rec = np.zeros(len(f), dtype=_STL_DTYPE)
+    rec["v"] = v32[f]
+    rec["normal"] = face_normals32(v32, f)
+    header = b"binary STL written by preflight (units: mm)".ljust(80, b" ")
+    out = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix="." + out.name + ".", suffix=".tmp", dir=out.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(header)
+            fh.write(np.uint32(len(f)).tobytes())
+            fh.write(rec.tobytes())
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, out)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise

@@ -1,0 +1,501 @@
+"""Mesh readers and the STL writer on real files: the corpus, files written here, bad files."""
+
+from __future__ import annotations
+
+import csv
+import struct
+import tracemalloc
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from repair.check import check_printable, round_to_float32
+from repair.io import Mesh, MeshReadError, load_mesh, write_stl
+
+REPO = Path(__file__).resolve().parents[2]
+CORPUS = REPO.parent / "shared" / "corpus"
+DATA = REPO / "tests" / "data"
+
+
+def _corpus_rows() -> list[dict[str, str]]:
+    manifest = CORPUS / "manifest.tsv"
+    if not manifest.is_file():
+        return []
+    with open(manifest, newline="") as fh:
+        return list(csv.DictReader(fh, delimiter="\t"))
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def write_3mf(
+    path: Path,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    *,
+    unit: str = "millimeter",
+    item_transform: str | None = None,
+    component_transform: str | None = None,
+) -> None:
+    """Write a minimal 3MF package (core spec): one mesh object, optionally wrapped in a
+    components object, one build item. Transforms are 12 numbers, 3MF row-vector order."""
+    vs = "\n".join(f'<vertex x="{x!r}" y="{y!r}" z="{z!r}"/>' for x, y, z in vertices.tolist())
+    ts = "\n".join(f'<triangle v1="{a}" v2="{b}" v3="{c}"/>' for a, b, c in faces.tolist())
+    objects = (
+        f'<object id="1" type="model"><mesh><vertices>\n{vs}\n</vertices>'
+        f"<triangles>\n{ts}\n</triangles></mesh></object>"
+    )
+    build_id = "1"
+    if component_transform is not None:
+        objects += (
+            '<object id="2" type="model"><components>'
+            f'<component objectid="1" transform="{component_transform}"/>'
+            "</components></object>"
+        )
+        build_id = "2"
+    item_attr = f' transform="{item_transform}"' if item_transform else ""
+    model = (
+        '<?xml version="1.0" encoding="UTF-8"?>\n'
+        f'<model unit="{unit}" xml:lang="en-US" '
+        'xmlns="http://schemas.microsoft.com/3dmanufacturing/core/2015/02">\n'
+        f"<resources>{objects}</resources>\n"
+        f'<build><item objectid="{build_id}"{item_attr}/></build>\n</model>\n'
+    )
+    rels = (
+        '<?xml version="1.0" encoding="UTF-8"?>\n'
+        '<Relationships xmlns="http://schemas.openxmlformats.org/package/2006/relationships">'
+        '<Relationship Target="/3D/3dmodel.model" Id="rel0" '
+        'Type="http://schemas.microsoft.com/3dmanufacturing/2013/01/3dmodel"/>'
+        "</Relationships>\n"
+    )
+    types = (
+        '<?xml version="1.0" encoding="UTF-8"?>\n'
+        '<Types xmlns="http://schemas.openxmlformats.org/package/2006/content-types">'
+        '<Default Extension="rels" '
+        'ContentType="application/vnd.openxmlformats-package.relationships+xml"/>'
+        '<Default Extension="model" '
+        'ContentType="application/vnd.ms-package.3dmanufacturing-3dmodel+xml"/>'
+        "</Types>\n"
+    )
+    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        zf.writestr("[Content_Types].xml", types)
+        zf.writestr("_rels/.rels", rels)
+        zf.writestr("3D/3dmodel.model", model)
+
+
+def cube(size: float = 20.0) -> tuple[np.ndarray, np.ndarray]:
+    m = trimesh.creation.box(bounds=[[0, 0, 0], [size, size, size]])
+    return np.asarray(m.vertices, float), np.asarray(m.faces, np.int64)
+
+
+def ascii_stl(vertices: np.ndarray, faces: np.ndarray, name: str = "part") -> bytes:
+    out = [f"solid {name}"]
+    for tri in vertices[faces]:
+        out.append("  facet normal 0 0 0\n    outer loop")
+        out += [f"      vertex {x!r} {y!r} {z!r}" for x, y, z in tri.tolist()]
+        out.append("    endloop\n  endfacet")
+    out.append(f"endsolid {name}\n")
+    return "\n".join(out).encode()
+
+
+def same_triangles(a: Mesh, vertices: np.ndarray, faces: np.ndarray) -> bool:
+    """Same triangle soup (corner coordinates, in order) regardless of vertex indexing."""
+    return np.array_equal(a.vertices[a.faces], np.asarray(vertices, float)[faces])
+
+
+# --------------------------------------------------------------------------- corpus
+
+
+@pytest.mark.parametrize("row", _corpus_rows(), ids=lambda r: r["file"])
+def test_every_corpus_file_loads(row):
+    mesh = load_mesh(CORPUS / row["file"])
+    assert mesh.triangles == int(row["triangles"])
+    assert mesh.vertices.dtype == np.float64 and mesh.faces.dtype == np.int64
+    assert np.isfinite(mesh.vertices).all()
+    assert mesh.faces.min() >= 0 and mesh.faces.max() < len(mesh.vertices)
+    assert mesh.unit_scale == 1.0
+
+
+def test_corpus_present_or_skipped():
+    if not CORPUS.is_dir():
+        pytest.skip("corpus not present")
+    files = {p.name for p in CORPUS.iterdir() if p.suffix.lower() in (".stl", ".obj", ".ply")}
+    assert files == {r["file"] for r in _corpus_rows()}
+
+
+@pytest.mark.skipif(not CORPUS.is_dir(), reason="corpus not present")
+def test_corpus_defects_match_the_manifest():
+    # Independent measurements in manifest.tsv; these files need no welding beyond STL's.
+    expected = {
+        "mikedh_wallhole.obj": {"degenerate_faces": 11, "intersecting_pairs": 50},
+        "mikedh_bunny.ply": {"nonmanifold_edges": 150, "duplicate_faces": 87},
+        "admesh_fill-holes-bad.stl": {"boundary_edges": 3, "intersecting_pairs": 0},
+        "mikedh_counter.unitsmm.STL": {"intersecting_pairs": 2272, "components": 6},
+        "DragonAceNL_1004825.stl": {"intersecting_pairs": 531, "components": 10},
+    }
+    for fname, counts in expected.items():
+        m = load_mesh(CORPUS / fname)
+        p = check_printable(m.vertices, m.faces).to_dict()
+        assert {k: p[k] for k in counts} == counts, fname
+
+
+# --------------------------------------------------------------------------- tests/data
+
+
+def test_bundled_broken_model():
+    m = load_mesh(DATA / "open_cube_stuck_to_side.stl")
+    assert m.source_format == "stl-ascii" and m.triangles == 22
+    p = check_printable(m.vertices, m.faces)
+    assert not p.ok
+    assert p.boundary_edges == 4 and p.intersecting_pairs == 15  # as in the manifest
+
+
+def test_bundled_good_3mf():
+    m = load_mesh(DATA / "cube_20mm.3mf")
+    assert m.source_format == "3mf" and m.triangles == 12
+    p = check_printable(m.vertices, m.faces)
+    assert p.ok, p.failures()
+    assert p.volume == pytest.approx(8000.0)
+    assert np.allclose(m.vertices.min(axis=0), 0) and np.allclose(m.vertices.max(axis=0), 20)
+
+
+# --------------------------------------------------------------------------- STL
+
+
+def test_binary_round_trip(tmp_path):
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=12.3456789)
+    v, f = np.asarray(sphere.vertices), np.asarray(sphere.faces)
+    out = tmp_path / "sphere.stl"
+    write_stl(out, v, f)
+    assert out.stat().st_size == 84 + 50 * len(f)
+    assert not out.read_bytes().startswith(b"solid")
+    m = load_mesh(out)
+    assert m.source_format == "stl-binary"
+    assert m.triangles == len(f) and len(m.vertices) == len(v)  # shared corners re-welded
+    assert same_triangles(m, round_to_float32(v), f)
+    assert check_printable(m.vertices, m.faces).ok
+    # per-face normals are stored, unit length, pointing outward on a sphere
+    raw = np.frombuffer(
+        out.read_bytes()[84:], dtype=[("n", "<f4", 3), ("v", "<f4", (3, 3)), ("a", "<u2")]
+    )
+    assert np.allclose(np.linalg.norm(raw["n"], axis=1), 1.0, atol=1e-6)
+    assert np.all(np.einsum("ij,ij->i", raw["n"], raw["v"].mean(axis=1)) > 0)
+    # no temporary files left behind
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["sphere.stl"]
+
+
+def test_binary_stl_whose_header_starts_with_solid(tmp_path):
+    v, f = cube()
+    out = tmp_path / "cad.stl"
+    write_stl(out, v, f)
+    data = bytearray(out.read_bytes())
+    data[:80] = b"solid part exported by some CAD tool".ljust(80, b" ")
+    out.write_bytes(bytes(data))
+    m = load_mesh(out)
+    assert m.source_format == "stl-binary"
+    assert same_triangles(m, v, f)
+
+
+def test_ascii_stl(tmp_path):
+    v, f = cube(3.5)
+    out = tmp_path / "a.stl"
+    out.write_bytes(ascii_stl(v, f, name="cube 7 with numbers 1 2 3"))
+    m = load_mesh(out)
+    assert m.source_format == "stl-ascii"
+    assert same_triangles(m, v, f) and len(m.vertices) == 8
+    assert check_printable(m.vertices, m.faces).ok
+    # upper case keywords and CRLF line ends are common in old exporters
+    out.write_bytes(ascii_stl(v, f).upper().replace(b"\n", b"\r\n"))
+    assert same_triangles(load_mesh(out), v, f)
+
+
+def test_ascii_stl_keeps_degenerate_triangles(tmp_path):
+    v = np.array([[0, 0, 0], [0, 0, 40.0], [0, 0, 0]])
+    out = tmp_path / "line.stl"
+    out.write_bytes(ascii_stl(v, np.array([[0, 1, 2]])))
+    m = load_mesh(out)
+    assert m.triangles == 1 and len(m.vertices) == 2
+    assert m.faces[0, 0] == m.faces[0, 2]
+
+
+def test_truncated_binary_stl(tmp_path):
+    v, f = cube()
+    out = tmp_path / "t.stl"
+    write_stl(out, v, f)
+    out.write_bytes(out.read_bytes()[:-70])
+    with pytest.raises(MeshReadError) as err:
+        load_mesh(out)
+    msg = str(err.value)
+    assert "truncated" in msg and "12 triangles" in msg and str(84 + 50 * 12 - 70) in msg
+    assert "\n" not in msg
+
+
+def test_nan_coordinates(tmp_path):
+    v, f = cube()
+    out = tmp_path / "nan.stl"
+    write_stl(out, v, f)
+    data = bytearray(out.read_bytes())
+    data[84 + 50 * 5 + 12 : 84 + 50 * 5 + 16] = struct.pack("<f", float("nan"))
+    out.write_bytes(bytes(data))
+    with pytest.raises(MeshReadError, match="NaN"):
+        load_mesh(out)
+    # ASCII, with inf
+    text = ascii_stl(v, f).replace(b"vertex 20.0", b"vertex inf", 1)
+    out.write_bytes(text)
+    with pytest.raises(MeshReadError, match="infinite"):
+        load_mesh(out)
+    # OBJ
+    obj = tmp_path / "nan.obj"
+    obj.write_text("v 0 0 0\nv 1 0 nan\nv 0 1 0\nf 1 2 3\n")
+    with pytest.raises(MeshReadError, match="NaN"):
+        load_mesh(obj)
+
+
+def test_not_a_mesh(tmp_path):
+    rng = np.random.default_rng(5)
+    cases = {
+        "random.stl": rng.bytes(5000),
+        "photo.stl": b"\xff\xd8\xff\xe0\x00\x10JFIF\x00" + rng.bytes(3000),
+        "notes.stl": b"Shopping list\n- filament\n- glue stick\n" * 20,
+        "random.obj": rng.bytes(2000),
+        "notes.obj": b"this is a text file, not a model\n",
+        "random.ply": rng.bytes(2000),
+        "points.ply": b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\n"
+        b"property float y\nproperty float z\nend_header\n0 0 0\n",
+        "random.3mf": rng.bytes(2000),
+        "photo.3mf": b"\x89PNG\r\n\x1a\n" + rng.bytes(100),
+        "short.stl": b"hello",
+    }
+    for fname, data in cases.items():
+        (tmp_path / fname).write_bytes(data)
+        with pytest.raises(MeshReadError) as err:
+            load_mesh(tmp_path / fname)
+        msg = str(err.value)
+        assert msg.startswith(fname) and "\n" not in msg, msg
+    with pytest.raises(MeshReadError, match="JPEG"):
+        load_mesh(tmp_path / "photo.stl")
+    with pytest.raises(MeshReadError, match="text file"):
+        load_mesh(tmp_path / "notes.stl")
+    with pytest.raises(MeshReadError, match="not a mesh"):
+        load_mesh(tmp_path / "random.stl")
+
+
+def test_empty_and_missing_files(tmp_path):
+    for fname in ("e.stl", "e.obj", "e.ply", "e.3mf"):
+        (tmp_path / fname).write_bytes(b"")
+        with pytest.raises(MeshReadError, match="empty"):
+            load_mesh(tmp_path / fname)
+    (tmp_path / "ws.stl").write_bytes(b" \n\n ")
+    with pytest.raises(MeshReadError, match="empty"):
+        load_mesh(tmp_path / "ws.stl")
+    with pytest.raises(MeshReadError, match="no such file"):
+        load_mesh(tmp_path / "missing.stl")
+    zero = tmp_path / "zero.stl"
+    zero.write_bytes(b"\0" * 80 + struct.pack("<I", 0))
+    with pytest.raises(MeshReadError, match="0 triangles"):
+        load_mesh(zero)
+
+
+def test_unsupported_extension(tmp_path):
+    p = tmp_path / "part.step"
+    p.write_text("ISO-10303-21;")
+    with pytest.raises(MeshReadError, match="unsupported"):
+        load_mesh(p)
+    # MeshReadError is a ValueError, as the contract says
+    assert issubclass(MeshReadError, ValueError)
+
+
+def test_size_and_triangle_caps(tmp_path):
+    sphere = trimesh.creation.icosphere(subdivisions=2)  # 320 triangles
+    v, f = np.asarray(sphere.vertices), np.asarray(sphere.faces)
+    stl = tmp_path / "s.stl"
+    write_stl(stl, v, f)
+    size = stl.stat().st_size
+    assert load_mesh(stl, max_bytes=size, max_triangles=320).triangles == 320
+    with pytest.raises(MeshReadError, match="limit") as err:
+        load_mesh(stl, max_bytes=size - 1)
+    assert "\n" not in str(err.value)
+    with pytest.raises(MeshReadError, match="320 triangles.*319"):
+        load_mesh(stl, max_triangles=319)
+    (tmp_path / "s_ascii.stl").write_bytes(ascii_stl(v, f))
+    with pytest.raises(MeshReadError, match="limit"):
+        load_mesh(tmp_path / "s_ascii.stl", max_triangles=100)
+    obj = tmp_path / "s.obj"
+    obj.write_text(trimesh.exchange.obj.export_obj(sphere))
+    assert load_mesh(obj).triangles == 320
+    with pytest.raises(MeshReadError, match="limit"):
+        load_mesh(obj, max_triangles=100)
+    ply = tmp_path / "s.ply"
+    ply.write_bytes(trimesh.exchange.ply.export_ply(sphere))
+    with pytest.raises(MeshReadError, match="limit"):
+        load_mesh(ply, max_triangles=100)
+    mf = tmp_path / "s.3mf"
+    write_3mf(mf, v, f)
+    assert load_mesh(mf).triangles == 320
+    with pytest.raises(MeshReadError, match="limit"):
+        load_mesh(mf, max_triangles=100)
+
+
+# --------------------------------------------------------------------------- OBJ / PLY
+
+
+def test_obj_polygons_negative_indices_and_lines(tmp_path):
+    p = tmp_path / "q.obj"
+    p.write_text(
+        "# a unit square as one quad, written with relative indices and v/vt/vn\n"
+        "o square\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0 1.0\nvt 0 0\nvn 0 0 1\n"
+        "f -4/1/1 -3/1/1 -2/1/1 -1/1/1\n"
+        "v 0 0 5\n"
+        "l 1 5\n"
+        "f 1//1 2//1 \\\n 5//1\n"
+    )
+    m = load_mesh(p)
+    assert m.source_format == "obj"
+    assert m.faces.tolist() == [[0, 1, 2], [0, 2, 3], [0, 1, 4], [0, 4, 4]]
+    assert m.vertices[4].tolist() == [0, 0, 5]
+
+
+def test_ply_ascii_and_binary(tmp_path):
+    torus = trimesh.creation.torus(10, 3, major_sections=24, minor_sections=12)
+    for enc in ("ascii", "binary"):
+        p = tmp_path / f"t_{enc}.ply"
+        p.write_bytes(trimesh.exchange.ply.export_ply(torus, encoding=enc))
+        m = load_mesh(p)
+        assert m.source_format == "ply"
+        assert m.faces.tolist() == torus.faces.tolist()
+        assert np.allclose(m.vertices, torus.vertices, atol=1e-5)
+        assert check_printable(m.vertices, m.faces).ok
+    bad = tmp_path / "cut.ply"
+    bad.write_bytes((tmp_path / "t_binary.ply").read_bytes()[:-100])
+    with pytest.raises(MeshReadError):
+        load_mesh(bad)
+
+
+# --------------------------------------------------------------------------- 3MF
+
+
+@pytest.mark.parametrize(
+    "unit,scale",
+    [("micron", 0.001), ("millimeter", 1.0), ("centimeter", 10.0), ("inch", 25.4),
+     ("foot", 304.8), ("meter", 1000.0)],
+)  # fmt: skip
+def test_3mf_units(tmp_path, unit, scale):
+    v, f = cube(1.0)
+    p = tmp_path / f"{unit}.3mf"
+    write_3mf(p, v, f, unit=unit)
+    m = load_mesh(p)
+    assert m.source_format == "3mf" and m.unit_scale == scale
+    assert np.allclose(m.vertices[m.faces], v[f] * scale)
+    assert check_printable(m.vertices, m.faces).volume == pytest.approx(scale**3)
+
+
+def test_3mf_inch_cube_is_scaled(tmp_path):
+    v, f = cube(1.0)
+    p = tmp_path / "inch.3mf"
+    write_3mf(p, v, f, unit="inch")
+    m = load_mesh(p)
+    assert m.unit_scale == 25.4
+    assert np.allclose(m.vertices.max(axis=0) - m.vertices.min(axis=0), 25.4)
+
+
+def test_3mf_transforms(tmp_path):
+    v, f = cube(2.0)
+    # component: rotate 90° about z (x -> y, y -> -x), then item: translate (10, 20, 30).
+    rot = "0 1 0 -1 0 0 0 0 1 0 0 0"
+    p = tmp_path / "t.3mf"
+    write_3mf(p, v, f, component_transform=rot, item_transform="1 0 0 0 1 0 0 0 1 10 20 30")
+    m = load_mesh(p)
+    expected = np.c_[-v[:, 1], v[:, 0], v[:, 2]] + [10, 20, 30]
+    assert np.allclose(m.vertices[m.faces], expected[f])
+    # a mirroring transform keeps the file's winding: the loader does not "fix" it
+    write_3mf(p, v, f, item_transform="-1 0 0 0 1 0 0 0 1 0 0 0")
+    assert check_printable(load_mesh(p).vertices, load_mesh(p).faces).volume < 0
+
+
+def _bomb_3mf(path: Path, padding: int) -> None:
+    """A valid 20 mm cube 3MF whose model XML carries ``padding`` bytes of whitespace
+    (which deflate compresses about 1000:1)."""
+    v, f = cube()
+    write_3mf(path, v, f)
+    with zipfile.ZipFile(path) as zf:
+        entries = [(i.filename, zf.read(i)) for i in zf.infolist()]
+    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        for fname, body in entries:
+            if fname != "3D/3dmodel.model":
+                zf.writestr(fname, body)
+                continue
+            head, tail = body.split(b"<resources>")
+            with zf.open(fname, "w", force_zip64=True) as fh:
+                fh.write(head + b"<resources>")
+                block = b" " * (1 << 20)
+                for _ in range(padding >> 20):
+                    fh.write(block)
+                fh.write(tail)
+
+
+def test_3mf_zip_bomb_is_refused_without_exhausting_memory(tmp_path):
+    p = tmp_path / "bomb.3mf"
+    _bomb_3mf(p, 256 << 20)  # 256 MiB of XML in a file of ~250 KiB
+    assert p.stat().st_size < 2 << 20
+    tracemalloc.start()
+    try:
+        with pytest.raises(MeshReadError, match="zip bomb"):
+            load_mesh(p, max_bytes=4 << 20)  # cap: 20 x 4 MiB = 80 MiB decompressed
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 64 << 20
+
+
+def test_3mf_zip_bomb_with_a_lying_size_header(tmp_path):
+    # Declared uncompressed size patched down to 1000 bytes: the declared-size check
+    # passes, inflation must still stop (Python's zipfile stops at the declared size and
+    # the CRC no longer matches) and be reported in one line, with memory bounded.
+    p = tmp_path / "liar.3mf"
+    _bomb_3mf(p, 64 << 20)
+    data = bytearray(p.read_bytes())
+    name = b"3D/3dmodel.model"
+    patched = 0
+    for sig, size_off, name_off in ((b"PK\x01\x02", 24, 46), (b"PK\x03\x04", 22, 30)):
+        start = 0
+        while (i := data.find(sig, start)) >= 0:
+            start = i + 4
+            if data[i + name_off : i + name_off + len(name)] == name:
+                size = struct.unpack_from("<I", data, i + size_off)[0]
+                if size != 0xFFFFFFFF:
+                    struct.pack_into("<I", data, i + size_off, 1000)
+                    patched += 1
+    p.write_bytes(bytes(data))
+    assert patched >= 1
+    tracemalloc.start()
+    try:
+        with pytest.raises(MeshReadError) as err:
+            load_mesh(p, max_decompressed=8 << 20)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert "\n" not in str(err.value)
+    assert peak < 64 << 20
+
+
+def test_3mf_padded_but_honest_file_loads_under_the_cap(tmp_path):
+    p = tmp_path / "padded.3mf"
+    _bomb_3mf(p, 8 << 20)
+    assert load_mesh(p).triangles == 12  # default cap is 1 GiB
+    with pytest.raises(MeshReadError, match="zip bomb"):
+        load_mesh(p, max_decompressed=4 << 20)
+
+
+def test_3mf_malformed(tmp_path):
+    p = tmp_path / "bad.3mf"
+    with zipfile.ZipFile(p, "w") as zf:
+        zf.writestr("3D/3dmodel.model", "<model><resources><object id='1'>")
+    with pytest.raises(MeshReadError, match="3MF"):
+        load_mesh(p)
+    with zipfile.ZipFile(p, "w") as zf:
+        zf.writestr("readme.txt", "no model here")
+    with pytest.raises(MeshReadError, match="no 3D model"):
+        load_mesh(p)
