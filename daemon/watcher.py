@@ -56,6 +56,7 @@ class SpoolWatcher:
         self.poll = poll
         self._lock = threading.Lock()
         self._cands: dict[str, _Candidate] = {}
+        self._handed: dict[str, int] = {}   # name -> inode handed over, still in the spool
         self._observer = None
         self._last_scan = 0.0
         self.wakeup = threading.Event()   # set when an event arrives
@@ -99,6 +100,7 @@ class SpoolWatcher:
                     self._cands.pop(gone, None)
                 name = self._relevant(event.dest_path)
                 if name:
+                    self._handed.pop(name, None)
                     c = self._cands.setdefault(name, _Candidate(now, now))
                     c.closed_at, c.writing, c.last_change = now, False, now
             else:
@@ -107,6 +109,11 @@ class SpoolWatcher:
                     return
                 if event.event_type == "deleted":
                     self._cands.pop(name, None)
+                    self._handed.pop(name, None)
+                    return
+                if event.event_type == "created":
+                    self._handed.pop(name, None)
+                elif name in self._handed:
                     return
                 c = self._cands.setdefault(name, _Candidate(now, now))
                 if isinstance(event, FileClosedEvent):
@@ -128,12 +135,18 @@ class SpoolWatcher:
         except FileNotFoundError:
             return
         with self._lock:
+            present = set(names)
+            for n in list(self._handed):
+                if n not in present:
+                    del self._handed[n]
             for n in names:
                 if is_partial_name(n) or n in self._cands:
                     continue
                 try:
                     st = os.lstat(self.spool / n)
                 except FileNotFoundError:
+                    continue
+                if self._handed.get(n) == st.st_ino:
                     continue
                 if stat.S_ISDIR(st.st_mode):
                     continue
@@ -167,6 +180,7 @@ class SpoolWatcher:
                     else:  # symlinks and other oddities: hand over, intake refuses them
                         ready.append((c.first_seen, name))
                         del self._cands[name]
+                        self._handed[name] = st.st_ino
                     continue
                 sig = (st.st_size, st.st_mtime_ns)
                 if sig != c.signature:
@@ -183,6 +197,7 @@ class SpoolWatcher:
                 if ok:
                     ready.append((c.first_seen, name))
                     del self._cands[name]
+                    self._handed[name] = st.st_ino
         return [self.spool / n for _, n in sorted(ready)]
 
 

@@ -1,0 +1,102 @@
+"""The TOML config: defaults, every documented key, errors that name the key."""
+
+from pathlib import Path
+
+import pytest
+
+from daemon.config import ConfigError, load_config, parse_config
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def write(tmp_path: Path, text: str) -> Path:
+    p = tmp_path / "preflight.toml"
+    p.write_text(text)
+    return p
+
+
+def test_defaults_without_a_file():
+    cfg = parse_config({})
+    assert cfg.printer.port == "virtual"
+    assert cfg.printer.baud == 115200
+    assert cfg.daemon.auto_print is True
+    assert cfg.spool.path == Path("/var/spool/preflight")
+    assert cfg.done_dir == cfg.spool.path / "done"
+
+
+def test_documented_keys_are_read(tmp_path):
+    p = write(tmp_path, """
+[spool]
+path = "spool"
+[printer]
+port = "/dev/serial/by-id/usb-foo"
+baud = 250000
+nozzle_diameter = 0.6
+[daemon]
+state_dir = "/tmp/x/state"
+auto_print = false
+log_level = "debug"
+[limits]
+max_file_mb = 10
+max_triangles = 1000
+repair_timeout = 5
+slice_timeout = 6
+repair_memory_mb = 512
+[profile]
+infill_percent = 30
+""")
+    cfg = load_config(p)
+    assert cfg.spool.path == tmp_path / "spool"  # relative to the config file
+    assert cfg.printer.port == "/dev/serial/by-id/usb-foo"
+    assert cfg.printer.baud == 250000
+    assert cfg.printer.nozzle_diameter == 0.6
+    assert cfg.daemon.state_dir == Path("/tmp/x/state")
+    assert cfg.daemon.auto_print is False
+    assert cfg.daemon.log_level == "DEBUG"
+    assert (cfg.limits.max_file_mb, cfg.limits.max_triangles) == (10, 1000)
+    assert (cfg.limits.repair_timeout, cfg.limits.slice_timeout) == (5, 6)
+    assert cfg.limits.repair_memory_mb == 512
+    assert cfg.profile == {"infill_percent": 30}
+
+
+@pytest.mark.parametrize("text, key", [
+    ("[printer]\nbaud = \"fast\"", "[printer] baud"),
+    ("[printer]\nbaud = 12.5", "[printer] baud"),
+    ("[printer]\nnozzle_diameter = -0.4", "[printer] nozzle_diameter"),
+    ("[daemon]\nauto_print = \"yes\"", "[daemon] auto_print"),
+    ("[daemon]\nlog_level = \"loud\"", "[daemon] log_level"),
+    ("[limits]\nrepair_timeout = 0", "[limits] repair_timeout"),
+    ("[spool]\npath = 3", "[spool] path"),
+    ("[spool]\npaht = \"/x\"", "[spool] paht"),
+    ("[printr]\nport = \"x\"", "[printr]"),
+    ("[safety]\nforbidden_gcodes = \"M502\"", "[safety] forbidden_gcodes"),
+])
+def test_bad_value_names_the_key(tmp_path, text, key):
+    with pytest.raises(ConfigError) as e:
+        load_config(write(tmp_path, text))
+    assert str(e.value).startswith(key)
+
+
+def test_missing_and_broken_files(tmp_path):
+    with pytest.raises(ConfigError, match="does not exist"):
+        load_config(tmp_path / "nope.toml")
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        load_config(write(tmp_path, "[spool\npath ="))
+
+
+def test_shipped_example_config_is_valid():
+    cfg = load_config(ROOT / "systemd" / "preflight.toml")
+    assert cfg.spool.path == Path("/var/spool/preflight")
+    assert cfg.printer.port.startswith("/dev/serial/by-id/")
+
+
+def test_run_with_bad_config_prints_one_line(tmp_path):
+    import subprocess
+    import sys
+
+    p = write(tmp_path, "[printer]\nbaud = \"fast\"\n")
+    out = subprocess.run([sys.executable, "-m", "daemon", "run", "--config", str(p)],
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2
+    assert out.stderr.strip().splitlines() == [out.stderr.strip()]
+    assert out.stderr.startswith("preflight: [printer] baud")

@@ -1,0 +1,81 @@
+"""Repair/slicing children: crashes, endless loops and out-of-memory fail the task,
+not the caller; a real repair goes through."""
+
+import os
+import threading
+from pathlib import Path
+
+import pytest
+
+from daemon.worker import FAULT_ENV, WorkerCancelled, WorkerFailed, run_task
+
+DATA = Path(__file__).resolve().parents[2] / "daemon" / "data"
+
+
+def spec(tmp_path, name="model.stl"):
+    src = tmp_path / name
+    src.write_bytes((DATA / "open_cube_stuck_to_side.stl").read_bytes())
+    return {"in": str(src), "out": str(tmp_path / "out.stl"), "epsilon": 0.4}
+
+
+@pytest.mark.parametrize("action, expect", [
+    ("abort", "crashed with SIGABRT"),
+    ("oom", "ran out of memory"),
+])
+def test_child_fault_fails_the_task(tmp_path, monkeypatch, action, expect):
+    monkeypatch.setenv(FAULT_ENV, f"repair:{action}")
+    with pytest.raises(WorkerFailed, match=expect):
+        run_task("repair", spec(tmp_path), work_dir=tmp_path / "w", timeout=120,
+                 memory_mb=400)
+    assert os.getpid() > 0  # we are alive to tell
+
+
+def test_endless_loop_hits_the_timeout(tmp_path, monkeypatch):
+    monkeypatch.setenv(FAULT_ENV, "repair:hang")
+    with pytest.raises(WorkerFailed, match="longer than the limit of 1 s"):
+        run_task("repair", spec(tmp_path), work_dir=tmp_path / "w", timeout=1, memory_mb=1024)
+
+
+def test_cancel_kills_the_child(tmp_path, monkeypatch):
+    monkeypatch.setenv(FAULT_ENV, "repair:hang")
+    ev = threading.Event()
+    pids = []
+    threading.Timer(0.5, ev.set).start()
+    with pytest.raises(WorkerCancelled):
+        run_task("repair", spec(tmp_path), work_dir=tmp_path / "w", timeout=600,
+                 memory_mb=1024, cancel=ev, on_start=pids.append)
+    with pytest.raises(ProcessLookupError):
+        os.kill(pids[0], 0)
+
+
+def test_fault_filter_by_name(tmp_path, monkeypatch):
+    monkeypatch.setenv(FAULT_ENV, "repair:abort:crashme")
+    pytest.importorskip("repair.pipeline")
+    report = run_task("repair", spec(tmp_path, "fine.stl"), work_dir=tmp_path / "w",
+                      timeout=300, memory_mb=2048)
+    assert report["after"]["triangles"] > 0
+    with pytest.raises(WorkerFailed, match="SIGABRT"):
+        run_task("repair", spec(tmp_path, "crashme.stl"), work_dir=tmp_path / "w2",
+                 timeout=300, memory_mb=2048)
+
+
+def test_real_repair_reports_progress_and_writes_the_mesh(tmp_path):
+    pytest.importorskip("repair.pipeline")
+    stages = []
+    s = spec(tmp_path)
+    report = run_task("repair", s, work_dir=tmp_path / "w", timeout=300, memory_mb=2048,
+                      progress=lambda st, f: stages.append((st, f)))
+    assert Path(s["out"]).stat().st_size > 84
+    assert report["epsilon"] == 0.4
+    assert report["printable"]
+    assert isinstance(report["summary"], str) and report["summary"]
+
+
+def test_bad_input_gives_the_readers_message(tmp_path):
+    pytest.importorskip("repair.pipeline")
+    bad = tmp_path / "junk.stl"
+    bad.write_bytes(b"\x00" * 10)
+    with pytest.raises(WorkerFailed) as e:
+        run_task("repair", {"in": str(bad), "out": str(tmp_path / "o.stl"), "epsilon": 0.4},
+                 work_dir=tmp_path / "w", timeout=300, memory_mb=2048)
+    assert "\n" not in str(e.value)
