@@ -97,7 +97,6 @@ def test_full_infill_volume_matches_mesh(name):
     assert result.summary["filament_cm3"] == pytest.approx(extruded / 1000, rel=0.01)
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("name", list(MODELS))
 def test_beads_cover_the_outer_wall_and_stay_inside(name):
     v, f, profile, _, rep = sliced(name)

@@ -1,0 +1,166 @@
+"""Behaviour of the G-code beyond geometry: skins, retraction, fan, progress, E modes, time."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from gcode_replay import replay
+from manifold3d import CrossSection, JoinType
+from slice_checks import bead_footprint, bridge_part, cube, layer_heights, part_with_holes, sphere
+
+from slicer.engine import SliceError, slice_mesh
+from slicer.gcode import trapezoid_time
+from slicer.profile import Profile
+
+BASE = Profile.for_printer(nozzle_diameter=0.4, build_volume=(200, 200, 180))
+
+
+def _slice(model, **over):
+    v, f = model()
+    profile = BASE.with_overrides(over)
+    result = slice_mesh(v, f, profile)
+    return v, f, profile, result, replay(result.gcode)
+
+
+def _per_layer_volume(rep, profile):
+    area = math.pi * (profile.filament_diameter / 2) ** 2
+    layers = rep.layers()
+    zs = sorted(layers)
+    return zs, [rep.de[layers[z]].sum() * area for z in zs]
+
+
+def test_top_and_bottom_skins_are_solid_and_the_middle_is_sparse():
+    _, _, profile, _, rep = _slice(cube, skirts=0, infill_percent=20)
+    zs, vol = _per_layer_volume(rep, profile)
+    hs = layer_heights(zs)
+    fill = [v / (h * 400.0) for v, h in zip(vol, hs, strict=True)]  # 20 × 20 mm section
+    for i in list(range(profile.bottom_layers)) + list(range(-profile.top_layers, 0)):
+        assert fill[i] == pytest.approx(1.0, abs=0.06), f"layer {i} not solid"
+    middle = fill[len(fill) // 2]
+    assert 0.15 < middle < 0.5, f"middle layer fill {middle:.2f}"
+
+
+def test_bridge_deck_is_solid_over_the_gap():
+    v, f, profile, _, rep = _slice(bridge_part, skirts=0, infill_percent=10)
+    layers = rep.layers()
+    zs = sorted(layers)
+    # placement: the 29 × 8 mm footprint is centred on the bed; the gap is x = 4..20
+    x0 = profile.build_volume[0] / 2 - 14.5
+    y0 = profile.build_volume[1] / 2 - 4.0
+    gap = CrossSection.square([16.0, 8.0]).translate([x0 + 4.0, y0])
+    overhang = CrossSection.square([5.0, 8.0]).translate([x0 + 24.0, y0])
+    z = min(z for z in zs if z > 10.0)  # first deck layer, printed over air
+    beads = bead_footprint(rep, layers[z], z - max(q for q in zs if q < z),
+                           profile.filament_diameter)
+    for region in (gap, overhang):
+        inner = region.offset(-0.25, JoinType.Miter)  # the part's wall band aside
+        assert (inner ^ beads).area() / inner.area() >= 0.97
+    # on a sparse (10 %) layer inside the pillars' height the gap is empty
+    z_low = max(z for z in zs if z < 9.0)
+    low = bead_footprint(rep, layers[z_low], profile.layer_height, profile.filament_diameter)
+    assert (gap.offset(-0.1, JoinType.Miter) ^ low).area() == 0.0
+
+
+def test_travels_leaving_the_part_are_retracted():
+    v, f, profile, _, rep = _slice(part_with_holes, skirts=0, retract_min_travel=2.0)
+    xy = np.hypot(*(rep.end[:, :2] - rep.start[:, :2]).T)
+    retracted = 0.0
+    checked = 0
+    last_extrusion = int(np.flatnonzero(rep.extruding)[-1])
+    for i in range(last_extrusion):
+        if xy[i] == 0 and rep.de[i] != 0:
+            retracted -= rep.de[i]
+            continue
+        if xy[i] > 0 and rep.de[i] == 0 and rep.end[i, 2] == rep.start[i, 2] \
+                and rep.start[i, 2] > 0 and xy[i] > profile.retract_min_travel:
+            checked += 1
+            assert retracted == pytest.approx(profile.retract_length), \
+                f"long travel at line {rep.line_no[i]} without retraction"
+        if rep.de[i] > 0 and xy[i] > 0:
+            assert abs(retracted) < 1e-6, f"extruding while retracted, line {rep.line_no[i]}"
+    assert checked > 0
+
+
+def test_fan_progress_and_first_layer_settings():
+    _, _, profile, result, rep = _slice(cube, first_layer_speed=15, disable_fan_first_layers=2)
+    text = result.gcode
+    layers = rep.layers()
+    zs = sorted(layers)
+    # fan: off at start, on (M106) only when layer index 2 begins
+    first_on = next(no for no, s in rep.fan if s > 0)
+    layer2_first = rep.line_no[layers[zs[2]][0]]
+    layer1_first = rep.line_no[layers[zs[1]][0]]
+    assert layer1_first < first_on < layer2_first
+    assert rep.fan[-1][1] == 0  # switched off at the end
+    # progress climbs monotonically to 100
+    ps = [p for _, p in rep.progress]
+    assert ps == sorted(ps) and ps[-1] == 100 and len(ps) >= len(zs)
+    # first layer at first-layer speed and first-layer width
+    first = layers[zs[0]]
+    assert set(np.unique(rep.feed[first])) == {15 * 60.0}
+    seg = np.hypot(*(rep.end[first, :2] - rep.start[first, :2]).T)
+    area = math.pi * (profile.filament_diameter / 2) ** 2
+    h = zs[0]
+    width = rep.de[first] * area / (seg * h) + h * (1 - math.pi / 4)
+    long = seg > 5
+    assert np.median(width[long]) == pytest.approx(profile.first_layer_line_width, rel=0.02)
+    assert "M109" in text.split(";LAYER:0")[0]
+
+
+def test_absolute_and_relative_e_deposit_the_same():
+    _, _, profile, _, rel = _slice(sphere, relative_e=True)
+    _, _, _, res_abs, ab = _slice(sphere, relative_e=False)
+    assert "M82" in res_abs.gcode and "G92 E0" in res_abs.gcode
+    assert ab.de.sum() == pytest.approx(rel.de.sum(), rel=1e-4)
+    assert ab.de.sum() > 0
+    np.testing.assert_allclose(ab.end[ab.extruding][:, :2], rel.end[rel.extruding][:, :2])
+
+
+def test_time_estimate_is_between_cruise_time_and_a_sane_bound():
+    _, _, profile, result, rep = _slice(cube)
+    length = np.linalg.norm(rep.end - rep.start, axis=1)
+    moving = length > 0
+    cruise = float((length[moving] / (rep.feed[moving] / 60.0)).sum())
+    est = result.summary["estimated_seconds"]
+    assert cruise < est < 2.5 * cruise
+
+
+def test_trapezoid_of_a_single_long_move():
+    pts = np.array([[0.0, 0.0], [100.0, 0.0]])
+    t = trapezoid_time(pts, np.array([100.0]), np.array([1000.0]), jerk=8.0)
+    # start/end at jerk/2 = 4 mm/s; accelerate at 1000 mm/s² to 100 mm/s, cruise, brake
+    v0 = 4.0
+    ramp = (100.0 - v0) / 1000.0
+    d_ramp = (100.0 ** 2 - v0 ** 2) / 2000.0
+    assert t == pytest.approx(2 * ramp + (100.0 - 2 * d_ramp) / 100.0, rel=1e-9)
+    # a short move never reaches cruise speed and takes longer than length/speed
+    short = trapezoid_time(np.array([[0.0, 0.0], [1.0, 0.0]]), np.array([100.0]),
+                           np.array([1000.0]), jerk=8.0)
+    assert short > 1.0 / 100.0
+
+
+def test_model_larger_than_the_bed_names_both_sizes():
+    v, f = cube(30.0)
+    with pytest.raises(SliceError, match=r"30\.0 × 30\.0 × 30\.0.*25 × 25 × 100"):
+        slice_mesh(v, f, BASE.with_overrides({"build_volume": (25, 25, 100)}))
+
+
+def test_open_mesh_is_refused():
+    v, f = cube(10.0)
+    with pytest.raises(SliceError, match="manifold"):
+        slice_mesh(v, f[:-1], BASE)
+
+
+def test_skirt_surrounds_the_first_layer_only():
+    v, f, profile, _, rep = _slice(cube, skirts=1, skirt_distance=3.0)
+    layers = rep.layers()
+    zs = sorted(layers)
+    cx, cy = profile.build_volume[0] / 2, profile.build_volume[1] / 2
+    first = layers[zs[0]]
+    reach = np.abs(rep.end[first, :2] - [cx, cy]).max(axis=1)
+    assert reach.max() > 10.0 + 3.0  # beyond the 20 mm cube by the skirt distance
+    for z in zs[1:]:
+        idx = layers[z]
+        assert np.abs(rep.end[idx, :2] - [cx, cy]).max() <= 10.0 + 0.2

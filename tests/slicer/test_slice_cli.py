@@ -1,0 +1,48 @@
+"""``preflight slice`` as a user runs it: real STL in, G-code out, one-line errors."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import trimesh
+from gcode_replay import replay
+
+
+def run(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "daemon", "slice", *args],
+                          capture_output=True, text=True, timeout=300)
+
+
+def test_slices_an_stl_with_flags_and_profile(tmp_path):
+    stl = tmp_path / "part.stl"
+    trimesh.creation.cylinder(radius=8, height=6, sections=64).export(stl)
+    prof = tmp_path / "p.toml"
+    prof.write_text("skirts = 0\nfan_speed = 50\n")
+    out = tmp_path / "part.gcode"
+    res = run(str(stl), "-o", str(out), "--nozzle", "0.6", "--infill", "40",
+              "--bed", "150,150,100", "--profile", str(prof), "--json")
+    assert res.returncode == 0, res.stderr
+    summary = json.loads(res.stdout)
+    rep = replay(out.read_text())
+    # 0.6 nozzle: 0.3 mm layers → 6 mm / 0.3 = 20 layers
+    assert summary["layers"] == 20 == len(rep.layers())
+    ext = rep.extruding
+    centre = rep.end[ext, :2].mean(axis=0)
+    assert abs(centre[0] - 75) < 1 and abs(centre[1] - 75) < 1
+    assert max(s for _, s in rep.fan) == round(255 * 0.5)
+
+
+def test_errors_are_one_line(tmp_path):
+    stl = tmp_path / "big.stl"
+    trimesh.creation.box((300, 20, 20)).export(stl)
+    res = run(str(stl), "-o", str(tmp_path / "x.gcode"))
+    assert res.returncode != 0
+    assert res.stderr.strip().count("\n") == 0
+    assert res.stderr.startswith("preflight: ") and "300.0" in res.stderr and "220" in res.stderr
+    assert not (tmp_path / "x.gcode").exists()
+    res = run(str(stl), "-o", str(tmp_path / "x.gcode"), "--set", "nozzle_colour=red")
+    assert res.returncode != 0 and "nozzle_colour" in res.stderr
+    res = run(str(tmp_path / "missing.stl"), "-o", str(tmp_path / "x.gcode"))
+    assert res.returncode != 0 and res.stderr.startswith("preflight: ")
