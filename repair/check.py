@@ -121,22 +121,27 @@ def round_to_float32(vertices: np.ndarray) -> np.ndarray:
 def weld_exact(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Merge vertices with exactly equal coordinates; faces are re-indexed, not dropped.
 
-    Returns ``(unique_vertices, faces)``; the order of the unique vertices is unspecified.
-    Units unchanged. ``-0.0`` and ``+0.0`` are the same coordinate.
+    ``vertices`` may be float64 or float32 (compared in their own precision, which is
+    faster for STL data). Returns ``(unique_vertices float64, faces int64)``; the order of
+    the unique vertices is unspecified. Units unchanged. ``-0.0`` and ``+0.0`` are the
+    same coordinate.
     """
-    v = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
+    src = np.asarray(vertices)
+    dtype = np.float32 if src.dtype == np.float32 else np.float64
+    # +0.0 and -0.0 are the same point: normalise (x + 0.0), then compare bit patterns.
+    v = np.ascontiguousarray(src, dtype=dtype).reshape(-1, 3) + dtype(0.0)
     f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     if len(v) == 0:
-        return v, f
-    # +0.0 and -0.0 are the same point: normalise, then compare exact bit patterns.
-    v = v + 0.0
-    bits = v.view(np.uint64)
+        return v.astype(np.float64), f
+    bits = v.view(np.uint32 if dtype == np.float32 else np.uint64)
     # Sort by a 64-bit hash of the three coordinates (one argsort instead of a lexsort),
     # then verify: rows with equal hashes must be bit-identical, else fall back.
-    h = bits[:, 0] * np.uint64(0x9E3779B97F4A7C15)
-    h ^= bits[:, 1] * np.uint64(0xC2B2AE3D27D4EB4F) + (h >> np.uint64(29))
-    h ^= bits[:, 2] * np.uint64(0x165667B19E3779F9) + (h >> np.uint64(31))
-    order = np.argsort(h, kind="stable")
+    b0, b1, b2 = (bits[:, i].astype(np.uint64) for i in range(3))
+    h = b0 * np.uint64(0x9E3779B97F4A7C15)
+    h ^= b1 * np.uint64(0xC2B2AE3D27D4EB4F) + (h >> np.uint64(29))
+    h ^= b2 * np.uint64(0x165667B19E3779F9) + (h >> np.uint64(31))
+    del b0, b1, b2
+    order = np.argsort(h)
     hs = h[order]
     same_hash = hs[1:] == hs[:-1]
     sb = bits[order]
@@ -149,7 +154,7 @@ def weld_exact(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.
     ids = np.cumsum(new_group) - 1
     remap = np.empty(len(v), dtype=np.int64)
     remap[order] = ids
-    return v[order[new_group]], remap[f]
+    return v[order[new_group]].astype(np.float64), remap[f]
 
 
 # --------------------------------------------------------------------------- topology

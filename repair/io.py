@@ -137,9 +137,10 @@ def _finish(
 def _stl_soup_to_mesh(tri: np.ndarray, fmt: str, name: str) -> Mesh:
     """(m, 3, 3) triangle corners -> Mesh with exactly coincident corners merged."""
     m = len(tri)
-    soup = np.ascontiguousarray(tri, dtype=np.float64).reshape(-1, 3)
-    if not np.isfinite(soup).all():
-        bad = np.flatnonzero(~np.isfinite(soup).all(axis=1)) // 3
+    soup = np.ascontiguousarray(tri).reshape(-1, 3)  # float32 (binary) or float64 (ASCII)
+    finite = np.isfinite(soup).all(axis=1)
+    if not finite.all():
+        bad = np.flatnonzero(~finite) // 3
         raise MeshReadError(
             f"{name}: NaN or infinite coordinates in {len(np.unique(bad))} triangle(s), "
             f"first is #{bad[0]}"
