@@ -10,6 +10,8 @@ is *printable* when it is
 - free of **degenerate faces**: no repeated vertex index and no three exactly collinear
   corners (decided with exact arithmetic on the given coordinates, no tolerance);
 - free of **duplicate faces** (two faces on the same three vertices);
+- made of **outward shells**: each shell is a solid outside all others or a cavity inside
+  exactly one solid (winding numbers), so no inverted bodies and no shells nested in solids;
 - free of **self-intersections**: tested with CGAL's exact kernel through libigl
   (``igl.copyleft.cgal.remesh_self_intersections(..., detect_only=True)``). Faces that
   share a vertex or an edge and otherwise only touch along it are not intersecting; any
@@ -45,7 +47,12 @@ class Printability:
     Counts are of undirected edges (``boundary_edges``, ``nonmanifold_edges``,
     ``misoriented_edges``), of faces (``degenerate_faces``, ``duplicate_faces``,
     ``triangles``), of unordered face pairs (``intersecting_pairs``) and of edge-connected
-    face components (``components``). ``volume`` is the signed volume in mm³.
+    face components (``components``, i.e. shells). ``volume`` is the signed volume in mm³.
+    ``shells_outward``/``misnested_shells``: every shell is an outward solid lying outside
+    all others, or an inverted cavity lying inside exactly one solid (winding number of
+    the other shells 0 resp. 1). Only assessed (else None) when the mesh is closed,
+    edge-manifold, oriented, free of degenerate faces and of self-intersections, since the
+    winding number is only meaningful then; the other failures already decide ``ok``.
     ``float32`` says the check ran on float32-rounded (as written to STL) coordinates.
     """
 
@@ -56,6 +63,7 @@ class Printability:
     no_degenerate_faces: bool
     no_duplicate_faces: bool
     no_self_intersections: bool
+    shells_outward: bool | None
     triangles: int
     boundary_edges: int
     nonmanifold_edges: int
@@ -63,6 +71,7 @@ class Printability:
     degenerate_faces: int
     duplicate_faces: int
     intersecting_pairs: int
+    misnested_shells: int | None
     components: int
     volume: float
     float32: bool = False
@@ -79,6 +88,7 @@ class Printability:
             and self.no_degenerate_faces
             and self.no_duplicate_faces
             and self.no_self_intersections
+            and self.shells_outward is not False
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -110,6 +120,8 @@ class Printability:
             out.append(f"{self.duplicate_faces} duplicate face(s)")
         if not self.no_self_intersections:
             out.append(f"self-intersecting: {self.intersecting_pairs} intersecting face pair(s)")
+        if self.shells_outward is False:
+            out.append(f"{self.misnested_shells} shell(s) inverted or nested inside another solid")
         return out
 
 
@@ -160,8 +172,8 @@ def weld_exact(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.
 # --------------------------------------------------------------------------- topology
 
 
-def _edge_stats(faces: np.ndarray, n_vertices: int) -> tuple[int, int, int, int]:
-    """(boundary, nonmanifold, misoriented, components) from the directed half-edges."""
+def _edge_stats(faces: np.ndarray, n_vertices: int) -> tuple[int, int, int, int, np.ndarray]:
+    """(boundary, nonmanifold, misoriented, components, face labels) from the half-edges."""
     m = len(faces)
     a = faces.reshape(-1)
     b = faces[:, [1, 2, 0]].reshape(-1)
@@ -187,8 +199,8 @@ def _edge_stats(faces: np.ndarray, n_vertices: int) -> tuple[int, int, int, int]
     fa = order[link - 1] // 3
     fb = order[link] // 3
     graph = coo_matrix((np.ones(len(link), dtype=np.int8), (fa, fb)), shape=(m, m))
-    components = int(connected_components(graph, directed=False)[0])
-    return boundary, nonmanifold, misoriented, components
+    components, labels = connected_components(graph, directed=False)
+    return boundary, nonmanifold, misoriented, int(components), labels
 
 
 def _sorted_face_keys(faces: np.ndarray) -> np.ndarray:
@@ -312,6 +324,68 @@ def intersecting_face_pairs(vertices: np.ndarray, faces: np.ndarray) -> np.ndarr
     return np.unique(pairs, axis=0)
 
 
+def _winding_numbers(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Generalised winding number of the triangles at each point (solid angles / 4π)."""
+    out = np.zeros(len(points))
+    tri = vertices[faces]
+    for i, p in enumerate(points):
+        a, b, c = (tri[:, k] - p for k in range(3))
+        la, lb, lc = (np.linalg.norm(x, axis=1) for x in (a, b, c))
+        det = np.einsum("ij,ij->i", a, np.cross(b, c))
+        den = (
+            la * lb * lc
+            + np.einsum("ij,ij->i", a, b) * lc
+            + np.einsum("ij,ij->i", b, c) * la
+            + np.einsum("ij,ij->i", c, a) * lb
+        )
+        out[i] = np.sum(2.0 * np.arctan2(det, den)) / (4.0 * np.pi)
+    return out
+
+
+def _misnested_shells(
+    vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray, n_shells: int
+) -> int:
+    """Shells that are not where an outward-oriented solid needs them.
+
+    For a closed, oriented, non-self-intersecting mesh split into shells (edge-connected
+    components), the winding number of the *other* shells is constant on each shell. An
+    outward shell (positive volume) must sit outside every other solid (winding 0); an
+    inverted shell (negative volume) is a cavity and must sit inside exactly one solid
+    (winding 1). Anything else is an inverted body or a shell nested in a solid.
+    """
+    vertices = vertices - 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
+    a, b, c = (vertices[faces[:, k]] for k in range(3))
+    vol = np.bincount(labels, np.einsum("ij,ij->i", a, np.cross(b, c)), minlength=n_shells)
+    if n_shells == 1:
+        return int(vol[0] <= 0)
+    order = np.argsort(labels, kind="stable")
+    starts = np.searchsorted(labels[order], np.arange(n_shells + 1))
+    # One probe point per shell: the centroid of one of its faces.
+    probe = (a + b + c)[order[starts[:-1]]] / 3.0
+    # Bounding box per shell: a closed shell winds 0 around any point outside its box.
+    corners = np.stack([a, b, c], axis=1)
+    lo = np.minimum.reduceat(corners.min(axis=1)[order], starts[:-1], axis=0)
+    hi = np.maximum.reduceat(corners.max(axis=1)[order], starts[:-1], axis=0)
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(probe)
+    radius = 0.5 * np.linalg.norm(hi - lo, axis=1) * (1 + 1e-9) + 1e-300
+    candidates = tree.query_ball_point(0.5 * (lo + hi), radius)
+    winding = np.zeros(n_shells)
+    for d, cand in enumerate(candidates):
+        cand = np.asarray(cand, dtype=np.int64)
+        cand = cand[cand != d]
+        if len(cand) == 0:
+            continue
+        cand = cand[np.all((lo[d] <= probe[cand]) & (probe[cand] <= hi[d]), axis=1)]
+        if len(cand):
+            shell_faces = faces[order[starts[d] : starts[d + 1]]]
+            winding[cand] += _winding_numbers(vertices, shell_faces, probe[cand])
+    w = np.rint(winding)
+    bad = np.where(vol > 0, w != 0, w != 1) | (vol == 0)
+    return int(np.count_nonzero(bad))
+
+
 # --------------------------------------------------------------------------- entry point
 
 
@@ -355,12 +429,13 @@ def check_printable(
         return Printability(
             closed=False, edge_manifold=True, oriented=True, positive_volume=False,
             no_degenerate_faces=True, no_duplicate_faces=True, no_self_intersections=True,
-            triangles=0, boundary_edges=0, nonmanifold_edges=0, misoriented_edges=0,
-            degenerate_faces=0, duplicate_faces=0, intersecting_pairs=0, components=0,
+            shells_outward=None, triangles=0, boundary_edges=0, nonmanifold_edges=0,
+            misoriented_edges=0, degenerate_faces=0, duplicate_faces=0, intersecting_pairs=0,
+            misnested_shells=None, components=0,
             volume=0.0, float32=as_float32,
         )  # fmt: skip
 
-    boundary, nonmanifold, misoriented, components = _edge_stats(f, len(v))
+    boundary, nonmanifold, misoriented, components, labels = _edge_stats(f, len(v))
     degenerate = degenerate_face_mask(v, f)
     n_degenerate = int(np.count_nonzero(degenerate))
     n_duplicate = _duplicate_faces(f)
@@ -374,6 +449,17 @@ def check_printable(
         fk = f[keep]
     pairs = intersecting_face_pairs(v, fk)
 
+    solid_so_far = (
+        boundary == 0 and nonmanifold == 0 and misoriented == 0
+        and n_degenerate == 0 and n_duplicate == 0 and len(pairs) == 0
+    )  # fmt: skip
+    if not solid_so_far:
+        misnested = None
+    elif components == 1:
+        misnested = int(volume <= 0.0)
+    else:
+        misnested = _misnested_shells(v, f, labels, components)
+
     return Printability(
         closed=boundary == 0,
         edge_manifold=nonmanifold == 0,
@@ -382,6 +468,7 @@ def check_printable(
         no_degenerate_faces=n_degenerate == 0,
         no_duplicate_faces=n_duplicate == 0,
         no_self_intersections=len(pairs) == 0,
+        shells_outward=None if misnested is None else misnested == 0,
         triangles=m,
         boundary_edges=boundary,
         nonmanifold_edges=nonmanifold,
@@ -389,6 +476,7 @@ def check_printable(
         degenerate_faces=n_degenerate,
         duplicate_faces=n_duplicate,
         intersecting_pairs=int(len(pairs)),
+        misnested_shells=misnested,
         components=components,
         volume=volume,
         float32=as_float32,

@@ -96,12 +96,36 @@ def test_disjoint_and_nested_shells():
     v, f = join(box(), box((3, 0, 0), (4, 1, 1)))
     p = check_printable(v, f)
     assert p.ok and p.components == 2 and p.volume == pytest.approx(2.0)
+    assert p.shells_outward is True and p.misnested_shells == 0
     # A hollow box (inner shell inverted) is a legitimate solid with a cavity.
     vi, fi = box((1, 1, 1), (2, 2, 2))
     v, f = join(box((0, 0, 0), (3, 3, 3)), (vi, fi[:, ::-1]))
     p = check_printable(v, f)
     assert p.ok, p.failures()
     assert p.volume == pytest.approx(26.0)
+
+
+def test_shells_must_face_outward_and_not_nest():
+    big = box((0, 0, 0), (10, 10, 10))
+    vs, fs = box((20, 0, 0), (21, 1, 1))
+    # A separate inverted shell: total volume still positive, but it is not a solid.
+    p = check_printable(*join(big, (vs, fs[:, ::-1])))
+    assert p.volume == pytest.approx(999.0) and p.positive_volume
+    assert p.shells_outward is False and p.misnested_shells == 1 and not p.ok
+    assert any("inverted or nested" in s for s in p.failures())
+    # An outward shell nested inside a solid (double material): also refused.
+    vi, fi = box((2, 2, 2), (3, 3, 3))
+    p = check_printable(*join(big, (vi, fi)))
+    assert p.misnested_shells == 1 and not p.ok
+    # A solid island inside a cavity inside a solid is fine (winding 0 / 1 / 0).
+    vc, fc = box((1, 1, 1), (9, 9, 9))
+    p = check_printable(*join(big, (vc, fc[:, ::-1]), (vi, fi)))
+    assert p.ok, p.failures()
+    assert p.components == 3 and p.misnested_shells == 0
+    # Not assessed when the surface is open: the winding number means nothing there.
+    v, f = box()
+    p = check_printable(v, f[1:])
+    assert p.shells_outward is None and p.misnested_shells is None
 
 
 def test_touching_unwelded_cubes_count_as_intersecting():
