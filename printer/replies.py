@@ -1,0 +1,249 @@
+"""Pure parsers for the lines a printer sends back (Marlin 2.x, Prusa MK3, Prusa Buddy,
+Klipper, RepRapFirmware).
+
+Nothing here touches a port: every function takes text and returns values, so the
+whole protocol vocabulary is table-tested with real reply strings. Temperatures are
+in °C, lengths in mm.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+
+_NUM = r"-?\d+(?:\.\d+)?"
+
+# Fatal conditions: the firmware has stopped and will not take more commands.
+_FATAL_MARKERS = (
+    "printer halted",
+    "kill() called",
+    "thermal runaway",
+    "mintemp",
+    "maxtemp",
+    "heating failed",
+    "printer stopped due to errors",
+)
+
+# Marlin's line-protocol errors: "Error:<reason>, Last Line: <n>".
+_LINE_ERRORS = ("checksum mismatch", "line number is not", "no checksum", "no line number")
+
+
+@dataclass(frozen=True)
+class Reply:
+    """One classified reply line.
+
+    kind is one of: ``ok``, ``resend``, ``busy``, ``start``, ``fatal``, ``line_error``,
+    ``error``, ``unknown_command``, ``temperature``, ``comment``, ``echo``, ``other``.
+    ``number`` is the line number of a resend request, of an ADVANCED_OK ``N`` field,
+    or the ``Last Line`` of a line error. ``planner_free``/``queue_free`` are the
+    ADVANCED_OK ``P``/``B`` fields. ``temps`` maps a heater (``T``, ``T0``, ``B``...)
+    to (current °C, target °C or None).
+    """
+
+    kind: str
+    text: str
+    number: int | None = None
+    planner_free: int | None = None
+    queue_free: int | None = None
+    temps: dict[str, tuple[float, float | None]] = field(default_factory=dict)
+    waiting: bool = False
+
+    @property
+    def is_temperature_ok(self) -> bool:
+        """An ``ok`` that carries a temperature report (the reply to M105)."""
+        return self.kind == "ok" and bool(self.temps)
+
+
+_TEMP_RE = re.compile(rf"(?<![A-Za-z@])(T\d*|B|C|P|A):\s*({_NUM})(?:\s*/\s*({_NUM}))?")
+_ADV_RE = re.compile(r"(?<![A-Za-z:])([NPB])(\d+)(?![\d.:])")
+_RESEND_RE = re.compile(r"^(?:resend|rs)\s*:?\s*N?:?\s*(\d+)", re.IGNORECASE)
+_LAST_LINE_RE = re.compile(r"last line\s*:?\s*(\d+)", re.IGNORECASE)
+_UNKNOWN_RE = re.compile(r"unknown (?:command|g-?code|m-?code)\s*:?\s*\"?([^\"]*)\"?", re.I)
+
+
+def parse_temperatures(text: str) -> dict[str, tuple[float, float | None]]:
+    """Heater readings from an M105 reply or auto-report, in any of the common spacings.
+
+    ``"T:210.00 /210.00 B:60.00 /60.00 @:127 B@:0"`` -> ``{"T": (210.0, 210.0),
+    "B": (60.0, 60.0)}``; ``T0:`` style keys are kept as reported. Power fields
+    (``@:``, ``B@:``) and the wait field ``W:`` are not heaters and are skipped.
+    """
+    temps: dict[str, tuple[float, float | None]] = {}
+    for key, current, target in _TEMP_RE.findall(text):
+        if key in temps:
+            continue
+        temps[key] = (float(current), float(target) if target else None)
+    return temps
+
+
+def parse_reply(line: str) -> Reply:
+    """Classify one line received from the printer (the line terminator already removed)."""
+    text = line.strip()
+    low = text.lower()
+    if low == "ok" or low.startswith("ok ") or low.startswith("ok:"):
+        rest = text[2:]
+        temps = parse_temperatures(rest) if ":" in rest else {}
+        number = planner = queue = None
+        if not temps:
+            for letter, value in _ADV_RE.findall(rest):
+                if letter == "N":
+                    number = int(value)
+                elif letter == "P":
+                    planner = int(value)
+                else:
+                    queue = int(value)
+        return Reply("ok", text, number, planner, queue, temps)
+    m = _RESEND_RE.match(text)
+    if m:
+        return Reply("resend", text, int(m.group(1)))
+    if low == "start":
+        return Reply("start", text)
+    if low.startswith("!!"):
+        return Reply("fatal", text)
+    if "busy:" in low and (low.startswith("echo:") or low.startswith("busy")):
+        return Reply("busy", text)
+    if _UNKNOWN_RE.search(text) or "is not supported" in low:
+        return Reply("unknown_command", text)
+    if low.startswith("error"):
+        if any(marker in low for marker in _FATAL_MARKERS):
+            return Reply("fatal", text)
+        m = _LAST_LINE_RE.search(text)
+        if any(reason in low for reason in _LINE_ERRORS):
+            return Reply("line_error", text, int(m.group(1)) if m else None)
+        return Reply("error", text)
+    if any(marker in low for marker in ("printer halted", "kill() called")):
+        return Reply("fatal", text)
+    temps = parse_temperatures(text)
+    if temps and re.match(r"^(?:T\d*|B):", text):
+        return Reply("temperature", text, temps=temps, waiting="W:" in text)
+    if text.startswith("//"):
+        return Reply("comment", text)
+    if low.startswith("echo:"):
+        return Reply("echo", text)
+    return Reply("other", text)
+
+
+def unknown_command_of(line: str) -> str | None:
+    """The command named by an unknown-command reply, or None if the line is not one.
+
+    ``'echo:Unknown command: "M862.1 Q"'`` -> ``"M862.1 Q"``;
+    ``'// Unknown command:"M862.1"'`` -> ``"M862.1"``.
+    """
+    m = _UNKNOWN_RE.search(line)
+    if m:
+        return m.group(1).strip() or None
+    m = re.search(r"(?:error|warning):\s*([GMT][\d.]+).*not supported", line, re.I)
+    return m.group(1) if m else None
+
+
+_KEY_RE = re.compile(r"(?:(?<=\s)|^)([A-Z][A-Z0-9_]{2,}):")
+
+
+def parse_firmware_fields(text: str) -> dict[str, str]:
+    """The ``KEY:value`` fields of an M115 reply line (Marlin, Prusa, Klipper, RRF).
+
+    Values run until the next upper-case ``KEY:``; a leading ``ok`` (Klipper puts
+    M115 on the ok line) is ignored.
+    """
+    body = text.strip()
+    if body.lower().startswith("ok"):
+        body = body[2:].lstrip()
+    matches = list(_KEY_RE.finditer(body))
+    fields: dict[str, str] = {}
+    for i, m in enumerate(matches):
+        end = matches[i + 1].start() if i + 1 < len(matches) else len(body)
+        fields[m.group(1)] = body[m.end():end].strip()
+    return fields
+
+
+def parse_capability(text: str) -> tuple[str, bool] | None:
+    """``"Cap:ADVANCED_OK:1"`` -> ``("ADVANCED_OK", True)``; None for other lines."""
+    m = re.match(r"^\s*Cap:([A-Z0-9_]+):\s*(\d+)", text.strip())
+    if not m:
+        return None
+    return m.group(1), m.group(2) != "0"
+
+
+_XYZ = rf"\{{x:({_NUM}),y:({_NUM}),z:({_NUM})\}}"
+
+
+def parse_area(text: str) -> dict[str, tuple[tuple[float, ...], tuple[float, ...]]]:
+    """Marlin's M115 geometry report, ``area:{full:{min:{x:..},max:{..}},work:{..}}``.
+
+    Returns ``{"full": (min_xyz, max_xyz), "work": (min_xyz, max_xyz)}`` (mm), with
+    whichever of the two the line holds.
+    """
+    out = {}
+    for name in ("full", "work"):
+        m = re.search(rf"{name}:\{{min:{_XYZ},max:{_XYZ}\}}", text)
+        if m:
+            values = tuple(float(v) for v in m.groups())
+            out[name] = (values[:3], values[3:])
+    return out
+
+
+_SOFT_RE = re.compile(
+    rf"Min:\s*X\s*({_NUM})\s*Y\s*({_NUM})\s*Z\s*({_NUM})\s+Max:\s*X\s*({_NUM})\s*Y\s*({_NUM})"
+    rf"\s*Z\s*({_NUM})"
+)
+
+
+def parse_soft_endstops(text: str) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
+    """Marlin M211: ``"  Min:  X0.00 Y0.00 Z0.00   Max:  X250.00 Y210.00 Z220.00"``.
+
+    Returns ((xmin, ymin, zmin), (xmax, ymax, zmax)) in mm, or None.
+    """
+    m = _SOFT_RE.search(text)
+    if not m:
+        return None
+    values = tuple(float(v) for v in m.groups())
+    return values[:3], values[3:]
+
+
+def parse_axis_limits(text: str) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
+    """RepRapFirmware M208: ``"Axis limits (mm) X0.0:230.0, Y0.0:210.0, Z0.0:200.0"``."""
+    if "limits" not in text.lower():
+        return None
+    found = dict(
+        (axis, (float(lo), float(hi)))
+        for axis, lo, hi in re.findall(rf"\b([XYZ])\s*({_NUM})\s*:\s*({_NUM})", text)
+    )
+    if not all(axis in found for axis in "XYZ"):
+        return None
+    return tuple(found[a][0] for a in "XYZ"), tuple(found[a][1] for a in "XYZ")
+
+
+def parse_filament_diameter(text: str) -> float | None:
+    """The ``D`` value of an M200 report (``"echo:  M200 S0 D1.75"``), in mm, or None."""
+    m = re.search(rf"M200\b[^;]*?\bD\s*({_NUM})", text)
+    if not m:
+        return None
+    value = float(m.group(1))
+    return value if 1.0 <= value <= 3.5 else None
+
+
+def parse_nozzle_reply(text: str) -> float | None:
+    """A nozzle diameter (mm) from the reply to a nozzle query, or None.
+
+    Prusa MK3 ``M862.1 Q`` answers a bare ``0.40``; Prusa Buddy answers
+    ``echo:  M862.1 T0 P0.40 A0 F0``; a Klipper query macro answers a ``//`` line
+    such as ``// nozzle_diameter: 0.400``. Plausible values only (0.05..3 mm).
+    """
+    text = text.strip()
+    value: float | None = None
+    m = re.search(rf"M862\.1\b.*?\bP\s*({_NUM})", text)
+    if m:
+        value = float(m.group(1))
+    elif re.fullmatch(_NUM, text):
+        value = float(text)
+    elif text.startswith("//") or text.lower().startswith("echo:"):
+        m = re.search(rf"nozzle[_ a-z]*[:=]?\s*({_NUM})", text, re.I)
+        if m:
+            value = float(m.group(1))
+        else:
+            m = re.fullmatch(rf"(?://|echo:)\s*({_NUM})\s*(?:mm)?", text, re.I)
+            if m:
+                value = float(m.group(1))
+    if value is None or not 0.05 <= value <= 3.0:
+        return None
+    return value
