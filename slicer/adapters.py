@@ -60,7 +60,7 @@ def available() -> dict[str, bool]:
 
 
 def _rendered_templates(profile: Profile) -> tuple[str, str]:
-    from slicer.gcode import render_template
+    from slicer.templates import render_template
 
     values = dict(profile.to_dict())
     values.update(layer_count=0, max_z=profile.build_volume[2], park_z=profile.build_volume[2],
@@ -96,7 +96,9 @@ def prusa_args(profile: Profile) -> list[str]:
         "perimeters": p.perimeters, "top-solid-layers": p.top_layers,
         "bottom-solid-layers": p.bottom_layers, "top-solid-min-thickness": 0,
         "bottom-solid-min-thickness": 0,
-        "fill-density": f"{_num(p.infill_percent)}%", "fill-pattern": p.infill_pattern,
+        "fill-density": f"{_num(p.infill_percent)}%",
+        # PrusaSlicer refuses grid at 100 %; solid rectilinear is what the profile means there
+        "fill-pattern": "rectilinear" if p.infill_percent >= 100 else p.infill_pattern,
         "fill-angle": p.infill_angle,
         "perimeter-speed": p.perimeter_speed,
         "external-perimeter-speed": p.external_perimeter_speed,
@@ -213,6 +215,12 @@ def cura_command(profile: Profile, in_path: Path, out_path: Path, exe: str, defs
     return cmd
 
 
+def cura_print_time(log: str) -> float | None:
+    """CuraEngine's own time estimate from its verbose log (seconds), or None."""
+    m = re.search(r"^Print time \(s\): (\d+)", log, re.MULTILINE)
+    return float(m.group(1)) if m else None
+
+
 # ---- running and reading back ----------------------------------------------------------
 def _error_line(text: str, tool: str, code: int) -> str:
     # drop PrusaSlicer's timestamped log chatter: "[2026-...] [0x...] [trace] ..."
@@ -314,9 +322,8 @@ def slice_external(name: str, in_path: str | os.PathLike, out_path: str | os.Pat
         if tmp.exists():
             tmp.unlink()
     summary = gcode_summary(text, profile)
-    m = re.search(r"^Print time \(s\): (\d+)", res.stderr, re.MULTILINE)
     if name == "cura":  # the ;TIME: header is a placeholder the Cura front end fills in
-        summary["estimated_seconds"] = float(m.group(1)) if m else None
+        summary["estimated_seconds"] = cura_print_time(res.stderr)
     if summary["estimated_seconds"] is None or not math.isfinite(summary["estimated_seconds"]):
         summary["estimated_seconds"] = None
     summary["slicer"] = name

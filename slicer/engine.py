@@ -52,9 +52,10 @@ def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progres
                ) -> SliceResult:
     """Slice a closed triangle mesh (mm) with ``profile``; raises SliceError on bad input."""
     from slicer import geometry as geo
-    from slicer.gcode import GcodeWriter, fan_command, m73, render_template, start_block
+    from slicer.gcode import GcodeWriter, fan_command, m73, start_block
     from slicer.ordering import order_paths
     from slicer.planner import LayerPlan, infill_paths, plan_shells, skin_regions, skirt_paths
+    from slicer.templates import render_template
 
     def report(stage: str, fraction: float) -> None:
         if progress is not None:
@@ -197,7 +198,8 @@ def _load_mesh(path: FsPath) -> tuple[np.ndarray, np.ndarray]:
     if not path.is_file():
         raise SliceError(f"no such file: {path}")
     try:
-        mesh = trimesh.load(str(path), force="mesh")
+        # slice_mesh welds exact duplicates itself; skip trimesh's slower processing
+        mesh = trimesh.load(str(path), force="mesh", process=False)
     except Exception as exc:  # trimesh raises many types for bad files
         raise SliceError(f"cannot read {path.name}: {exc}") from None
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:

@@ -17,6 +17,7 @@ import numpy as np
 from slicer.geometry import bead_area, polygon_edges, segments_cross
 from slicer.planner import LayerPlan, Path
 from slicer.profile import Profile
+from slicer.templates import render_template
 
 
 def trapezoid_time(pts: np.ndarray, speed: np.ndarray, accel: np.ndarray, jerk: float) -> float:
@@ -212,15 +213,6 @@ class GcodeWriter:
 
 _HEAT_WAIT = re.compile(r"^\s*M109\b", re.MULTILINE | re.IGNORECASE)
 _BED_WAIT = re.compile(r"^\s*M190\b", re.MULTILINE | re.IGNORECASE)
-
-
-def render_template(template: str, values: dict) -> str:
-    """Fill ``{name}`` placeholders from ``values``; unknown names raise ValueError."""
-    try:
-        text = template.format_map(values)
-    except (KeyError, IndexError, ValueError) as exc:
-        raise ValueError(f"G-code template has an unknown or bad placeholder: {exc}") from None
-    return text if text.endswith("\n") or not text else text + "\n"
 
 
 def start_block(profile: Profile, values: dict) -> str:

@@ -1,0 +1,207 @@
+"""Slicing benchmark: time and peak memory of the embedded slicer, side by side with
+prusa-slicer / CuraEngine when installed, on a 20 mm cube, an 82k-triangle sphere
+(trimesh icosphere, subdivisions=6, 40 mm) and a 100k-triangle torus.
+
+Run: .venv/bin/python bench/bench_slice.py [--repeat N]
+
+Every slice runs in its own child process; peak memory is that child's ru_maxrss (from
+os.wait4), so the figures include the interpreter and imported libraries. Linux counts the
+parent's resident memory at fork into a child's ru_maxrss, so this parent stays small: mesh
+generation and G-code parsing run in helper children too. For the embedded
+slicer, "slice s" is measured inside the child around slice_file (load STL + slice + write
+G-code); "wall s" is the whole child including Python start-up and imports. External
+slicers only have "wall s". Volume accuracy: the sphere sliced at 100 % infill, extruded
+filament volume ÷ mesh volume.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+CHILD = r"""
+import json, sys, time
+t0 = time.perf_counter()
+import manifold3d, numpy, trimesh  # noqa: F401  (import cost reported apart from slicing)
+import slicer.gcode, slicer.ordering, slicer.planner  # noqa: F401
+from slicer.engine import slice_file
+from slicer.profile import Profile
+profile = Profile.for_printer().with_overrides(json.loads(sys.argv[3]))
+t1 = time.perf_counter()
+summary = slice_file(sys.argv[1], sys.argv[2], profile)
+t2 = time.perf_counter()
+print(json.dumps({"slice_s": t2 - t1, "import_s": t1 - t0, "summary": summary}))
+"""
+
+
+def make_models(folder: Path) -> dict[str, tuple[Path, float, int]]:
+    """Write the three STL files (in a helper child, to keep this process small)."""
+    _, _, code_, out, err = run_child([sys.executable, __file__, "--make-models", str(folder)])
+    if code_ != 0:
+        raise SystemExit(f"cannot build the models: {err.strip()}")
+    data = json.loads(out.strip().splitlines()[-1])
+    return {k: (Path(v[0]), float(v[1]), int(v[2])) for k, v in data.items()}
+
+
+def _make_models(folder: Path) -> dict[str, tuple[Path, float, int]]:
+    import trimesh
+
+    models = {
+        "cube 20 mm": trimesh.creation.box((20, 20, 20)),
+        "sphere 82k": trimesh.creation.icosphere(subdivisions=6, radius=20.0),
+        "torus 100k": trimesh.creation.torus(major_radius=30.0, minor_radius=10.0,
+                                             major_sections=250, minor_sections=200),
+    }
+    out = {}
+    for name, mesh in models.items():
+        path = folder / (name.split()[0] + ".stl")
+        mesh.export(path)
+        out[name] = (path, float(mesh.volume), len(mesh.faces))
+    return out
+
+
+def run_child(cmd: list[str], env: dict | None = None) -> tuple[float, float, int, str, str]:
+    """(wall seconds, peak RSS MB, exit code, stdout, stderr) of one child process."""
+    with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
+        t0 = time.perf_counter()
+        proc = subprocess.Popen(cmd, stdout=out, stderr=err, env=env)
+        _, status, usage = os.wait4(proc.pid, 0)
+        wall = time.perf_counter() - t0
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        out.seek(0)
+        err.seek(0)
+        return (wall, usage.ru_maxrss / 1024.0, proc.returncode,
+                out.read().decode(errors="replace"), err.read().decode(errors="replace"))
+
+
+def embedded(stl: Path, gcode: Path, overrides: dict) -> dict:
+    wall, mb, code, out, err = run_child([sys.executable, "-c", CHILD, str(stl), str(gcode),
+                                          json.dumps(overrides)],
+                                         env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    if code != 0:
+        return {"error": err.strip().splitlines()[-1] if err.strip() else f"exit {code}"}
+    data = json.loads(out.strip().splitlines()[-1])
+    return {"slice_s": data["slice_s"], "wall_s": wall, "peak_mb": mb,
+            "summary": data["summary"]}
+
+
+def external(name: str, stl: Path, gcode: Path, overrides: dict) -> dict:
+    from slicer import adapters
+    from slicer.profile import Profile
+
+    profile = Profile.for_printer().with_overrides(overrides)
+    exe = adapters.find_binary(name)
+    if name == "cura":
+        defs = adapters.cura_definitions()
+        cmd = adapters.cura_command(profile, stl, gcode, exe, defs)
+        env = dict(os.environ, CURA_ENGINE_SEARCH_PATH=str(defs))
+    else:
+        cmd = [exe, "--export-gcode", *adapters.prusa_args(profile), "--output", str(gcode),
+               str(stl)]
+        env = dict(os.environ)
+    wall, mb, code, out, err = run_child(cmd, env=env)
+    if code != 0 or not gcode.exists():
+        return {"error": adapters._error_line(err + out, name, code)}
+    summary = _summary_in_child(gcode, overrides)
+    if name == "cura":
+        summary["estimated_seconds"] = adapters.cura_print_time(err)
+    return {"slice_s": None, "wall_s": wall, "peak_mb": mb, "summary": summary}
+
+
+def _summary_in_child(gcode: Path, overrides: dict) -> dict:
+    code = ("import json, sys; from pathlib import Path; from slicer.adapters import "
+            "gcode_summary; from slicer.profile import Profile; p = Profile.for_printer()"
+            ".with_overrides(json.loads(sys.argv[2])); print(json.dumps(gcode_summary("
+            "Path(sys.argv[1]).read_text(errors='replace'), p)))")
+    _, _, rc, out, err = run_child([sys.executable, "-c", code, str(gcode), json.dumps(overrides)],
+                                   env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    if rc != 0:
+        raise SystemExit(f"cannot read {gcode}: {err.strip()}")
+    return json.loads(out.strip().splitlines()[-1])
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeat", type=int, default=3, help="runs per case; best time is shown")
+    ap.add_argument("--make-models", metavar="DIR", help=argparse.SUPPRESS)  # helper child
+    args = ap.parse_args()
+    if args.make_models:
+        made = _make_models(Path(args.make_models))
+        print(json.dumps({k: [str(v[0]), v[1], v[2]] for k, v in made.items()}))
+        return 0
+    from slicer import adapters
+
+    have = adapters.available()
+    tools = ["embedded"] + [t for t in ("prusa", "cura") if have[t]]
+    missing = [t for t in ("prusa", "cura") if not have[t]]
+    print(f"slicers: {', '.join(tools)}"
+          + (f" (not installed: {', '.join(missing)})" if missing else ""))
+    print(f"python {sys.version.split()[0]}, {os.cpu_count()} CPUs, repeat {args.repeat}")
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        models = make_models(folder)
+        print()
+        print(f"{'model':12s} {'tris':>7s} {'slicer':9s} {'slice s':>8s} {'wall s':>8s} "
+              f"{'peak MB':>8s} {'layers':>6s} {'filament m':>10s} {'est. min':>8s}")
+        results: dict[tuple[str, str], dict] = {}
+        for mname, (stl, _vol, tris) in models.items():
+            for tool in tools:
+                best: dict | None = None
+                for _ in range(args.repeat):
+                    gcode = folder / f"{stl.stem}.{tool}.gcode"
+                    r = embedded(stl, gcode, {}) if tool == "embedded" else \
+                        external(tool, stl, gcode, {})
+                    if "error" in r:
+                        best = r
+                        break
+                    key = r["slice_s"] if r["slice_s"] is not None else r["wall_s"]
+                    if best is None or key < (best["slice_s"] or best["wall_s"]):
+                        best = r
+                results[(mname, tool)] = best
+                if "error" in best:
+                    print(f"{mname:12s} {tris:7d} {tool:9s} error: {best['error']}")
+                    continue
+                s = best["summary"]
+                est = s.get("estimated_seconds")
+                print(f"{mname:12s} {tris:7d} {tool:9s} "
+                      f"{best['slice_s'] if best['slice_s'] is not None else float('nan'):8.3f} "
+                      f"{best['wall_s']:8.3f} {best['peak_mb']:8.1f} {s['layers']:6d} "
+                      f"{s['filament_mm'] / 1000:10.3f} "
+                      f"{(est / 60 if est else float('nan')):8.1f}")
+        print()
+        print("ratios (external wall time ÷ embedded time):")
+        for mname in models:
+            emb = results.get((mname, "embedded"))
+            if not emb or "error" in emb:
+                continue
+            for tool in tools[1:]:
+                ext = results.get((mname, tool))
+                if ext and "error" not in ext:
+                    print(f"  {mname:12s} {tool:6s}: {ext['wall_s'] / emb['slice_s']:5.2f}x vs "
+                          f"slice, {ext['wall_s'] / emb['wall_s']:5.2f}x vs embedded wall")
+        print()
+        print("volume accuracy, sphere at 100 % infill (extruded ÷ mesh volume):")
+        stl, vol, _ = models["sphere 82k"]
+        over = {"infill_percent": 100, "skirts": 0}
+        for tool in tools:
+            gcode = folder / f"acc.{tool}.gcode"
+            r = embedded(stl, gcode, over) if tool == "embedded" else \
+                external(tool, stl, gcode, over)
+            if "error" in r:
+                print(f"  {tool:9s} error: {r['error']}")
+                continue
+            print(f"  {tool:9s} {r['summary']['filament_cm3'] * 1000 / vol:6.3f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
