@@ -213,11 +213,6 @@ def _looks_like_text(chunk: bytes) -> bool:
     return printable >= 0.9 * min(len(chunk), 512)
 
 
-_SOLID_LINE = re.compile(rb"(?im)^[ \t]*(?:end)?solid\b[^\n]*$")
-_NORMAL = re.compile(rb"(?i)facet\s+normal(?:\s+\S+){3}")
-_KEYWORDS = re.compile(rb"(?i)\b(?:facet|outer\s+loop|endloop|endfacet|vertex)\b")
-
-
 def _parse_floats(text: bytes) -> np.ndarray | None:
     """All whitespace-separated floats in ``text`` (C speed); None if any token is not."""
     with warnings.catch_warnings():
@@ -228,11 +223,68 @@ def _parse_floats(text: bytes) -> np.ndarray | None:
             return None
 
 
+_ASCII_CHUNK = 8 << 20
+
+
+def _ascii_stl_chunk(chunk: bytes) -> tuple[np.ndarray | None, int, int]:
+    """Parse whole lines of an ASCII STL: (vertex coordinates, #vertex lines, #endfacet).
+
+    Vectorised over the bytes: find lines whose first token is ``vertex`` (any case),
+    keep the rest of those lines, and parse all of it with one C call.
+    """
+    a = np.frombuffer(chunk, dtype=np.uint8)
+    low = a | 0x20  # ASCII letters to lower case (other bytes do not matter here)
+    n_facets = low.tobytes().count(b"endfacet")
+    ws = (a == 32) | ((a >= 9) & (a <= 13))
+    cand = np.flatnonzero(low[: max(len(a) - 6, 0)] == ord("v"))
+    for k, ch in enumerate(b"ertex", start=1):
+        cand = cand[low[cand + k] == ch]
+    cand = cand[ws[cand + 6]]
+    # ``vertex`` must be the first token of its line (not part of a solid's name): walk
+    # back over the indentation, a few bytes for all candidates at once.
+    first = np.zeros(len(cand), dtype=bool)
+    undecided = np.ones(len(cand), dtype=bool)
+    for back in range(1, 17):
+        pos = cand - back
+        at_start = pos < 0
+        byte = a[np.maximum(pos, 0)]
+        first |= undecided & (at_start | (byte == 10))
+        undecided &= ~at_start & (byte != 10) & ws[np.maximum(pos, 0)]
+        if not undecided.any():
+            break
+    for idx in np.flatnonzero(undecided):  # indented by more than 16 blanks: rare
+        line_start = chunk.rfind(b"\n", 0, int(cand[idx])) + 1
+        first[idx] = not chunk[line_start : int(cand[idx])].strip()
+    cand = cand[first]
+    newline = np.flatnonzero(a == 10)
+    # Keep each vertex line from after the keyword up to and including its newline.
+    k = np.searchsorted(newline, cand)
+    end = np.where(k < len(newline), newline[np.minimum(k, len(newline) - 1)], len(a) - 1)
+    mark = np.zeros(len(a) + 1, dtype=np.int8)
+    mark[cand + 6] = 1  # spans are disjoint: no position gets two marks
+    mark[end + 1] = -1
+    keep = np.cumsum(mark[:-1], dtype=np.int8) > 0
+    return _parse_floats(a[keep].tobytes()), len(cand), n_facets
+
+
 def _read_stl_ascii(data: bytes, name: str, max_triangles: int | None) -> Mesh:
-    body = _SOLID_LINE.sub(b" ", data)
-    lower = body.lower()
-    n_facets = lower.count(b"endfacet")
-    n_vertex = len(re.findall(rb"\bvertex\b", lower))
+    values: list[np.ndarray] = []
+    n_vertex = n_facets = 0
+    start = 0
+    while start < len(data):
+        stop = data.find(b"\n", min(start + _ASCII_CHUNK, len(data)))
+        stop = len(data) if stop < 0 else stop + 1
+        chunk = data[start:stop]
+        if not chunk.endswith(b"\n"):
+            chunk += b"\n"
+        vals, nv, nf = _ascii_stl_chunk(chunk)
+        if vals is None or len(vals) != 3 * nv:
+            raise MeshReadError(f"{name}: malformed ASCII STL: unreadable vertex coordinates")
+        values.append(vals)
+        n_vertex += nv
+        n_facets += nf
+        _check_triangle_cap(n_facets, max_triangles, name)
+        start = stop
     if n_facets == 0:
         raise MeshReadError(f"{name}: ASCII STL with no facets")
     if n_vertex != 3 * n_facets:
@@ -240,12 +292,8 @@ def _read_stl_ascii(data: bytes, name: str, max_triangles: int | None) -> Mesh:
             f"{name}: malformed ASCII STL: {n_facets} facets but {n_vertex} vertices "
             "(every facet needs 3)"
         )
-    _check_triangle_cap(n_facets, max_triangles, name)
-    body = _KEYWORDS.sub(b" ", _NORMAL.sub(b" ", body))
-    values = _parse_floats(body)
-    if values is None or len(values) != 9 * n_facets:
-        raise MeshReadError(f"{name}: malformed ASCII STL: unreadable vertex coordinates")
-    return _stl_soup_to_mesh(values.reshape(n_facets, 3, 3), "stl-ascii", name)
+    soup = np.concatenate(values).reshape(n_facets, 3, 3)
+    return _stl_soup_to_mesh(soup, "stl-ascii", name)
 
 
 # --------------------------------------------------------------------------- OBJ
@@ -685,7 +733,7 @@ def load_mesh(
         data = p.read_bytes()
     except OSError as exc:
         raise MeshReadError(f"{name}: cannot read: {exc.strerror or exc}") from None
-    if not data.strip():
+    if not data[:65536].strip() and not data.strip():
         raise MeshReadError(f"{name}: the file is empty (only whitespace)")
     if suffix == ".stl":
         return _read_stl(data, name, max_triangles)

@@ -210,6 +210,12 @@ def test_ascii_stl(tmp_path):
     # upper case keywords and CRLF line ends are common in old exporters
     out.write_bytes(ascii_stl(v, f).upper().replace(b"\n", b"\r\n"))
     assert same_triangles(load_mesh(out), v, f)
+    # "vertex" in the solid's name is not a vertex; deep indentation and tabs are fine
+    text = ascii_stl(v, f, name="vertex 1 2 3").replace(
+        b"      vertex", b"\t" + b" " * 30 + b"vertex"
+    )
+    out.write_bytes(text)
+    assert same_triangles(load_mesh(out), v, f)
 
 
 def test_ascii_stl_keeps_degenerate_triangles(tmp_path):
