@@ -164,3 +164,38 @@ def test_skirt_surrounds_the_first_layer_only():
     for z in zs[1:]:
         idx = layers[z]
         assert np.abs(rep.end[idx, :2] - [cx, cy]).max() <= 10.0 + 0.2
+
+
+def test_z_hop_returns_to_the_layer_and_never_below():
+    _, _, profile, _, rep = _slice(part_with_holes, retract_lift=0.4, skirts=0)
+    dz = rep.end[:, 2] - rep.start[:, 2]
+    downs = np.flatnonzero(dz < -1e-9)
+    assert len(downs) > 0, "no hop at all"
+    printed = np.maximum.accumulate(np.where(rep.extruding, rep.end[:, 2], 0.0))
+    last_extrusion = int(np.flatnonzero(rep.extruding)[-1])
+    for i in downs[downs < last_extrusion]:
+        assert dz[i] == pytest.approx(-0.4, abs=1e-6)  # exactly undoing the hop
+        assert rep.end[i, 2] >= printed[i] - 1e-9
+
+
+def test_heating_is_added_when_the_start_template_has_none():
+    _, _, _, result, rep = _slice(cube, start_gcode="G28\n; my printer\n", temperature=205,
+                                  first_layer_temperature=205)
+    first_line = rep.line_no[np.flatnonzero(rep.de > 0)[0]]
+    waits = [(no, s) for no, cmd, s in rep.temps if cmd == "M109"]
+    assert waits and waits[0][0] < first_line and waits[0][1] == 205
+
+
+def test_unknown_template_placeholder_is_a_slice_error():
+    v, f = cube(10.0)
+    with pytest.raises(SliceError, match="nozzle_temp"):
+        slice_mesh(v, f, BASE.with_overrides({"start_gcode": "M109 S{nozzle_temp}"}))
+
+
+def test_stl_soup_is_welded_before_slicing():
+    v, f = sphere(radius=5.0, subdivisions=3)
+    soup_v = np.asarray(v)[np.asarray(f)].reshape(-1, 3)
+    soup_f = np.arange(len(soup_v)).reshape(-1, 3)
+    welded = slice_mesh(v, f, BASE).summary
+    from_soup = slice_mesh(soup_v, soup_f, BASE).summary
+    assert from_soup == welded
