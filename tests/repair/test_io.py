@@ -380,7 +380,66 @@ def test_ply_ascii_and_binary(tmp_path):
         load_mesh(bad)
 
 
+def test_ply_polygons_are_triangulated(tmp_path):
+    p = tmp_path / "q.ply"
+    p.write_text(
+        "ply\nformat ascii 1.0\nelement vertex 5\nproperty float x\nproperty float y\n"
+        "property float z\nelement face 2\nproperty list uchar int vertex_indices\n"
+        "end_header\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n0 0 1\n4 0 1 2 3\n3 0 1 4\n"
+    )
+    m = load_mesh(p)
+    assert m.triangles == 3
+    assert {frozenset(t) for t in m.faces.tolist()} >= {frozenset((0, 1, 4))}
+    # the quad's two triangles cover its area (1 mm²)
+    tri = m.vertices[m.faces]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    assert area.sum() == pytest.approx(1.5)
+
+
+def test_obj_comments_and_mixed_index_styles(tmp_path):
+    p = tmp_path / "m.obj"
+    p.write_text(
+        "v 0 0 0 # origin\nv 1 0 0\nv 0 1 0\nv 0 0 1 0.5 0.5 0.5\nvt 0 0\nvn 0 0 1\n"
+        "f 1/1 3/1 2/1\nf 1//1 2//1 4//1\nf 2/1/1 3/1/1 4/1/1 # comment\nf 1 4 3\n"
+    )
+    m = load_mesh(p)
+    assert m.faces.tolist() == [[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]]
+    assert check_printable(m.vertices, m.faces).ok
+
+
 # --------------------------------------------------------------------------- 3MF
+
+
+def test_3mf_production_extension_parts(tmp_path):
+    # Slicer project files keep meshes in separate model parts referenced by p:path.
+    v, f = cube(5.0)
+    vs = "".join(f'<vertex x="{x}" y="{y}" z="{z}"/>' for x, y, z in v.tolist())
+    ts = "".join(f'<triangle v1="{a}" v2="{b}" v3="{c}"/>' for a, b, c in f.tolist())
+    core = "http://schemas.microsoft.com/3dmanufacturing/core/2015/02"
+    prod = "http://schemas.microsoft.com/3dmanufacturing/production/2015/06"
+    part = (
+        f'<?xml version="1.0"?><model unit="millimeter" xmlns="{core}"><resources>'
+        f'<object id="7" type="model"><mesh><vertices>{vs}</vertices>'
+        f"<triangles>{ts}</triangles></mesh></object></resources><build/></model>"
+    )
+    root = (
+        f'<?xml version="1.0"?><model unit="centimeter" xmlns="{core}" xmlns:p="{prod}">'
+        '<resources><object id="1" type="model"><components>'
+        '<component p:path="/3D/Objects/part.model" objectid="7"/>'
+        '<component p:path="/3D/Objects/part.model" objectid="7" '
+        'transform="1 0 0 0 1 0 0 0 1 10 0 0"/>'
+        '</components></object></resources><build><item objectid="1"/></build></model>'
+    )
+    p = tmp_path / "project.3mf"
+    with zipfile.ZipFile(p, "w", zipfile.ZIP_DEFLATED) as zf:
+        zf.writestr("3D/3dmodel.model", root)
+        zf.writestr("3D/Objects/part.model", part)
+    m = load_mesh(p)
+    assert m.triangles == 24 and m.unit_scale == 10.0
+    assert np.allclose(m.vertices.min(axis=0), 0) and np.allclose(
+        m.vertices.max(axis=0), [150, 50, 50]
+    )
+    assert check_printable(m.vertices, m.faces).ok
 
 
 @pytest.mark.parametrize(
