@@ -231,7 +231,6 @@ def test_empty_and_malformed_input():
         check_printable(np.array([[0, 0, np.nan], [1, 0, 0], [0, 1, 0]]), np.array([[0, 1, 2]]))
 
 
-@pytest.mark.slow
 def test_large_clean_mesh_passes():
     m = trimesh.creation.torus(10.0, 3.0, major_sections=500, minor_sections=250)
     assert len(m.faces) == 250_000
