@@ -185,8 +185,8 @@ def parse_config(data: dict[str, Any], *, base: Path | None = None,
     d = PrinterConfig()
     baud = _num("printer", "baud", p.get("baud", d.baud), lo=300, hi=4_000_000, integer=True)
     mode = _str("printer", "mode", p.get("mode", d.mode))
-    if mode not in ("auto", "pingpong", "buffered"):
-        raise ConfigError(f"[printer] mode: {mode!r} is not one of auto, pingpong, buffered")
+    if mode not in ("auto", "ping-pong", "buffered"):
+        raise ConfigError(f"[printer] mode: {mode!r} is not one of auto, ping-pong, buffered")
     fw = _str("printer", "virtual_firmware", p.get("virtual_firmware", d.virtual_firmware))
     if fw not in ("marlin", "prusa", "buddy", "klipper", "rrf"):
         raise ConfigError(f"[printer] virtual_firmware: {fw!r} is not one of "
@@ -308,3 +308,4 @@ def check_profile(cfg: Config, nozzle: float = 0.4,
 def setup_logging(level: str) -> None:
     logging.basicConfig(level=getattr(logging, level, logging.INFO),
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    logging.getLogger("watchdog").setLevel(max(logging.INFO, logging.getLogger().level))

@@ -273,7 +273,10 @@ class Journal:
 
     def get_meta(self, key: str, default: Any = None) -> Any:
         with self._lock:
-            row = self._db.execute("SELECT value FROM meta WHERE key=?", (key,)).fetchone()
+            try:
+                row = self._db.execute("SELECT value FROM meta WHERE key=?", (key,)).fetchone()
+            except sqlite3.OperationalError:  # a reader racing the daemon's first start
+                return default
         return json.loads(row[0]) if row else default
 
 

@@ -223,10 +223,12 @@ class Processor:
         self.claim_lock = claim_lock
         self.active = active                # job id -> cancel Event (shared)
 
-    def next_job(self) -> tuple[Job, threading.Event] | None:
+    def next_job(self, have_printer: bool) -> tuple[Job, threading.Event] | None:
+        """Claim the oldest queued job; without printer info only G-code (its command
+        policy needs no printer; the build volume is checked again before printing)."""
         with self.claim_lock:
             for job in self.j.jobs({S.QUEUED}):
-                if job.id not in self.active:
+                if job.id not in self.active and (have_printer or job.kind == "gcode"):
                     ev = threading.Event()
                     self.active[job.id] = ev
                     return job, ev
@@ -235,7 +237,7 @@ class Processor:
     def run_forever(self) -> None:
         while not self.stop.is_set():
             info = self.printer_info()
-            claimed = self.next_job() if info is not None else None
+            claimed = self.next_job(info is not None)
             if claimed is None:
                 self.stop.wait(0.3)
                 continue
@@ -278,16 +280,17 @@ class Processor:
                 self.j.update(job_id, progress=float(fraction))
         return cb
 
-    def process(self, job: Job, info: dict[str, Any], cancel: threading.Event) -> None:
+    def process(self, job: Job, info: dict[str, Any] | None, cancel: threading.Event) -> None:
+        if job.kind == "gcode":
+            self._check_gcode(job, info)
+            return
+        assert info is not None
         eps, eps_src = epsilon_from(info, self.cfg)
         if job.attempts >= self.cfg.limits.max_attempts:
             self._fail(job.id, f"processing was interrupted {job.attempts} times (the daemon "
                                "stopped or died while working on it); giving up")
             return
         work = Path(job.work_dir or "")
-        if job.kind == "gcode":
-            self._check_gcode(job, info, eps, eps_src)
-            return
         lim = self.cfg.limits
         self.j.transition(job.id, S.REPAIRING, expect=S.QUEUED, note=f"epsilon {eps:g} mm",
                           attempts=job.attempts + 1, epsilon=eps, epsilon_source=eps_src,
@@ -344,8 +347,8 @@ class Processor:
         """An event set when the job is cancelled or the daemon stops."""
         return AnyEvent(cancel, self.stop)  # type: ignore[return-value]
 
-    def _check_gcode(self, job: Job, info: dict[str, Any], eps: float, eps_src: str) -> None:
-        bv = info.get("build_volume")
+    def _check_gcode(self, job: Job, info: dict[str, Any] | None) -> None:
+        bv = (info or {}).get("build_volume")
         try:
             with open(job.input_path or "", encoding="utf-8", errors="replace") as f:
                 res = check_gcode(strip_gcode(f), forbidden=self.cfg.safety.forbidden_gcodes,

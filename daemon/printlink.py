@@ -18,7 +18,7 @@ from typing import Any
 from daemon.config import Config
 from daemon.journal import Job, Journal
 from daemon.pipeline import AnyEvent, Spool
-from daemon.safety import strip_gcode
+from daemon.safety import UnsafeEntry, check_gcode, strip_gcode
 from daemon.states import JobState, TransitionError
 
 log = logging.getLogger("preflight.printer")
@@ -121,9 +121,8 @@ class PrinterLink(threading.Thread):
 
     def _connect(self) -> str | None:
         """Open and handshake, query the info. Returns an error message or None."""
-        from printer.host import PrinterHost
-
         from printer.errors import PrinterError
+        from printer.host import PrinterHost
 
         self._set_status(state="connecting", message=None)
         host = None
@@ -182,6 +181,15 @@ class PrinterLink(threading.Thread):
             self.j.transition(job.id, S.FAILED, reason=f"cannot read the G-code: {e.strerror}")
             self.spool.archive(job.id)
             return
+        if job.kind == "gcode":  # checked at intake, maybe before this printer was known
+            try:
+                check_gcode(lines, forbidden=self.cfg.safety.forbidden_gcodes,
+                            allow_firmware=self.cfg.safety.allow_firmware_commands,
+                            build_volume=info.get("build_volume"))
+            except UnsafeEntry as e:
+                self.j.transition(job.id, S.FAILED, reason=str(e), note=str(e))
+                self.spool.archive(job.id)
+                return
         cancel = threading.Event()
         with self._lock:
             self._cancel[job.id] = cancel

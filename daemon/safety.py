@@ -36,7 +36,10 @@ class UnsafeEntry(ValueError):
 def is_partial_name(name: str) -> bool:
     """True for names that are still being written or are hidden: ignored, not refused."""
     low = name.lower()
-    return name.startswith(".") or low.endswith(PARTIAL_SUFFIXES)
+    if low.endswith(PARTIAL_SUFFIXES):
+        return True
+    # "..\\x.stl" is a traversal attempt (refused), not a hidden file (ignored)
+    return name.startswith(".") and "\\" not in name and "/" not in name
 
 
 def check_name(name: str) -> None:
@@ -112,13 +115,11 @@ def gcode_command(line: str) -> str | None:
 
 
 def strip_gcode(lines: Iterable[str]) -> list[str]:
-    """The commands to stream: comments and blank lines removed, whitespace trimmed."""
-    out = []
-    for line in lines:
-        code = line.split(";", 1)[0].strip()
-        if code:
-            out.append(code)
-    return out
+    """The commands exactly as the printer host streams them (comments ``;`` and ``( )``,
+    checksums and blank lines removed), so the policy checks what is really sent."""
+    from printer.gcode import clean_lines
+
+    return clean_lines(lines)
 
 
 @dataclass(frozen=True)

@@ -91,13 +91,11 @@ def write_binary_stl(path: Path, v: np.ndarray, f: np.ndarray) -> None:
 
 def broken_stl(path: Path, scale: float = 0.2) -> Path:
     """The shipped broken model (open cube stuck to a closed one), scaled down (mm)."""
-    raw = (DATA / "open_cube_stuck_to_side.stl").read_bytes()
-    n = struct.unpack("<I", raw[80:84])[0]
-    rec = np.frombuffer(raw[84:84 + 50 * n], dtype=[("n", "<f4", 3), ("v", "<f4", (3, 3)),
-                                                    ("a", "<u2")])
-    tri = rec["v"].astype(np.float64).reshape(-1, 3) * scale
-    v = tri
-    f = np.arange(len(tri)).reshape(-1, 3)
+    import trimesh
+
+    m = trimesh.load(DATA / "open_cube_stuck_to_side.stl", process=False, force="mesh")
+    v = np.asarray(m.vertices, dtype=np.float64) * scale
+    f = np.asarray(m.faces, dtype=np.int64)
     write_binary_stl(path, v, f)
     return path
 

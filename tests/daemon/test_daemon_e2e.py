@@ -9,8 +9,6 @@ import time
 from pathlib import Path
 
 import pytest
-
-from daemon.worker import FAULT_ENV
 from daemon_helpers import (
     DaemonProc,
     box,
@@ -21,6 +19,8 @@ from daemon_helpers import (
     write_3mf,
     write_config,
 )
+
+from daemon.worker import FAULT_ENV
 
 pytest.importorskip("printer.host")
 pytest.importorskip("printer.virtual")
@@ -270,8 +270,9 @@ def test_cli_print_cancel_status_and_notify(tmp_path, daemon_factory):
     out = d.cli("jobs", "print", "2")
     assert out.returncode == 0, out.stderr
     d.wait_for(lambda: str(d.journal.get(2).state) == "printing", what="print 2 starts")
-    out = d.cli("status")
-    assert out.returncode == 0 and "printing job 2" in out.stdout, out.stdout
+    out = d.wait_for(lambda: (o := d.cli("status")).returncode == 0
+                     and "printing job 2" in o.stdout and o, what="status shows the print")
+    assert "printer: virtual" in out.stdout
     out = d.cli("jobs", "cancel", "2")
     assert out.returncode == 0, out.stderr
     job = d.wait_for(lambda: (j := d.journal.get(2)) and str(j.state) == "cancelled" and j,

@@ -44,7 +44,7 @@ def test_sanitise_caps_length_and_keeps_suffix():
 
 @pytest.mark.parametrize("name, partial", [
     ("a.stl.part", True), ("a.tmp", True), ("a.stl~", True), (".hidden.stl", True),
-    ("a.stl", False), ("a.gcode", False),
+    ("a.stl", False), ("a.gcode", False), ("..\\..\\evil.stl", False),
 ])
 def test_partial_names(name, partial):
     assert is_partial_name(name) is partial
@@ -90,6 +90,13 @@ def test_firmware_altering_commands_are_refused(cmd):
     res = check_gcode(lines, forbidden=DEFAULT_FORBIDDEN_GCODES, allow_firmware=True,
                       build_volume=None)
     assert res.lines == 4
+
+
+def test_parenthesised_comment_cannot_hide_a_command():
+    lines = strip_gcode(["(harmless)M502", "G1 X1"])
+    with pytest.raises(UnsafeEntry, match="M502"):
+        check_gcode(lines, forbidden=DEFAULT_FORBIDDEN_GCODES, allow_firmware=False,
+                    build_volume=None)
 
 
 def test_comments_do_not_trigger_the_policy():
