@@ -154,7 +154,10 @@ def _read_stl(data: bytes, name: str, max_triangles: int | None) -> Mesh:
     if size >= 84:
         n = int(np.frombuffer(data, dtype="<u4", count=1, offset=80)[0])
         expected = 84 + 50 * n
-        if expected == size:  # a binary STL, whatever its header says
+        # Sizes agree: binary, whatever the header says ("solid ..." is common in binary
+        # headers). An ASCII file cannot agree by accident below 27 GB: its bytes 80..84
+        # are text, so they read as n >= 0x20202020 triangles.
+        if expected == size:
             _check_triangle_cap(n, max_triangles, name)
             if n == 0:
                 raise MeshReadError(f"{name}: binary STL with 0 triangles")
