@@ -51,7 +51,7 @@ _AMBIENT = 25.0
 class Faults:
     """Fault injection for the virtual printer.
 
-    corrupt: probability that a host->printer byte is replaced by another printable
+    corrupt: probability that a host->printer byte is replaced by another random
     byte (never by a line terminator: a noise-made newline defeats the Marlin line
     protocol itself, not the host). drop_ok: probability that the ``ok`` of an
     executed command is lost. busy_seconds: G28/G29 block for this many real seconds,
@@ -456,9 +456,9 @@ class VirtualPrinter:
         for orig in chunk:
             byte = orig
             if p and rng.random() < p:
-                byte = rng.randrange(32, 127)
-                while byte == orig:
-                    byte = rng.randrange(32, 127)
+                byte = rng.randrange(1, 256)
+                while byte in (orig, 10, 13):
+                    byte = rng.randrange(1, 256)
                 self.stats["bytes_corrupted"] += 1
             if len(self._rx) >= self.rx_size:
                 self.stats["bytes_overflowed"] += 1
@@ -558,8 +558,6 @@ class VirtualPrinter:
                     self.stats["silent_drops"] += 1
                     return
                 self._last_n = number
-            else:
-                number = None if checks == "none" else number
         else:
             star = raw.find("*")
             if star >= 0:
@@ -568,8 +566,6 @@ class VirtualPrinter:
             return
         if changed and checks != "none" and number is not None:
             self.undetected_corruptions.append(number)
-        if checks == "none":
-            number = None
         self._queue.append((number, command))
 
     # ----------------------------------------------------------------- executing
