@@ -1,0 +1,188 @@
+"""CLI for the printer link: ``virtual-printer``, ``printer info`` and ``print``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import threading
+import time
+
+
+def register(subparsers) -> None:
+    """Add ``virtual-printer``, ``printer info`` and ``print`` to the preflight CLI."""
+    vp = subparsers.add_parser(
+        "virtual-printer", help="run a simulated printer on a pseudo-terminal until stopped"
+    )
+    vp.add_argument("--firmware", default="marlin",
+                    choices=("marlin", "prusa", "buddy", "klipper", "rrf"))
+    vp.add_argument("--nozzle", type=float, default=0.4, help="nozzle diameter, mm")
+    vp.add_argument("--baud", type=int, default=115200)
+    vp.add_argument("--speedup", type=float, default=1.0,
+                    help="simulated time runs this many times faster")
+    vp.add_argument("--log", help="append every executed command to this file")
+    vp.add_argument("--link", help="keep a symlink to the pty here (like /dev/serial/by-id)")
+    vp.add_argument("--build-volume", type=float, nargs=3, metavar=("X", "Y", "Z"),
+                    default=(250.0, 210.0, 220.0))
+    vp.add_argument("--advanced-ok", action="store_true", help="send ADVANCED_OK oks")
+    vp.add_argument("--corrupt", type=float, default=0.0,
+                    help="probability of corrupting each host->printer byte")
+    vp.add_argument("--drop-ok", type=float, default=0.0, help="probability of losing an ok")
+    vp.add_argument("--busy", type=float, default=0.0,
+                    help="G28/G29 take this many seconds with busy keepalives")
+    vp.add_argument("--reset-after", type=int, help="board resets after N lines")
+    vp.add_argument("--disconnect-after", type=int, help="port hangs up after N lines")
+    vp.add_argument("--reconnect-after", type=float,
+                    help="seconds after a disconnect to come back on a new pty")
+    vp.add_argument("--garbage", action="store_true", help="send line noise (wrong baud)")
+    vp.add_argument("--seed", type=int, default=1)
+    vp.set_defaults(func=_virtual_printer)
+
+    pr = subparsers.add_parser("printer", help="talk to a printer")
+    psub = pr.add_subparsers(dest="printer_command", metavar="ACTION")
+    info = psub.add_parser("info", help="print firmware, nozzle, build volume, filament")
+    _port_args(info)
+    info.add_argument("--json", action="store_true", help="print JSON")
+    info.set_defaults(func=_printer_info)
+    pr.set_defaults(func=lambda args: (pr.print_help(sys.stderr), 2)[1])
+
+    pp = subparsers.add_parser("print", help="stream a G-code file to a printer")
+    pp.add_argument("file", help="G-code file")
+    _port_args(pp)
+    pp.add_argument("--mode", default="auto", choices=("auto", "ping-pong", "buffered"))
+    pp.set_defaults(func=_print)
+
+
+def _port_args(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--port", required=True, help="serial port, e.g. /dev/ttyACM0")
+    parser.add_argument("--baud", type=int, default=115200)
+    parser.add_argument("--timeout", type=float, default=4.0,
+                        help="seconds of silence before lost-ok recovery")
+    parser.add_argument("--nozzle", type=float, default=None,
+                        help="nozzle diameter (mm) to use when the printer cannot tell")
+    parser.add_argument("--nozzle-macro", default=None,
+                        help="Klipper macro that prints the nozzle diameter")
+
+
+def _fail(message: str, code: int = 1) -> int:
+    print(f"preflight: {message}", file=sys.stderr)
+    return code
+
+
+def _virtual_printer(args) -> int:
+    from printer.virtual import Faults, VirtualPrinter
+
+    faults = Faults(
+        corrupt=args.corrupt, drop_ok=args.drop_ok, busy_seconds=args.busy,
+        reset_after=args.reset_after, disconnect_after=args.disconnect_after,
+        reconnect_after=args.reconnect_after, garbage=args.garbage, seed=args.seed,
+    )
+    try:
+        vp = VirtualPrinter(
+            args.firmware, nozzle=args.nozzle, baud=args.baud, speedup=args.speedup,
+            faults=faults, log_path=args.log, link=args.link,
+            advanced_ok=True if args.advanced_ok else None,
+            build_volume=tuple(args.build_volume),
+        )
+        path = vp.start()
+    except (OSError, ValueError) as exc:
+        return _fail(f"cannot start the virtual printer: {exc}")
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    print(path, flush=True)
+    try:
+        while not stop.wait(0.2):
+            pass
+    finally:
+        vp.stop()
+    return 0
+
+
+def _host(args, mode: str = "auto"):
+    from printer.host import PrinterHost
+
+    return PrinterHost(
+        args.port, args.baud, mode=mode, nozzle_fallback=args.nozzle,
+        nozzle_macro=args.nozzle_macro, timeout=args.timeout,
+    )
+
+
+def _printer_info(args) -> int:
+    from printer.errors import PrinterError
+
+    try:
+        with _host(args) as host:
+            info = host.query_info().to_dict()
+    except PrinterError as exc:
+        return _fail(str(exc))
+    if args.json:
+        print(json.dumps(info, indent=2))
+        return 0
+    volume = info["build_volume"]
+    print(f"firmware:          {info['firmware']} ({info['flavour']})")
+    print(f"nozzle_diameter:   {info['nozzle_diameter']} mm (from {info['nozzle_source']})")
+    vol = " x ".join(f"{v:g}" for v in volume) + " mm" if volume else "unknown"
+    print(f"build_volume:      {vol} (from {info['build_volume_source']})")
+    print(f"filament_diameter: {info['filament_diameter']} mm (from {info['filament_source']})")
+    caps = ", ".join(k for k, v in sorted(info["capabilities"].items()) if v) or "none reported"
+    print(f"capabilities:      {caps}")
+    return 0
+
+
+class _Progress:
+    """A one-line progress display on stderr (only on a terminal)."""
+
+    def __init__(self) -> None:
+        self.enabled = sys.stderr.isatty()
+        self.start = time.monotonic()
+
+    def __call__(self, done: int, total: int) -> None:
+        if not self.enabled or total <= 0:
+            return
+        elapsed = max(time.monotonic() - self.start, 1e-6)
+        rate = done / elapsed
+        eta = (total - done) / rate if rate > 0 else 0.0
+        mins, secs = divmod(int(eta), 60)
+        sys.stderr.write(
+            f"\rprinting {100.0 * done / total:5.1f}%  {done}/{total} lines  "
+            f"{rate:6.0f} lines/s  ETA {mins:d}:{secs:02d} "
+        )
+        sys.stderr.flush()
+
+    def finish(self) -> None:
+        if self.enabled:
+            sys.stderr.write("\n")
+            sys.stderr.flush()
+
+
+def _print(args) -> int:
+    from printer.errors import PrinterError
+
+    try:
+        with open(args.file, encoding="utf-8", errors="replace") as fh:
+            lines = fh.read().splitlines()
+    except OSError as exc:
+        return _fail(f"cannot read {args.file}: {exc.strerror}")
+    cancel = threading.Event()
+    previous = {}
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        previous[sig] = signal.signal(sig, lambda *_: cancel.set())
+    progress = _Progress()
+    try:
+        with _host(args, args.mode) as host:
+            result = host.stream(lines, progress=progress, cancel=cancel)
+    except PrinterError as exc:
+        progress.finish()
+        return _fail(str(exc), 130 if cancel.is_set() else 1)
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    progress.finish()
+    print(
+        f"printed {result.lines} lines in {result.seconds:.1f} s ({result.mode}; "
+        f"{result.resends} resends, {result.timeouts} timeouts recovered)",
+        file=sys.stderr,
+    )
+    return 0
