@@ -47,14 +47,13 @@ _STL_DTYPE = np.dtype(
     [("normal", "<f4", (3,)), ("v", "<f4", (3, 3)), ("attr", "<u2")]
 )  # 50 bytes per triangle
 
-_MAGIC = (
+_MAGIC: tuple[tuple[bytes, str], ...] = (
     (b"\xff\xd8\xff", "a JPEG image"),
     (b"\x89PNG\r\n\x1a\n", "a PNG image"),
     (b"GIF8", "a GIF image"),
     (b"%PDF", "a PDF document"),
     (b"PK\x03\x04", "a zip archive"),
     (b"\x1f\x8b", "a gzip archive"),
-    (b"BM", None),  # too short to be sure; only used with other evidence
     (b"\x7fELF", "an executable"),
 )
 
@@ -98,7 +97,7 @@ def _human_bytes(n: int) -> str:
 def _sniff_foreign(head: bytes) -> str | None:
     """Name of a well-known non-mesh format the bytes start with, if any."""
     for magic, name in _MAGIC:
-        if name and head.startswith(magic):
+        if head.startswith(magic):
             return name
     return None
 
@@ -449,8 +448,14 @@ def _read_ply(data: bytes, name: str, max_triangles: int | None) -> Mesh:
     except Exception as exc:  # trimesh raises many kinds on malformed input
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise MeshReadError(f"{name}: malformed PLY: {msg}") from None
-    if faces.ndim != 2 or faces.shape[1] != 3:
-        raise MeshReadError(f"{name}: malformed PLY: faces are not triangles")
+    if faces.ndim != 2 or faces.shape[1] < 3:
+        raise MeshReadError(f"{name}: malformed PLY: faces are not polygons")
+    if faces.shape[1] > 3:  # all faces have k > 3 corners: fan-triangulate
+        k = faces.shape[1]
+        faces = np.stack(
+            [np.repeat(faces[:, 0], k - 2), faces[:, 1:-1].reshape(-1), faces[:, 2:].reshape(-1)],
+            axis=1,
+        )
     _check_triangle_cap(len(faces), max_triangles, name)
     return _finish(verts, faces, "ply", name)
 

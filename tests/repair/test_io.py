@@ -390,6 +390,14 @@ def test_ply_polygons_are_triangulated(tmp_path):
     m = load_mesh(p)
     assert m.triangles == 3
     assert {frozenset(t) for t in m.faces.tolist()} >= {frozenset((0, 1, 4))}
+    # a file of quads only is triangulated too
+    q = tmp_path / "quads.ply"
+    q.write_text(
+        "ply\nformat ascii 1.0\nelement vertex 5\nproperty float x\nproperty float y\n"
+        "property float z\nelement face 1\nproperty list uchar int vertex_indices\n"
+        "end_header\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n0 0 1\n5 0 1 2 3 4\n"
+    )
+    assert load_mesh(q).faces.tolist() == [[0, 1, 2], [0, 2, 3], [0, 3, 4]]
     # the quad's two triangles cover its area (1 mm²)
     tri = m.vertices[m.faces]
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
