@@ -26,11 +26,17 @@ def _say(msg: str) -> None:
     print(msg, flush=True)
 
 
+_last_quarter = [-1]
+
+
 def _progress(label: str, fraction: float) -> None:
     line = f"  {label} {100 * fraction:5.1f}%"
     if sys.stderr.isatty():
         sys.stderr.write("\r" + line)
         sys.stderr.flush()
+    elif int(fraction * 4) > _last_quarter[0]:  # not a terminal: a line per quarter
+        _last_quarter[0] = int(fraction * 4)
+        print(line, flush=True)
 
 
 def _end_progress() -> None:
@@ -151,7 +157,8 @@ def _follow(proc, cfg, root: Path, log_path: Path, Journal, report_text, daemon_
             _announce(job, j)
         elif state == "printing" and job.progress is not None:
             _progress("streaming to the printer", job.progress)
-        if state in ("done", "failed", "cancelled", "interrupted"):
+        if state in ("done", "failed", "cancelled", "interrupted") and (
+                job.outputs or {}).get("report_txt"):
             break
         time.sleep(0.2)
     else:

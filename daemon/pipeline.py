@@ -41,9 +41,14 @@ S = JobState
 def epsilon_from(info: dict[str, Any], cfg: Config) -> tuple[float, str]:
     """ε (mm) and where it came from: the printer's nozzle, else the configured fallback."""
     nz = info.get("nozzle_diameter") if info else None
+    src = (info or {}).get("nozzle_source") or ""
     if isinstance(nz, (int, float)) and nz > 0:
-        src = info.get("nozzle_source") or "printer"
-        return float(nz), f"the printer's nozzle (source: {src})"
+        if src == "config":
+            return float(nz), ("the configured nozzle, [printer] nozzle_diameter (the printer "
+                               "does not report its nozzle)")
+        if src == "default":
+            return float(nz), "the default nozzle (the printer does not report its nozzle)"
+        return float(nz), f"the printer's nozzle, reported by {src or 'the printer'}"
     return cfg.printer.nozzle_diameter, "[printer] nozzle_diameter in the config (fallback)"
 
 
