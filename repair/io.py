@@ -546,77 +546,107 @@ def _parse_3mf_model(
     """Parse one .model part: (unit, objects, build items).
 
     ``objects``: {id: ("mesh", vertices, faces) | ("components", [(path, id, T), ...])}.
+    Streams the XML through expat; vertex and triangle attributes are collected flat and
+    converted with one numpy call per object.
     """
-    import xml.etree.ElementTree as ET
+    from xml.parsers import expat
 
-    core = "{" + _NS_CORE + "}"
-    prod_path = "{" + _NS_PROD + "}path"
-    unit = "millimeter"
+    sep = " "
+    core = _NS_CORE + sep
+    t_vertex, t_triangle = core + "vertex", core + "triangle"
+    t_object, t_mesh, t_component = core + "object", core + "mesh", core + "component"
+    t_item, t_model = core + "item", core + "model"
+    prod_path = _NS_PROD + sep + "path"
+    xyz = ("x", "y", "z")
+    v123 = ("v1", "v2", "v3")
+
+    state: dict = {"unit": "millimeter", "obj": None, "mesh": False, "done": 0}
     objects: dict[str, tuple] = {}
     items: list[tuple[str, str, np.ndarray | None]] = []
-    obj_id: str | None = None
-    xs: list[str] = []
-    tris: list[str] = []
+    vals_v: list[str] = []
+    vals_t: list[str] = []
     comps: list[tuple[str, str, np.ndarray | None]] = []
-    has_mesh = False
+
+    def pick(attrs: list[str], keys: tuple[str, str, str]) -> tuple[str, str, str]:
+        d = dict(zip(attrs[::2], attrs[1::2], strict=False))
+        return (d.get(keys[0], "?"), d.get(keys[1], "?"), d.get(keys[2], "?"))
+
+    def start(tag: str, attrs: list[str]) -> None:
+        # Hot path first: one call per vertex / triangle.
+        if tag == t_vertex:
+            if len(attrs) == 6 and attrs[0] == "x" and attrs[2] == "y" and attrs[4] == "z":
+                vals_v.extend((attrs[1], attrs[3], attrs[5]))
+            else:
+                vals_v.extend(pick(attrs, xyz))
+        elif tag == t_triangle:
+            if len(attrs) >= 6 and attrs[0] == "v1" and attrs[2] == "v2" and attrs[4] == "v3":
+                vals_t.extend((attrs[1], attrs[3], attrs[5]))
+            else:
+                vals_t.extend(pick(attrs, v123))
+        elif tag == t_component or tag == t_item:
+            d = dict(zip(attrs[::2], attrs[1::2], strict=False))
+            entry = (d.get(prod_path, part), d.get("objectid", ""))
+            target = comps if tag == t_component else items
+            target.append((*entry, _parse_transform(d.get("transform"), name)))
+        elif tag == t_object:
+            d = dict(zip(attrs[::2], attrs[1::2], strict=False))
+            if "id" not in d:
+                raise MeshReadError(f"{name}: malformed 3MF: an object without id")
+            state["obj"], state["mesh"] = d["id"], False
+            vals_v.clear()
+            vals_t.clear()
+            comps.clear()
+        elif tag == t_mesh:
+            state["mesh"] = True
+        elif tag == t_model:
+            d = dict(zip(attrs[::2], attrs[1::2], strict=False))
+            state["unit"] = d.get("unit", "millimeter")
+
+    def end(tag: str) -> None:
+        if tag != t_object:
+            return
+        oid = state["obj"]
+        if state["mesh"]:
+            v = _parse_floats(" ".join(vals_v).encode())
+            f = _parse_floats(" ".join(vals_t).encode())
+            if (
+                v is None
+                or f is None
+                or len(v) != len(vals_v)
+                or len(f) != len(vals_t)
+                or not np.all(f == np.round(f))
+            ):
+                raise MeshReadError(
+                    f"{name}: malformed 3MF: unreadable vertices or triangles in object {oid}"
+                )
+            objects[oid] = ("mesh", v.reshape(-1, 3), f.astype(np.int64).reshape(-1, 3))
+            state["done"] += len(f) // 3
+            vals_v.clear()
+            vals_t.clear()
+        else:
+            objects[oid] = ("components", list(comps))
+        state["obj"] = None
+
+    parser = expat.ParserCreate(namespace_separator=sep)
+    parser.ordered_attributes = True
+    parser.buffer_text = True
+    parser.StartElementHandler = start
+    parser.EndElementHandler = end
     try:
-        for event, el in ET.iterparse(stream, events=("start", "end")):
-            tag = el.tag
-            if event == "start":
-                if tag == core + "model":
-                    unit = el.get("unit", "millimeter")
-                elif tag == core + "object":
-                    obj_id = el.get("id")
-                    xs, tris, comps, has_mesh = [], [], [], False
-                elif tag == core + "mesh":
-                    has_mesh = True
-                continue
-            if tag == core + "vertex":
-                xs.append(f"{el.get('x')} {el.get('y')} {el.get('z')}")
-                el.clear()
-            elif tag == core + "triangle":
-                tris.append(f"{el.get('v1')} {el.get('v2')} {el.get('v3')}")
-                el.clear()
-                tri_count[0] += 1
-                if max_triangles is not None and tri_count[0] > max_triangles:
-                    raise MeshReadError(
-                        f"{name}: 3MF has more than {max_triangles} triangles, over the limit"
-                    )
-            elif tag == core + "component":
-                comps.append(
-                    (
-                        el.get(prod_path, part),
-                        el.get("objectid", ""),
-                        _parse_transform(el.get("transform"), name),
-                    )
+        while True:
+            chunk = stream.read(1 << 20)
+            parser.Parse(chunk, not chunk)
+            seen = tri_count[0] + state["done"] + len(vals_t) // 3
+            if max_triangles is not None and seen > max_triangles:
+                raise MeshReadError(
+                    f"{name}: 3MF has more than {max_triangles} triangles, over the limit"
                 )
-            elif tag == core + "object":
-                if obj_id is None:
-                    raise MeshReadError(f"{name}: malformed 3MF: an object without id")
-                if has_mesh:
-                    v = _parse_floats(" ".join(xs).encode())
-                    f = _parse_floats(" ".join(tris).encode())
-                    if v is None or f is None or len(v) != 3 * len(xs) or (len(f) != 3 * len(tris)):
-                        raise MeshReadError(
-                            f"{name}: malformed 3MF: unreadable vertices or triangles "
-                            f"in object {obj_id}"
-                        )
-                    objects[obj_id] = ("mesh", v.reshape(-1, 3), f.astype(np.int64).reshape(-1, 3))
-                else:
-                    objects[obj_id] = ("components", comps)
-                obj_id = None
-                el.clear()
-            elif tag == core + "item":
-                items.append(
-                    (
-                        el.get(prod_path, part),
-                        el.get("objectid", ""),
-                        _parse_transform(el.get("transform"), name),
-                    )
-                )
-    except ET.ParseError as exc:
+            if not chunk:
+                break
+    except expat.ExpatError as exc:
         raise MeshReadError(f"{name}: malformed 3MF: XML error in {part}: {exc}") from None
-    return unit, objects, items
+    tri_count[0] += state["done"]
+    return state["unit"], objects, items
 
 
 def _root_model_part(zf: zipfile.ZipFile, budget: _Budget, name: str) -> str:

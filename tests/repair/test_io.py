@@ -418,6 +418,34 @@ def test_obj_comments_and_mixed_index_styles(tmp_path):
 # --------------------------------------------------------------------------- 3MF
 
 
+def test_3mf_attribute_order_extra_attributes_and_two_objects(tmp_path):
+    v, f = cube(1.0)
+    # vertices with attributes in another order, triangles with colour properties
+    vs = "".join(f'<vertex z="{z}" y="{y}" x="{x}"/>' for x, y, z in v.tolist())
+    ts = "".join(f'<triangle v1="{a}" v2="{b}" v3="{c}" pid="2" p1="0"/>' for a, b, c in f.tolist())
+    ts_reordered = "".join(f'<triangle v3="{c}" v1="{a}" v2="{b}"/>' for a, b, c in f.tolist())
+    core = "http://schemas.microsoft.com/3dmanufacturing/core/2015/02"
+    model = (
+        f'<?xml version="1.0"?><model unit="millimeter" xmlns="{core}"><resources>'
+        f'<object id="1" type="model"><mesh><vertices>{vs}</vertices>'
+        f"<triangles>{ts}</triangles></mesh></object>"
+        f'<object id="2" type="model"><mesh><vertices>{vs}</vertices>'
+        f"<triangles>{ts_reordered}</triangles></mesh></object></resources>"
+        '<build><item objectid="1"/><item objectid="2" transform="1 0 0 0 1 0 0 0 1 3 0 0"/>'
+        "</build></model>"
+    )
+    p = tmp_path / "two.3mf"
+    with zipfile.ZipFile(p, "w", zipfile.ZIP_DEFLATED) as zf:
+        zf.writestr("3D/3dmodel.model", model)
+    m = load_mesh(p)
+    assert m.triangles == 24
+    assert np.allclose(m.vertices[m.faces[:12]], v[f])
+    assert np.allclose(m.vertices[m.faces[12:]], v[f] + [3, 0, 0])
+    assert check_printable(m.vertices, m.faces).ok
+    with pytest.raises(MeshReadError, match="limit"):
+        load_mesh(p, max_triangles=20)
+
+
 def test_3mf_production_extension_parts(tmp_path):
     # Slicer project files keep meshes in separate model parts referenced by p:path.
     v, f = cube(5.0)
