@@ -1,0 +1,190 @@
+"""Daemon benchmark: drop-to-first-line latency, idle memory, jobs per minute.
+
+Runs the real daemon (``preflight run``) as a subprocess against a virtual printer
+served on a pty by this process (so the daemon's own memory is measured alone),
+and prints:
+
+- the latency from dropping a 20 mm cube into the spool to its first G-code line
+  reaching the printer, split into detection, repair, slicing and stream start;
+- the idle daemon's resident memory (RSS, and its peak);
+- jobs per minute for a batch of small models (5-10 mm boxes, one in three
+  broken), end to end (printed), and repair+slice only (auto_print off).
+
+Usage: .venv/bin/python bench/bench_daemon.py [--batch N] [--speedup X]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from daemon.config import load_config  # noqa: E402
+from daemon.journal import Journal  # noqa: E402
+from printer.virtual import VirtualPrinter  # noqa: E402
+from repair.io import write_stl  # noqa: E402
+
+QUERY = {"M110", "M115", "M105", "M211", "M200", "M862.1", "M208", "M155"}
+
+
+def box(size):
+    x, y, z = size
+    v = np.array([[0, 0, 0], [x, 0, 0], [x, y, 0], [0, y, 0],
+                  [0, 0, z], [x, 0, z], [x, y, z], [0, y, z]], dtype=np.float64)
+    f = np.array([[0, 2, 1], [0, 3, 2], [4, 5, 6], [4, 6, 7], [0, 1, 5], [0, 5, 4],
+                  [1, 2, 6], [1, 6, 5], [2, 3, 7], [2, 7, 6], [3, 0, 4], [3, 4, 7]],
+                 dtype=np.int64)
+    return v, f
+
+
+def broken_box(size):
+    """A box turned inside out with one face duplicated: a typical broken export."""
+    v, f = box(size)
+    f = f[:, ::-1].copy()
+    return v, np.vstack([f, f[:1]])
+
+
+def config(root: Path, port: str, *, auto_print: bool) -> Path:
+    p = root / "preflight.toml"
+    p.write_text(f"""
+[spool]
+path = "{root / 'spool'}"
+settle_seconds = 1.0
+close_grace_seconds = 0.05
+[printer]
+port = "{port}"
+baud = 250000
+reconnect_min_seconds = 0.2
+reconnect_max_seconds = 1.0
+[daemon]
+state_dir = "{root / 'state'}"
+auto_print = {'true' if auto_print else 'false'}
+log_level = "WARNING"
+""")
+    return p
+
+
+def rss_kb(pid: int) -> tuple[int, int]:
+    st = Path(f"/proc/{pid}/status").read_text()
+    get = {k.strip(): v for k, v in (line.split(":", 1) for line in st.splitlines())}
+    return int(get["VmRSS"].split()[0]), int(get["VmHWM"].split()[0])
+
+
+def drop(spool: Path, name: str, v, f) -> float:
+    part = spool / (name + ".part")
+    write_stl(part, v, f)
+    t = time.monotonic()
+    os.rename(part, spool / name)
+    return t
+
+
+class Run:
+    def __init__(self, auto_print: bool, speedup: float) -> None:
+        self.root = Path(tempfile.mkdtemp(prefix="preflight-bench-"))
+        self.vp = VirtualPrinter(speedup=speedup, baud=250000, link=self.root / "tty")
+        self.vp.start()
+        self.cfg_path = config(self.root, str(self.root / "tty"), auto_print=auto_print)
+        self.cfg = load_config(self.cfg_path)
+        self.log = open(self.root / "daemon.log", "ab")  # noqa: SIM115
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "daemon", "run", "--config", str(self.cfg_path)],
+            stdout=self.log, stderr=self.log, cwd=ROOT)
+        self.j = None
+        while True:
+            if self.proc.poll() is not None:
+                raise SystemExit(f"daemon died: {(self.root / 'daemon.log').read_text()}")
+            if self.cfg.journal_path.exists():
+                self.j = self.j or Journal(self.cfg.journal_path, readonly=True)
+                st = self.j.get_meta("status") or {}
+                if (st.get("printer") or {}).get("state") == "connected":
+                    break
+            time.sleep(0.05)
+
+    def job_lines(self) -> int:
+        return sum(1 for c in self.vp.executed if c.split()[0] not in QUERY)
+
+    def close(self) -> None:
+        self.proc.send_signal(signal.SIGTERM)
+        self.proc.wait(timeout=60)
+        self.vp.stop()
+        self.log.close()
+        shutil.rmtree(self.root, ignore_errors=True)
+
+
+def bench_latency(speedup: float) -> None:
+    r = Run(auto_print=True, speedup=speedup)
+    try:
+        time.sleep(2.0)
+        rss, hwm = rss_kb(r.proc.pid)
+        print(f"idle daemon memory: RSS {rss / 1024:.1f} MB (peak {hwm / 1024:.1f} MB), "
+              "printer connected, nothing to do")
+        v, f = box((20.0, 20.0, 20.0))
+        base = r.job_lines()
+        t0 = drop(r.cfg.spool.path, "cube20.stl", v, f)
+        wall0 = time.time()
+        while r.job_lines() == base:
+            time.sleep(0.001)
+        t1 = time.monotonic()
+        hist = r.j.history(1)
+        at = {h["to_state"]: h["at"] - wall0 for h in hist}
+        print(f"latency, 20 mm cube dropped -> first line at the printer: {t1 - t0:.2f} s "
+              f"(taken {at.get('queued', 0):.2f} s, repaired by {at.get('slicing', 0):.2f} s, "
+              f"sliced by {at.get('ready', 0):.2f} s, printing from {at.get('printing', 0):.2f} s)")
+        rss, hwm = rss_kb(r.proc.pid)
+        print(f"daemon memory after one job: RSS {rss / 1024:.1f} MB (peak {hwm / 1024:.1f} MB)")
+    finally:
+        r.close()
+
+
+def bench_batch(n: int, auto_print: bool, speedup: float) -> None:
+    r = Run(auto_print=auto_print, speedup=speedup)
+    try:
+        rng = np.random.default_rng(1)
+        t0 = None
+        for i in range(n):
+            size = tuple(rng.uniform(5, 10, 3))
+            v, f = broken_box(size) if i % 3 == 0 else box(size)
+            t = drop(r.cfg.spool.path, f"part{i:03d}.stl", v, f)
+            t0 = t0 if t0 is not None else t
+        final = ("done", "failed") if auto_print else ("ready", "failed")
+        while True:
+            jobs = r.j.jobs()
+            if len(jobs) == n and all(str(j.state) in final for j in jobs):
+                break
+            time.sleep(0.05)
+        dt = time.monotonic() - t0
+        ok = sum(1 for j in jobs if str(j.state) != "failed")
+        what = "repaired, sliced and printed" if auto_print else "repaired and sliced"
+        print(f"batch of {n} small models {what}: {dt:.1f} s, {60 * n / dt:.1f} jobs/min "
+              f"({ok} ok, {n - ok} failed)")
+    finally:
+        r.close()
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--batch", type=int, default=12)
+    ap.add_argument("--speedup", type=float, default=1000.0,
+                    help="virtual printer speed-up (moves, heating)")
+    a = ap.parse_args()
+    print(f"preflight daemon benchmark ({os.cpu_count()} cores, virtual printer speed-up "
+          f"{a.speedup:g}, 250000 baud)")
+    bench_latency(a.speedup)
+    bench_batch(a.batch, auto_print=False, speedup=a.speedup)
+    bench_batch(a.batch, auto_print=True, speedup=a.speedup)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
