@@ -165,7 +165,7 @@ def _read_stl(data: bytes, name: str, max_triangles: int | None) -> Mesh:
     else:
         n, expected = None, None
 
-    stripped = data[:1024].lstrip()
+    stripped = data[:1024].removeprefix(b"\xef\xbb\xbf").lstrip()  # UTF-8 BOM, blanks
     if stripped[:5].lower() == b"solid" and b"\0" not in data[:1024]:
         if re.search(rb"(?i)\bfacet\b|\bendsolid\b", data[:4096]) or size < 4096:
             return _read_stl_ascii(data, name, max_triangles)

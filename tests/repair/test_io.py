@@ -210,6 +210,9 @@ def test_ascii_stl(tmp_path):
     # upper case keywords and CRLF line ends are common in old exporters
     out.write_bytes(ascii_stl(v, f).upper().replace(b"\n", b"\r\n"))
     assert same_triangles(load_mesh(out), v, f)
+    # a UTF-8 byte order mark and leading blank lines
+    out.write_bytes(b"\xef\xbb\xbf\n\n" + ascii_stl(v, f))
+    assert same_triangles(load_mesh(out), v, f)
     # "vertex" in the solid's name is not a vertex; deep indentation and tabs are fine
     text = ascii_stl(v, f, name="vertex 1 2 3").replace(
         b"      vertex", b"\t" + b" " * 30 + b"vertex"
