@@ -85,7 +85,10 @@ class Daemon:
     def handle_requests(self) -> None:
         for req in self.journal.pending_requests():
             try:
-                ok, msg = self._handle(req["action"], int(req["job_id"]))
+                try:
+                    ok, msg = self._handle(req["action"], int(req["job_id"]))
+                except TransitionError:  # the job moved on meanwhile: look again, once
+                    ok, msg = self._handle(req["action"], int(req["job_id"]))
             except (TransitionError, KeyError, ValueError, OSError) as e:
                 ok, msg = False, str(e).strip("'\"")
             except Exception as e:  # a bad request must not take the daemon down
@@ -134,8 +137,10 @@ class Daemon:
                     if job_id in self._active:  # a worker just took it
                         self._active[job_id].set()
                         return True, f"job {job_id} is being cancelled"
-                    j.transition(job_id, S.CANCELLED, reason="cancelled by user",
-                                 note="cancelled by the user", progress=None)
+                    # expect: the printer thread may have started it since we looked
+                    j.transition(job_id, S.CANCELLED, expect=job.state,
+                                 reason="cancelled by user", note="cancelled by the user",
+                                 progress=None)
                 self.spool.archive(job_id)
                 return True, f"job {job_id} cancelled"
             if job.state in (S.REPAIRING, S.SLICING):

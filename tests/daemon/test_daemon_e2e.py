@@ -336,3 +336,17 @@ def test_demo_runs_and_exits_0(tmp_path):
     for needle in ("repaired - ", "intersecting pairs resolved", "sliced - ", "streaming",
                    "Result: PRINTED", "demo finished"):
         assert needle in text, (needle, text)
+
+
+@pytest.mark.slow
+def test_sigterm_mid_print_is_graceful(tmp_path, daemon_factory):
+    vlog = tmp_path / "printer.log"
+    d = daemon_factory(write_config(tmp_path, virtual_log=vlog, speedup=20)).start()
+    drop(d.cfg.spool.path, "long.gcode", tiny_gcode(moves=3000).encode())
+    d.wait_for(lambda: (j := d.journal.get(1)) and str(j.state) == "printing"
+               and (j.progress or 0) > 0.02, what="printing")
+    assert d.stop() == 0
+    job = d.journal.get(1)
+    assert str(job.state) == "interrupted" and "daemon was stopped" in job.reason
+    tail = read_log(vlog)[-6:]
+    assert "M104 S0" in tail and "M84" in tail  # cooldown and motors off were sent
