@@ -1,0 +1,129 @@
+"""Start-up recovery and requests, on a real journal and real files (no printer needed)."""
+
+import threading
+from pathlib import Path
+
+import pytest
+
+from daemon.config import parse_config
+from daemon.pipeline import Processor, Spool
+from daemon.printlink import PrinterLink
+from daemon.service import AlreadyRunning, Daemon
+from daemon.states import JobState
+
+S = JobState
+
+
+def make_cfg(tmp_path: Path, **daemon):
+    return parse_config({"spool": {"path": str(tmp_path / "spool")},
+                         "daemon": {"state_dir": str(tmp_path / "state"), **daemon},
+                         "printer": {"port": "/dev/nonexistent"}})
+
+
+def take(spool: Spool, name: str, data: bytes = b"G28\nG1 X1\n") -> int:
+    p = spool.root / name
+    p.write_bytes(data)
+    return spool.intake(p)
+
+
+def test_recover_redoes_processing_and_interrupts_prints(tmp_path):
+    cfg = make_cfg(tmp_path)
+    d = Daemon(cfg)
+    j, sp = d.journal, d.spool
+    a = take(sp, "a.stl", b"solid a\nendsolid a\n")
+    b = take(sp, "b.gcode")
+    j.transition(a, S.REPAIRING)
+    j.transition(b, S.READY)
+    j.transition(b, S.PRINTING, progress=0.4)
+    d.recover()
+    ja, jb = j.get(a), j.get(b)
+    assert ja.state == S.QUEUED and "redoing" in j.history(a)[-1]["note"]
+    assert jb.state == S.INTERRUPTED
+    assert "half-printed part" in jb.reason and "40%" in jb.reason
+    assert Path(jb.input_path).exists()  # kept for a requeue
+    assert "INTERRUPTED" in (cfg.failed_dir / "b.report.txt").read_text()
+    ok, msg = d._handle("requeue", b)
+    assert ok and j.get(b).state == S.READY and j.get(b).print_requested
+    assert not (cfg.failed_dir / "b.report.txt").exists()
+
+
+def test_orphaned_work_folder_goes_back_to_the_spool(tmp_path):
+    cfg = make_cfg(tmp_path)
+    sp = Daemon(cfg).spool
+    orphan = cfg.work_dir / "deadbeef"
+    orphan.mkdir(parents=True)
+    (orphan / "lost.stl").write_bytes(b"x")
+    (orphan / "repair.log").write_bytes(b"log")
+    assert sp.recover_orphans() == ["lost.stl"]
+    assert (cfg.spool.path / "lost.stl").read_bytes() == b"x"
+    assert not orphan.exists()
+
+
+def test_requeue_of_a_failed_job_restores_its_input(tmp_path):
+    cfg = make_cfg(tmp_path)
+    d = Daemon(cfg)
+    jid = take(d.spool, "c.gcode")
+    d.journal.transition(jid, S.FAILED, reason="boom")
+    d.spool.archive(jid)
+    assert (cfg.failed_dir / "c.gcode").exists()
+    ok, msg = d._handle("requeue", jid)
+    assert ok, msg
+    job = d.journal.get(jid)
+    assert job.state == S.QUEUED and Path(job.input_path).read_bytes() == b"G28\nG1 X1\n"
+    assert not (cfg.failed_dir / "c.gcode").exists()
+    assert not (cfg.failed_dir / "c.report.txt").exists()
+
+
+def test_requests_that_make_no_sense_are_refused(tmp_path):
+    d = Daemon(make_cfg(tmp_path))
+    jid = take(d.spool, "d.gcode")
+    assert d._handle("requeue", jid)[0] is False       # queued: nothing to requeue
+    assert d._handle("print", 999)[0] is False
+    assert d._handle("explode", jid)[0] is False
+    ok, _ = d._handle("cancel", jid)
+    assert ok and d.journal.get(jid).state == S.CANCELLED
+    assert (d.cfg.failed_dir / "d.gcode").exists()
+
+
+def test_a_refused_entry_cannot_be_requeued(tmp_path):
+    d = Daemon(make_cfg(tmp_path))
+    jid = take(d.spool, "notes.txt")
+    assert d.journal.get(jid).state == S.FAILED
+    rid = d.journal.add_request(jid, "requeue")  # the way the CLI asks
+    d.handle_requests()
+    r = d.journal.request(rid)
+    assert r["ok"] == 0 and "drop it into the spool again" in r["message"]
+
+
+def test_second_daemon_on_the_same_state_dir_is_refused(tmp_path):
+    cfg = make_cfg(tmp_path)
+    first = Daemon(cfg)
+    with pytest.raises(AlreadyRunning, match="another preflight daemon"):
+        Daemon(cfg)
+    assert first.journal is not None
+
+
+def test_a_job_that_keeps_killing_the_daemon_fails(tmp_path):
+    cfg = make_cfg(tmp_path)
+    d = Daemon(cfg)
+    jid = take(d.spool, "e.stl", b"solid e\nendsolid e\n")
+    d.journal.update(jid, attempts=cfg.limits.max_attempts)
+    proc = Processor(cfg, d.journal, d.spool, lambda: {"nozzle_diameter": 0.4},
+                     stop=threading.Event(), claim_lock=threading.Lock(), active={})
+    job, ev = proc.next_job(True)
+    proc.process(job, {"nozzle_diameter": 0.4}, ev)
+    job = d.journal.get(jid)
+    assert job.state == S.FAILED and "interrupted 3 times" in job.reason
+
+
+def test_a_job_sliced_for_another_nozzle_is_redone(tmp_path):
+    cfg = make_cfg(tmp_path)
+    d = Daemon(cfg)
+    jid = take(d.spool, "f.stl", b"solid f\nendsolid f\n")
+    d.journal.transition(jid, S.REPAIRING, epsilon=0.4, printer_info={"nozzle_diameter": 0.4})
+    d.journal.transition(jid, S.SLICING)
+    d.journal.transition(jid, S.READY)
+    link = PrinterLink(cfg, d.journal, d.spool, threading.Event())
+    assert link._stale(d.journal.get(jid), {"nozzle_diameter": 0.6}) is True
+    assert d.journal.get(jid).state == S.QUEUED
+    assert "0.6 mm nozzle" in d.journal.history(jid)[-1]["note"]
