@@ -100,3 +100,16 @@ def test_run_with_bad_config_prints_one_line(tmp_path):
     assert out.returncode == 2
     assert out.stderr.strip().splitlines() == [out.stderr.strip()]
     assert out.stderr.startswith("preflight: [printer] baud")
+
+
+def test_unknown_profile_setting_is_named_at_start(tmp_path):
+    import subprocess
+    import sys
+
+    pytest.importorskip("slicer.profile")
+    p = write(tmp_path, f"[spool]\npath = \"{tmp_path / 's'}\"\n[daemon]\nstate_dir = "
+                        f"\"{tmp_path / 'st'}\"\n[profile]\ninfill_prcent = 20\n")
+    out = subprocess.run([sys.executable, "-m", "daemon", "run", "--config", str(p)],
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2
+    assert out.stderr.startswith("preflight: [profile]") and "infill_prcent" in out.stderr

@@ -350,3 +350,25 @@ def test_sigterm_mid_print_is_graceful(tmp_path, daemon_factory):
     assert str(job.state) == "interrupted" and "daemon was stopped" in job.reason
     tail = read_log(vlog)[-6:]
     assert "M104 S0" in tail and "M84" in tail  # cooldown and motors off were sent
+
+
+@pytest.mark.slow
+def test_jobs_wait_for_a_printer_plugged_in_later(tmp_path, daemon_factory):
+    from printer.virtual import VirtualPrinter
+
+    link = tmp_path / "ttyLATER"
+    d = daemon_factory(write_config(tmp_path, port=str(link))).start()
+    drop(d.cfg.spool.path, "box.stl", broken_stl(tmp_path / "b.stl").read_bytes())
+    d.wait_for(lambda: (d.status().get("printer") or {}).get("state") == "waiting",
+               what="waiting for the printer")
+    time.sleep(1.5)
+    assert str(d.journal.get(1).state) == "queued"  # no printer, no epsilon: it waits
+    assert "no serial port" in (d.status().get("printer") or {}).get("message", "")
+    vp = VirtualPrinter(speedup=2000, baud=250000, nozzle=0.6, firmware="prusa", link=link)
+    vp.start()
+    try:
+        job = d.wait_for(lambda: settled(j := d.journal.get(1)) and j, what="printed")
+        assert str(job.state) == "done"
+        assert job.epsilon == pytest.approx(0.6) and "M862.1" in job.epsilon_source
+    finally:
+        vp.stop()
