@@ -55,7 +55,9 @@ def _loops(cs: CrossSection, width: float, role: str) -> list[Path]:
 
 
 def _thin_paths(lost: CrossSection, spacing: float, height: float) -> list[Path]:
-    """Print each narrow component as a loop around its middle with half-width beads."""
+    """Print each narrow component (mean width t = 2·area / perimeter): a closed thin ring
+    narrower than 1.5 spacings as one bead along its middle; anything else as a loop at t/4
+    inside its edge with beads of spacing t/2, so that the two passes deposit its area."""
     out: list[Path] = []
     if lost.is_empty():
         return out
@@ -72,12 +74,27 @@ def _thin_paths(lost: CrossSection, spacing: float, height: float) -> list[Path]
         t = 2.0 * area / perim  # mean width of a strip
         if t < 0.2 * spacing:
             continue
+        shape = height * (1.0 - math.pi / 4.0)
+        if len(polys) >= 2 and t <= 1.5 * spacing:
+            # a closed thin ring (e.g. a hollow box with walls one nozzle thick): one bead
+            # along the middle, as wide as the wall
+            mid = comp.offset(-0.45 * t, MITER).simplify(spacing * 0.03)
+            mid_polys = contours(mid)
+            if len(mid_polys) == len(polys):
+                outer = [q for q in mid_polys if _signed_area(q) > 0]
+                out.extend(Path(q, True, t + shape, "thin_wall") for q in outer)
+                continue
         core = comp.offset(-t / 4.0, MITER).simplify(spacing * 0.03)
         if core.is_empty():
             continue
-        width = t / 2.0 + height * (1.0 - math.pi / 4.0)  # spacing of this bead = t / 2
+        width = t / 2.0 + shape  # spacing of this bead = t / 2: two beads fill the width
         out.extend(Path(p, True, width, "thin_wall") for p in contours(core))
     return out
+
+
+def _signed_area(p: np.ndarray) -> float:
+    x, y = p[:, 0], p[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
 
 
 def plan_shells(
