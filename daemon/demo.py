@@ -134,8 +134,8 @@ def _follow(proc, cfg, root: Path, log_path: Path, Journal, report_text, daemon_
         shutil.copyfile(p, part)
     os.rename(part, cfg.spool.path / DEMO_MODEL)
     _say(f"dropped {DEMO_MODEL} (a broken model: an open cube stuck to the side of a closed one)")
-    # 3. follow the job
-    seen_state = None
+    # 3. follow the job through its recorded transitions (none is missed between polls)
+    announced = 0
     job = None
     while time.monotonic() - start < DEMO_TIMEOUT:
         if proc.poll() is not None:
@@ -145,17 +145,17 @@ def _follow(proc, cfg, root: Path, log_path: Path, Journal, report_text, daemon_
             return 1
         jobs = j.jobs()
         if not jobs:
-            st = j.get_meta("status") or {}
             time.sleep(0.2)
             continue
         job = jobs[-1]
-        state = str(job.state)
-        if state != seen_state:
-            if seen_state in ("printing",):
+        hist = j.history(job.id)
+        for h in hist[announced:]:
+            if announced and hist[announced - 1]["to_state"] == "printing":
                 _end_progress()
-            seen_state = state
-            _announce(job, j)
-        elif state == "printing" and job.progress is not None:
+            _announce(h["to_state"], job)
+            announced += 1
+        state = str(job.state)
+        if state == "printing" and job.progress is not None:
             _progress("streaming to the printer", job.progress)
         if state in ("done", "failed", "cancelled", "interrupted") and (
                 job.outputs or {}).get("report_txt"):
@@ -183,8 +183,7 @@ def _follow(proc, cfg, root: Path, log_path: Path, Journal, report_text, daemon_
     return 0
 
 
-def _announce(job, j) -> None:
-    s = str(job.state)
+def _announce(s: str, job) -> None:
     if s == "queued":
         _say(f"job {job.id}: queued; asking the printer for its nozzle")
     elif s == "repairing":
