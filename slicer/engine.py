@@ -43,6 +43,9 @@ def _to_manifold(vertices: np.ndarray, faces: np.ndarray):
     if str(status) != "Error.NoError":
         raise SliceError(f"mesh is not a closed manifold solid ({str(status).split('.')[-1]}); "
                          "repair it first")
+    if not man.is_empty() and man.volume() < 0:
+        # closed but inside out (every normal pointing in): slice the same solid, turned out
+        return _to_manifold(vertices, faces[:, ::-1])
     if man.is_empty() or man.volume() <= 0:
         raise SliceError("mesh encloses no volume")
     return man

@@ -199,3 +199,10 @@ def test_stl_soup_is_welded_before_slicing():
     welded = slice_mesh(v, f, BASE).summary
     from_soup = slice_mesh(soup_v, soup_f, BASE).summary
     assert from_soup == welded
+
+
+def test_inside_out_mesh_is_sliced_as_the_same_solid():
+    v, f = cube(12.0)
+    normal = slice_mesh(v, f, BASE).summary
+    inverted = slice_mesh(v, np.asarray(f)[:, ::-1], BASE).summary
+    assert inverted == normal
