@@ -1,0 +1,97 @@
+"""Stage 1 of the repair (Attene Sec. 4.1): from an STL triangle soup to one regular layer.
+
+Units are mm. Arrays: vertices float64 (n, 3), faces int64 (m, 3), segments float64
+(k, 2, 3). Every function is vectorised; the only per-item Python work is the exact
+collinearity test of the few faces whose floating-point cross product cannot decide.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from repair.check import degenerate_face_mask, weld_exact
+
+__all__ = ["Cleaned", "clean_soup", "degenerate_mask", "drop_unreferenced", "unique_faces"]
+
+
+def degenerate_mask(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Faces with a repeated vertex index or exactly collinear corners (exact predicate)."""
+    if len(faces) == 0:
+        return np.zeros(0, dtype=bool)
+    return degenerate_face_mask(vertices, faces)
+
+
+def unique_faces(faces: np.ndarray) -> np.ndarray:
+    """Sorted indices of the first face of each vertex set (either orientation).
+
+    Keeping these leaves one *layer* of the soup (Attene Def. 3.1).
+    """
+    if len(faces) < 2:
+        return np.arange(len(faces))
+    s = np.sort(faces, axis=1)
+    _, first = np.unique(s, axis=0, return_index=True)
+    return np.sort(first)
+
+
+def drop_unreferenced(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Remove vertices no face uses; faces are re-indexed (order preserved)."""
+    if len(faces) == 0:
+        return vertices[:0], faces.reshape(0, 3)
+    used, inv = np.unique(faces.reshape(-1), return_inverse=True)
+    return vertices[used], inv.reshape(-1, 3).astype(np.int64)
+
+
+def _segments_of(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """The segment spanned by each degenerate face: its two farthest corners.
+
+    Faces collapsed to a point give no segment. Returns (k, 2, 3) float64.
+    """
+    if len(faces) == 0:
+        return np.zeros((0, 2, 3))
+    p = vertices[faces]  # (k, 3, 3)
+    pairs = np.array([[0, 1], [1, 2], [2, 0]])
+    d = np.linalg.norm(p[:, pairs[:, 0]] - p[:, pairs[:, 1]], axis=2)  # (k, 3)
+    best = np.argmax(d, axis=1)
+    seg = np.stack(
+        [p[np.arange(len(p)), pairs[best, 0]], p[np.arange(len(p)), pairs[best, 1]]], axis=1
+    )
+    seg = seg[d[np.arange(len(p)), best] > 0]
+    if len(seg) == 0:
+        return np.zeros((0, 2, 3))
+    # One copy of each segment, whatever its direction.
+    a, b = seg[:, 0], seg[:, 1]
+    flip = (a[:, 0] > b[:, 0]) | ((a[:, 0] == b[:, 0]) & (
+        (a[:, 1] > b[:, 1]) | ((a[:, 1] == b[:, 1]) & (a[:, 2] > b[:, 2]))))
+    seg[flip] = seg[flip][:, ::-1]
+    _, first = np.unique(seg.reshape(-1, 6), axis=0, return_index=True)
+    return seg[np.sort(first)]
+
+
+@dataclass(frozen=True)
+class Cleaned:
+    """A regular, duplicate-free layer of an STL soup plus its degenerate faces as segments.
+
+    ``vertices``/``faces``: welded (exactly coincident vertices merged), no unreferenced
+    vertices. ``segments``: (k, 2, 3) mm, the wires the degenerate faces stood for.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    segments: np.ndarray
+    degenerate_removed: int
+    duplicates_removed: int
+
+
+def clean_soup(vertices: np.ndarray, faces: np.ndarray) -> Cleaned:
+    """Weld exactly equal vertices, move degenerate faces to segments, keep one layer."""
+    v, f = weld_exact(np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64))
+    deg = degenerate_mask(v, f)
+    segments = _segments_of(v, f[deg])
+    f = f[~deg]
+    keep = unique_faces(f)
+    dup = len(f) - len(keep)
+    f = f[keep]
+    v, f = drop_unreferenced(v, f)
+    return Cleaned(v, f, segments, int(np.count_nonzero(deg)), int(dup))

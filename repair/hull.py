@@ -1,0 +1,140 @@
+"""Stages 2-3 of the repair (Attene Sec. 4.1-4.2): polyhedron, then its outer hull.
+
+``resolve`` turns a regular layer into a polyhedron (Def. 3.7): CGAL's exact arrangement
+(libigl ``remesh_self_intersections``) splits every pair of intersecting triangles along
+their intersection, and coincident vertices are welded. ``outer_hull_split`` labels the
+cells of space the polyhedron bounds (libigl ``extract_cells``, cell 0 is the unbounded
+one) and splits the faces that see the outside into ``solid`` (outside on one side only,
+oriented to face it: the solid outer hull, Def. 3.9) and ``sheet`` (outside on both
+sides). Faces that do not see the outside are internal and are dropped.
+
+Units are mm; vertices float64 (n, 3), faces int64 (m, 3).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from repair.check import weld_exact
+from repair.clean import degenerate_mask, drop_unreferenced, unique_faces
+
+__all__ = ["HullSplit", "outer_hull_split", "resolve"]
+
+
+def _remesh(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """One exact arrangement pass: (vertices, faces, birth face, intersecting pairs)."""
+    import igl.copyleft.cgal as cgal
+
+    vv, ff, pairs, birth, im = cgal.remesh_self_intersections(
+        np.ascontiguousarray(v, dtype=np.float64),
+        np.ascontiguousarray(f, dtype=np.int64),
+        stitch_all=True,
+        cutoff=2**31 - 1,
+    )
+    ff = np.asarray(im, dtype=np.int64)[ff]
+    return vv, ff, np.asarray(birth, dtype=np.int64), int(len(pairs))
+
+
+def resolve(
+    vertices: np.ndarray, faces: np.ndarray, *, max_rounds: int = 4
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """Make ``(vertices, faces)`` a polyhedron: no two faces meet except in a shared edge
+    or vertex, no degenerate and no duplicate faces.
+
+    Exact intersection points are rounded to doubles; points that round together are
+    welded, and faces that this collapses are dropped and the arrangement recomputed (a
+    face made collinear leaves a T-junction the next pass splits exactly).
+
+    Returns ``(vertices, faces, birth, pairs)``: ``birth[i]`` is the input face face ``i``
+    came from; ``pairs`` counts the intersecting face pairs found by the first pass.
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    birth = np.arange(len(f))
+    first_pairs = -1
+    for _ in range(max_rounds):
+        if len(f) == 0:
+            break
+        v, f, b, pairs = _remesh(v, f)
+        birth = birth[b]
+        if first_pairs < 0:
+            first_pairs = pairs
+        v, f = weld_exact(v, f)
+        deg = degenerate_mask(v, f)
+        keep = np.flatnonzero(~deg)
+        keep = keep[unique_faces(f[keep])]
+        changed = len(keep) != len(f)
+        f, birth = f[keep], birth[keep]
+        v, f = drop_unreferenced(v, f)
+        if not changed and pairs == 0:
+            break
+        if not changed and not np.any(deg):
+            # The arrangement is exact and nothing was collapsed: it is a polyhedron.
+            break
+    return v, f, birth, max(first_pairs, 0)
+
+
+@dataclass(frozen=True)
+class HullSplit:
+    """The outer hull of a polyhedron split into solid and sheet faces (indices into the
+    polyhedron's faces). ``solid_faces`` are oriented outward. ``internal`` counts faces
+    that cannot be reached from outside."""
+
+    solid_faces: np.ndarray
+    sheet_faces: np.ndarray
+    solid_index: np.ndarray
+    sheet_index: np.ndarray
+    internal: int
+    cells: int
+
+
+def _boundary_faces(faces: np.ndarray) -> np.ndarray:
+    """Indices of faces with at least one edge used by no other face."""
+    e = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    _, inv, cnt = np.unique(e, axis=0, return_inverse=True, return_counts=True)
+    lone = cnt[inv.reshape(-1)] == 1
+    return np.unique(np.flatnonzero(lone) // 3)
+
+
+def _merge_cells_at_boundaries(cells: np.ndarray, faces: np.ndarray, n_cells: int) -> np.ndarray:
+    """libigl labels the two sides of an open patch as different cells; they are one
+    region of space, connected around the patch's boundary. Merge them (cell 0, the
+    unbounded one, keeps its label)."""
+    bf = _boundary_faces(faces)
+    if len(bf) == 0:
+        return cells
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    a, b = cells[bf, 0], cells[bf, 1]
+    g = coo_matrix((np.ones(len(bf), dtype=np.int8), (a, b)), shape=(n_cells, n_cells))
+    _, label = connected_components(g, directed=False)
+    # Relabel so that whatever merged with cell 0 is 0.
+    label = np.where(label == label[0], 0, label + 1)
+    return label[cells]
+
+
+def outer_hull_split(vertices: np.ndarray, faces: np.ndarray) -> HullSplit:
+    """Classify the faces of a polyhedron by the cells on their two sides."""
+    if len(faces) == 0:
+        e = np.zeros((0, 3), dtype=np.int64)
+        i = np.zeros(0, dtype=np.int64)
+        return HullSplit(e, e, i, i, 0, 1)
+    import igl.copyleft.cgal as cgal
+
+    n_cells, cells = cgal.extract_cells(
+        np.ascontiguousarray(vertices, dtype=np.float64),
+        np.ascontiguousarray(faces, dtype=np.int64),
+    )
+    cells = _merge_cells_at_boundaries(np.asarray(cells, dtype=np.int64), faces, int(n_cells))
+    pos_out = cells[:, 0] == 0
+    neg_out = cells[:, 1] == 0
+    solid = np.flatnonzero(pos_out ^ neg_out)
+    sheet = np.flatnonzero(pos_out & neg_out)
+    sf = faces[solid].copy()
+    flip = neg_out[solid]
+    sf[flip] = sf[flip][:, ::-1]
+    internal = int(len(faces) - len(solid) - len(sheet))
+    return HullSplit(sf, faces[sheet], solid, sheet, internal, int(n_cells))

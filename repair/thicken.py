@@ -1,0 +1,202 @@
+"""Stage 4 of the repair (Attene Sec. 4.2.1): zero-thickness sheets become thin solids.
+
+A sheet (faces of the outer hull with the outside on both sides) is cut into orientable,
+manifold patches -- at edges shared by more than two sheet faces, at edges whose faces
+cannot be oriented consistently (a Moebius strip gets one cut), and at non-manifold
+vertices -- and each patch becomes a closed slab: its offset copies at +-eps/2 along the
+vertex normals plus side walls along the patch boundary. The slabs may overlap each other,
+the solid and themselves; the next arrangement pass (``repair.hull``) takes their union.
+
+The offset at a vertex is ``eps/2`` scaled up where the incident faces bend (so that the
+slab stays about ``eps`` thick across creases) but never beyond ``MITER_LIMIT * eps/2``,
+so every slab point is within ``MITER_LIMIT * eps / 2`` of the sheet.
+
+Units are mm; vertices float64 (n, 3), faces int64 (m, 3). Vectorised numpy + scipy.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["MITER_LIMIT", "sheet_slabs"]
+
+#: Largest vertex offset, as a multiple of eps/2 (bounds Attene's deviation D by 0.575 eps).
+MITER_LIMIT = 1.15
+
+
+def _components(n: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    g = coo_matrix((np.ones(len(a), dtype=np.int8), (a, b)), shape=(n, n))
+    return connected_components(g, directed=False)[1]
+
+
+def _half_edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Directed half-edges (3m, 2) in face order (half-edge 3f+k runs from corner k to k+1),
+    and an id per undirected edge."""
+    he = np.stack([faces.reshape(-1), faces[:, [1, 2, 0]].reshape(-1)], axis=1)
+    _, eid = np.unique(np.sort(he, axis=1), axis=0, return_inverse=True)
+    return he, eid.reshape(-1)
+
+
+def _edge_pairs(eid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For edges used by exactly two half-edges: the two half-edge indices.
+    Also returns the use count of each half-edge's edge."""
+    cnt = np.bincount(eid)
+    order = np.argsort(eid, kind="stable")
+    se = eid[order]
+    two = cnt[se] == 2
+    first = np.r_[True, se[1:] != se[:-1]]
+    starts = order[first & two]
+    seconds = order[np.flatnonzero(first & two) + 1]
+    return starts, seconds, cnt[eid]
+
+
+def _orient(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Orient every orientable manifold patch consistently.
+
+    Returns ``(faces, cut)`` where ``cut`` marks the half-edges (3f+k) whose edge must be
+    cut: non-manifold edges, and the edges that stay inconsistent in unorientable patches.
+    """
+    m = len(faces)
+    he, eid = _half_edges(faces)
+    h1, h2, use = _edge_pairs(eid)
+    f1, f2 = h1 // 3, h2 // 3
+    consistent = he[h1, 0] == he[h2, 1]  # opposite directions
+    # Double cover: node 2f+s is face f with flip s.
+    a = np.r_[2 * f1, 2 * f1 + 1]
+    b = np.r_[2 * f2 + np.where(consistent, 0, 1), 2 * f2 + np.where(consistent, 1, 0)]
+    lab = _components(2 * m, a, b)
+    l0, l1 = lab[0::2], lab[1::2]
+    flip = l1 < l0
+    unorientable = np.flatnonzero(l0 == l1)
+    if len(unorientable):
+        flip = _orient_by_tree(m, f1, f2, consistent, flip, unorientable)
+    out = faces.copy()
+    out[flip] = out[flip][:, ::-1]
+    # Re-derive consistency after flipping; inconsistent manifold edges are cuts.
+    he2, eid2 = _half_edges(out)
+    g1, g2, use2 = _edge_pairs(eid2)
+    bad = he2[g1, 0] != he2[g2, 1]
+    cut = use2 > 2
+    cut[g1[bad]] = True
+    cut[g2[bad]] = True
+    return out, cut
+
+
+def _orient_by_tree(
+    m: int,
+    f1: np.ndarray,
+    f2: np.ndarray,
+    consistent: np.ndarray,
+    flip: np.ndarray,
+    faces_sel: np.ndarray,
+) -> np.ndarray:
+    """Orientation of unorientable patches along a spanning forest (the cut is then where
+    non-tree edges disagree). Parity is propagated by pointer jumping, vectorised."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import breadth_first_tree, connected_components
+
+    sel = np.zeros(m, dtype=bool)
+    sel[faces_sel] = True
+    keep = sel[f1] & sel[f2]
+    a, b, inc = f1[keep], f2[keep], (~consistent[keep]).astype(np.int8)
+    g = coo_matrix((np.ones(len(a)), (a, b)), shape=(m, m)).tocsr()
+    _, lab = connected_components(g, directed=False)
+    parent = np.arange(m)
+    for comp in np.unique(lab[faces_sel]):
+        root = int(faces_sel[lab[faces_sel] == comp][0])
+        tree = breadth_first_tree(g, root, directed=False).tocoo()
+        parent[tree.col] = tree.row
+    # Parity of each tree edge (child, parent).
+    key = np.minimum(a, b) * m + np.maximum(a, b)
+    order = np.argsort(key)
+    child = np.flatnonzero(parent != np.arange(m))
+    ck = np.minimum(child, parent[child]) * m + np.maximum(child, parent[child])
+    pos = order[np.searchsorted(key[order], ck)]
+    par = np.zeros(m, dtype=np.int8)
+    par[child] = inc[pos]
+    ptr = parent.copy()
+    while np.any(ptr != ptr[ptr]):
+        par = par ^ par[ptr]
+        ptr = ptr[ptr]
+    par = par ^ np.where(ptr != np.arange(m), par[ptr], 0)
+    out = flip.copy()
+    out[faces_sel] = par[faces_sel].astype(bool)
+    return out
+
+
+def _split_vertices(faces: np.ndarray, cut: np.ndarray) -> np.ndarray:
+    """Give every manifold fan of corners its own vertex: corners (3f+k) of two faces are
+    merged across each uncut, consistently oriented edge. Returns the new vertex id per
+    corner (3m,) -- the slab's own faces are ``ids.reshape(-1, 3)``."""
+    m = len(faces)
+    he, eid = _half_edges(faces)
+    h1, h2, _ = _edge_pairs(eid)
+    ok = ~cut[h1] & ~cut[h2] & (he[h1, 0] == he[h2, 1])
+    h1, h2 = h1[ok], h2[ok]
+    nxt = np.array([1, 2, 0])
+    # h1 runs a->b in face f1 (corners k1, k1+1); h2 runs b->a in f2 (corners k2, k2+1).
+    c1a, c1b = h1, (h1 // 3) * 3 + nxt[h1 % 3]
+    c2b, c2a = h2, (h2 // 3) * 3 + nxt[h2 % 3]
+    return _components(3 * m, np.r_[c1a, c1b], np.r_[c2a, c2b])
+
+
+def sheet_slabs(
+    vertices: np.ndarray, faces: np.ndarray, epsilon: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Closed slabs of thickness about ``epsilon`` (mm) around the sheet ``faces``.
+
+    Returns ``(vertices, faces)`` of all slabs concatenated (may self-intersect; resolve
+    and take the outer hull afterwards). Empty input gives empty arrays.
+    """
+    faces = np.asarray(faces, dtype=np.int64)
+    if len(faces) == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
+    v = np.asarray(vertices, dtype=np.float64)
+    f, cut = _orient(faces)
+    ids = _split_vertices(f, cut)
+    n = int(ids.max()) + 1
+    fs = ids.reshape(-1, 3)
+    pos = np.zeros((n, 3))
+    pos[ids] = v[f.reshape(-1)]
+
+    p = pos[fs]  # (m, 3, 3)
+    fn = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    fn /= np.linalg.norm(fn, axis=1, keepdims=True)
+    # Angle-weighted vertex normals.
+    e0 = p[:, [1, 2, 0]] - p
+    e1 = p[:, [2, 0, 1]] - p
+    cosang = np.einsum("ijk,ijk->ij", e0, e1) / (
+        np.linalg.norm(e0, axis=2) * np.linalg.norm(e1, axis=2)
+    )
+    ang = np.arccos(np.clip(cosang, -1.0, 1.0))  # (m, 3)
+    vn = np.zeros((n, 3))
+    for k in range(3):
+        np.add.at(vn, fs[:, k], fn * ang[:, k : k + 1])
+    ln = np.linalg.norm(vn, axis=1)
+    weak = ln < 1e-9
+    vn[~weak] /= ln[~weak, None]
+    if np.any(weak):  # normals cancel (a fold back onto itself): use one face's normal
+        corner_face = np.repeat(np.arange(len(fs)), 3)
+        some = np.zeros(n, dtype=np.int64)
+        some[ids] = corner_face
+        vn[weak] = fn[some[weak]]
+    # Miter: keep the slab ~eps thick along each face normal, up to the limit.
+    cos_c = np.einsum("ij,ij->i", vn[ids], np.repeat(fn, 3, axis=0))
+    min_cos = np.full(n, 1.0)
+    np.minimum.at(min_cos, ids, cos_c)
+    scale = 1.0 / np.maximum(min_cos, 1.0 / MITER_LIMIT)
+    d = (0.5 * epsilon) * scale[:, None] * vn
+
+    top, bot = pos + d, pos - d
+    out_v = np.vstack([top, bot])
+    # Boundary half-edges of the slab's own faces: walls.
+    he = np.stack([fs.reshape(-1), fs[:, [1, 2, 0]].reshape(-1)], axis=1)
+    _, eid, cnt = np.unique(np.sort(he, axis=1), axis=0, return_inverse=True, return_counts=True)
+    bnd = he[cnt[eid.reshape(-1)] == 1]
+    a, b = bnd[:, 0], bnd[:, 1]
+    walls = np.vstack([np.stack([b, a, a + n], axis=1), np.stack([b, a + n, b + n], axis=1)])
+    out_f = np.vstack([fs, fs[:, ::-1] + n, walls]).astype(np.int64)
+    return out_v, out_f
