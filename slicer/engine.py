@@ -60,9 +60,17 @@ def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progres
     from slicer.planner import LayerPlan, infill_paths, plan_shells, skin_regions, skirt_paths
     from slicer.templates import render_template
 
+    last = ["", -1.0]
+
     def report(stage: str, fraction: float) -> None:
-        if progress is not None:
-            progress(stage, float(min(max(fraction, 0.0), 1.0)))
+        """Called for every layer in every stage with the fraction of the whole job (0..1);
+        forwarded when the stage changes or the job moved on by ≥ 0.5 %."""
+        if progress is None:
+            return
+        fraction = float(min(max(fraction, 0.0), 1.0))
+        if stage != last[0] or fraction - last[1] >= 0.005 or fraction >= 1.0:
+            last[0], last[1] = stage, fraction
+            progress(stage, fraction)
 
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces)
@@ -86,8 +94,7 @@ def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progres
     sections = []
     for i, z in enumerate(mids):
         sections.append(man.slice(float(z)).simplify(res))
-        if i % 25 == 0:
-            report("slice", i / n * 0.2)
+        report("slice", i / n * 0.2)
     del man
 
     widths = [profile.first_layer_line_width if i == 0 else profile.line_width for i in range(n)]
@@ -95,8 +102,7 @@ def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progres
     for i in range(n):
         shells.append(plan_shells(sections[i], widths[i], float(heights[i]), profile.perimeters,
                                   profile.thin_walls, res))
-        if i % 25 == 0:
-            report("shells", 0.2 + i / n * 0.2)
+        report("shells", 0.2 + i / n * 0.2)
     spacing = [geo.bead_spacing(widths[i], float(heights[i])) for i in range(n)]
     solids = skin_regions([s.inner for s in shells], sections, profile.top_layers,
                           profile.bottom_layers, spacing, profile.infill_percent >= 100)
@@ -114,8 +120,7 @@ def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progres
         plans.append(LayerPlan(i, float(tops[i]), float(heights[i]), paths,
                                geo.contours(sections[i])))
         shells[i] = None  # free as we go
-        if i % 25 == 0:
-            report("infill", 0.45 + i / n * 0.2)
+        report("infill", 0.45 + i / n * 0.2)
     del shells, solids, sections
 
     writer = GcodeWriter(profile)
@@ -131,8 +136,7 @@ def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progres
         filament += code.filament_mm
         pos = code.end_pos
         plan.paths = []
-        if i % 10 == 0:
-            report("gcode", 0.65 + i / n * 0.35)
+        report("gcode", 0.65 + i / n * 0.35)
     if filament <= 0:
         raise SliceError("nothing to print: the model produced no extrusions")
 

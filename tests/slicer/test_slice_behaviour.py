@@ -206,3 +206,14 @@ def test_inside_out_mesh_is_sliced_as_the_same_solid():
     normal = slice_mesh(v, f, BASE).summary
     inverted = slice_mesh(v, np.asarray(f)[:, ::-1], BASE).summary
     assert inverted == normal
+
+
+def test_progress_climbs_per_layer_to_one():
+    v, f = sphere()
+    events: list[tuple[str, float]] = []
+    result = slice_mesh(v, f, BASE, progress=lambda s, x: events.append((s, x)))
+    fractions = [x for _, x in events]
+    assert fractions == sorted(fractions) and fractions[-1] == 1.0
+    gcode_events = [x for s, x in events if s == "gcode"]
+    # on a 100-layer job the G-code stage reports about once per layer
+    assert len(gcode_events) >= result.summary["layers"] // 2
