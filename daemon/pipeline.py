@@ -241,8 +241,13 @@ class Processor:
 
     def run_forever(self) -> None:
         while not self.stop.is_set():
-            info = self.printer_info()
-            claimed = self.next_job(info is not None)
+            try:
+                info = self.printer_info()
+                claimed = self.next_job(info is not None)
+            except Exception:  # e.g. the journal locked for too long: log, pause, go on
+                log.exception("worker")
+                self.stop.wait(1.0)
+                continue
             if claimed is None:
                 self.stop.wait(0.3)
                 continue

@@ -72,6 +72,21 @@ class PrinterLink(threading.Thread):
 
     # -- the thread -----------------------------------------------------------------------
     def run(self) -> None:
+        while not self.stop_event.is_set():
+            try:
+                self._serve()
+            except Exception:  # e.g. the journal locked for too long: log, pause, go on
+                log.exception("printer thread")
+                self._disconnect()
+                self.stop_event.wait(1.0)
+        self._disconnect()
+        if self.virtual is not None:
+            try:
+                self.virtual.stop()
+            except Exception:
+                log.exception("stopping the virtual printer")
+
+    def _serve(self) -> None:
         delay = self.cfg.printer.reconnect_min_seconds
         while not self.stop_event.is_set():
             if self.host is None:
@@ -96,12 +111,6 @@ class PrinterLink(threading.Thread):
                 self._finish_broken(job.id, f"internal error while printing: "
                                             f"{type(e).__name__}: {e}", acked=1)
                 self._disconnect()
-        self._disconnect()
-        if self.virtual is not None:
-            try:
-                self.virtual.stop()
-            except Exception:
-                log.exception("stopping the virtual printer")
 
     def _port(self) -> str:
         port = self.cfg.printer.port
@@ -133,7 +142,9 @@ class PrinterLink(threading.Thread):
                                nozzle_macro=pc.nozzle_macro)
             host.connect()
             info = host.query_info().to_dict()
-        except (PrinterError, OSError) as e:
+        except Exception as e:  # PrinterError, OSError, or a bug: never kill the thread
+            if not isinstance(e, (PrinterError, OSError)):
+                log.exception("connecting to the printer")
             if host is not None:
                 try:
                     host.close()

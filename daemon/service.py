@@ -217,23 +217,31 @@ class Daemon:
         wd = watchdog_interval()
         last_status = last_wd = 0.0
         while not self.stop.is_set():
-            for path in self.watcher.due():
-                try:
-                    self.spool.intake(path)
-                except Exception:
-                    log.exception("intake of %s", path)
-            self.handle_requests()
-            now = time.monotonic()
-            if now - last_status >= 1.0:
-                last_status = now
-                st = self.status()
-                self.journal.set_meta("status", st)
-                notify(f"STATUS={self.status_line(st)}")
+            try:
+                for path in self.watcher.due():
+                    try:
+                        self.spool.intake(path)
+                    except Exception:
+                        log.exception("intake of %s", path)
+                self.handle_requests()
+                now = time.monotonic()
+                if now - last_status >= 1.0:
+                    last_status = now
+                    st = self.status()
+                    self.journal.set_meta("status", st)
+                    notify(f"STATUS={self.status_line(st)}")
+            except Exception:  # e.g. the journal locked for too long: log and go on
+                log.exception("main loop")
+                self.stop.wait(1.0)
+                continue
             if wd and now - last_wd >= wd:
                 last_wd = now
                 if self.printer.is_alive() and all(t.is_alive() for t in workers):
                     notify("WATCHDOG=1")
-            self.watcher.wakeup.wait(0.2)
+            # a file that is settling is due within close_grace_seconds: look again sooner
+            nap = 0.2 if not self.watcher.pending() else min(
+                0.2, max(0.02, self.cfg.spool.close_grace_seconds / 2))
+            self.watcher.wakeup.wait(nap)
             self.watcher.wakeup.clear()
         notify("STOPPING=1\nSTATUS=stopping")
         log.info("stopping")
