@@ -308,7 +308,7 @@ class Processor:
         repaired = work / "repaired.stl"
         try:
             report = run_task("repair", {
-                "in": job.input_path, "out": str(repaired),
+                "in": job.input_path, "out": str(repaired), "job_name": job.name,
                 "report": str(work / "repair.report.json"), "epsilon": eps,
                 "max_bytes": int(lim.max_file_mb * 1024 * 1024),
                 "max_triangles": lim.max_triangles,
@@ -328,7 +328,7 @@ class Processor:
         bv = info.get("build_volume")
         try:
             out = run_task("slice", {
-                "in": str(repaired), "out": str(gcode), "nozzle": eps,
+                "in": str(repaired), "out": str(gcode), "nozzle": eps, "job_name": job.name,
                 "build_volume": list(bv) if bv else None,
                 "filament_diameter": info.get("filament_diameter"),
                 "flavour": flavour_from(info), "overrides": self.cfg.profile,

@@ -14,8 +14,8 @@ not the daemon. :func:`run_task` starts ``python -m daemon.worker TASK SPEC``:
   death by signal into a reason (``crashed with SIGSEGV``).
 
 Test hook (documented, used by the end-to-end tests): the environment variable
-``PREFLIGHT_TEST_WORKER_FAULT=TASK:ACTION[:NAME]`` makes the child for TASK
-(``repair`` or ``slice``) whose input file name contains NAME do ACTION:
+``PREFLIGHT_TEST_WORKER_FAULT=TASK:ACTION[:NAME][,...]`` makes the child for TASK
+(``repair`` or ``slice``) whose job's file name contains NAME do ACTION:
 ``abort`` (``os.abort()``, a native crash), ``hang`` (an endless loop) or
 ``oom`` (allocate until the memory cap stops it). It is ignored otherwise.
 """
@@ -179,15 +179,16 @@ def _limit_memory(memory_mb: int) -> None:
 
 
 def _apply_test_fault(task: str, in_path: str) -> None:
-    spec = os.environ.get(FAULT_ENV)
-    if not spec:
-        return
-    parts = spec.split(":", 2)
-    if len(parts) < 2 or parts[0] != task:
-        return
-    if len(parts) == 3 and parts[2] not in os.path.basename(in_path):
-        return
-    action = parts[1]
+    for spec in os.environ.get(FAULT_ENV, "").split(","):
+        parts = spec.strip().split(":", 2)
+        if len(parts) < 2 or parts[0] != task:
+            continue
+        if len(parts) == 3 and parts[2] not in os.path.basename(in_path):
+            continue
+        _fault(parts[1])
+
+
+def _fault(action: str) -> None:
     if action == "abort":
         os.abort()
     elif action == "hang":
@@ -243,7 +244,7 @@ def child_main(argv: list[str]) -> int:
         os.replace(tmp, result_path)
 
     try:
-        _apply_test_fault(task, spec.get("in", ""))
+        _apply_test_fault(task, spec.get("job_name") or spec.get("in", ""))
         result = TASKS[task](spec)
     except MemoryError:
         finish({"ok": False, "error": f"{task} ran out of memory (the cap is "

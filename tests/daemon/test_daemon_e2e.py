@@ -219,17 +219,23 @@ def test_kill9_during_repair_then_during_print(tmp_path, daemon_factory):
 
 
 @pytest.mark.slow
-def test_crashing_repair_fails_only_that_job(tmp_path, daemon_factory):
-    d = daemon_factory(write_config(tmp_path), {FAULT_ENV: "repair:abort:crashme"}).start()
+def test_crashing_hanging_and_greedy_children_fail_only_their_job(tmp_path, daemon_factory):
+    faults = "repair:abort:crashme,slice:hang:hangme,repair:oom:oomme"
+    cfg = write_config(tmp_path, extra="slice_timeout = 2\nrepair_memory_mb = 600",
+                       ).read_text().replace("slice_timeout = 120\n", "")
+    (tmp_path / "preflight.toml").write_text(cfg)
+    d = daemon_factory(tmp_path / "preflight.toml", {FAULT_ENV: faults}).start()
     b = broken_stl(tmp_path / "b.stl").read_bytes()
-    drop(d.cfg.spool.path, "crashme.stl", b)
-    drop(d.cfg.spool.path, "fine.stl", b)
-    d.wait_for(lambda: len(d.jobs()) == 2 and all(settled(j) for j in d.jobs()),
+    for name in ("crashme.stl", "hangme.stl", "oomme.stl", "fine.stl"):
+        drop(d.cfg.spool.path, name, b)
+    d.wait_for(lambda: len(d.jobs()) == 4 and all(settled(j) for j in d.jobs()),
                what="outcomes")
     jobs = {j.source_name: j for j in d.jobs()}
     assert str(jobs["fine.stl"].state) == "done"
-    assert str(jobs["crashme.stl"].state) == "failed"
-    assert "crashed with SIGABRT" in jobs["crashme.stl"].reason
+    assert "repair failed: repair crashed with SIGABRT" in jobs["crashme.stl"].reason
+    assert "slicing failed: slice took longer than the limit of 2 s" in jobs["hangme.stl"].reason
+    assert "repair ran out of memory" in jobs["oomme.stl"].reason
+    assert {str(j.state) for n, j in jobs.items() if n != "fine.stl"} == {"failed"}
     assert d.alive()
 
 
@@ -262,8 +268,11 @@ def test_cli_print_cancel_status_and_notify(tmp_path, daemon_factory):
     sock.bind(sock_path)
     sock.settimeout(60)
     d = daemon_factory(write_config(tmp_path, auto_print=False, speedup=20),
-                       {"NOTIFY_SOCKET": sock_path}).start()
+                       {"NOTIFY_SOCKET": sock_path, "WATCHDOG_USEC": "1000000"}).start()
     assert b"READY=1" in sock.recv(4096)
+    got = b""
+    while b"WATCHDOG=1" not in got:  # the main loop pings the watchdog
+        got = sock.recv(4096)
     drop(d.cfg.spool.path, "a.gcode", tiny_gcode(moves=10).encode())
     drop(d.cfg.spool.path, "b.gcode", tiny_gcode(moves=5000).encode())
     d.wait_for(lambda: len(d.jobs()) == 2 and all(str(j.state) == "ready" for j in d.jobs()),
