@@ -71,7 +71,10 @@ def _thin_paths(lost: CrossSection, spacing: float, height: float) -> list[Path]
                     for p in polys)
         if perim <= 0:
             continue
-        t = 2.0 * area / perim  # mean width of a strip
+        t = 2.0 * area / perim  # mean width of a ring (no ends)
+        if len(polys) == 1:
+            # an open strip: area = L·t, perimeter = 2L + 2t
+            t = (perim - math.sqrt(max(perim * perim - 16.0 * area, 0.0))) / 4.0
         if t < 0.2 * spacing:
             continue
         shape = height * (1.0 - math.pi / 4.0)
@@ -84,12 +87,88 @@ def _thin_paths(lost: CrossSection, spacing: float, height: float) -> list[Path]
                 outer = [q for q in mid_polys if _signed_area(q) > 0]
                 out.extend(Path(q, True, t + shape, "thin_wall") for q in outer)
                 continue
+        if len(polys) == 1 and t <= 1.5 * spacing:
+            # an open strip (e.g. a repaired sheet one nozzle thick): one bead along the middle
+            line = _strip_midline(comp, t, area / t)
+            if line is not None:
+                out.append(Path(line, False, t + shape, "thin_wall"))
+                continue
         core = comp.offset(-t / 4.0, MITER).simplify(spacing * 0.03)
         if core.is_empty():
             continue
         width = t / 2.0 + shape  # spacing of this bead = t / 2: two beads fill the width
         out.extend(Path(p, True, width, "thin_wall") for p in contours(core))
     return out
+
+
+def _strip_midline(comp: CrossSection, t: float, length: float) -> np.ndarray | None:
+    """Middle line of a strip of mean width ``t`` and length ``length`` (mm), or None if it is
+    not a simple strip.
+
+    The strip is shrunk to a sliver 0.1·t wide whose outline runs along the middle line and
+    back; the outline turns through ≈ 180° at each of the two tips and nowhere else, so the
+    tips are found as the two places of largest turning over a short arc, and one side of
+    the outline between them, moved half the sliver's width inwards, is the middle line. Its
+    ends are extended towards the tips until it is ``length`` long (at most to the tips).
+    Branching or uneven strips (a third tip, a sliver in pieces) return None.
+    """
+    inset = 0.45 * t
+    sliver = comp.offset(-inset, MITER)
+    polys = contours(sliver)
+    if len(polys) != 1:
+        return None
+    p = polys[0]
+    if _signed_area(p) < 0:
+        p = p[::-1]
+    n = len(p)
+    if n < 4:
+        return None
+    e = np.roll(p, -1, axis=0) - p  # edge i: p[i] → p[i+1]
+    seg = np.hypot(e[:, 0], e[:, 1])
+    total = float(seg.sum())
+    ep = np.roll(e, 1, axis=0)  # edge arriving at vertex i
+    turn = np.arctan2(ep[:, 0] * e[:, 1] - ep[:, 1] * e[:, 0], np.einsum("ij,ij->i", ep, e))
+    arc = np.concatenate([[0.0], np.cumsum(seg)])[:-1]  # arc position of vertex i
+    arc3 = np.concatenate([arc, arc + total, arc + 2 * total])
+    cum = np.concatenate([[0.0], np.cumsum(np.tile(turn, 3))])
+    window = 0.5 * t  # the sliver is 0.1·t wide: a tip's two corners fall in one window
+    lo = np.searchsorted(arc3, arc + total - window / 2, side="left")
+    hi = np.searchsorted(arc3, arc + total + window / 2, side="right")
+    wsum = cum[hi] - cum[lo]
+    i1 = int(np.argmax(wsum))
+    dist = np.abs(arc - arc[i1])
+    dist = np.minimum(dist, total - dist)
+    far = dist > 0.25 * total
+    if not far.any():
+        return None
+    i2 = int(np.flatnonzero(far)[np.argmax(wsum[far])])
+    if wsum[i1] < 2.6 or wsum[i2] < 2.6:
+        return None
+    d2 = np.abs(arc - arc[i2])
+    d2 = np.minimum(d2, total - d2)
+    third = (dist > 0.1 * total) & (d2 > 0.1 * total) & (wsum > 2.0)
+    if third.any():
+        return None
+    idx = np.arange(i1, i2 + 1) if i2 > i1 else np.concatenate([np.arange(i1, n),
+                                                                  np.arange(0, i2 + 1)])
+    line = p[idx].copy()
+    if len(line) < 2:
+        return None
+    # move onto the middle: the sliver side lies (t − 2·inset)/2 off it, interior on the left
+    d = np.diff(line, axis=0)
+    nrm = np.stack([-d[:, 1], d[:, 0]], axis=1) / np.maximum(np.hypot(d[:, 0], d[:, 1]),
+                                                             1e-12)[:, None]
+    vn = np.vstack([nrm[:1], nrm[:-1] + nrm[1:], nrm[-1:]])
+    vn /= np.maximum(np.hypot(vn[:, 0], vn[:, 1]), 1e-12)[:, None]
+    line += vn * (t / 2 - inset)
+    have = float(np.hypot(*np.diff(line, axis=0).T).sum())
+    ext = min(max((length - have) / 2, 0.0), inset)
+    for end, nxt in ((0, 1), (-1, -2)):
+        d = line[end] - line[nxt]
+        norm = float(np.hypot(*d))
+        if norm > 0:
+            line[end] = line[end] + d / norm * ext
+    return line
 
 
 def _signed_area(p: np.ndarray) -> float:

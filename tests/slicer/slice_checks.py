@@ -103,8 +103,8 @@ def bead_footprint(rep: Replay, idx: np.ndarray, height: float, filament_diamete
     n = np.stack([-d[:, 1], d[:, 0]], axis=1) / length[:, None] * (width[:, None] / 2)
     rects = np.stack([p0 - n, p1 - n, p1 + n, p0 + n], axis=1)
     contours = list(rects)
-    # round joints: an octagon (inscribed, so never larger than the bead) at every end
-    for c, w in zip(p1, width, strict=True):
+    # round ends and joints: an octagon (inscribed, never larger than the bead) at both ends
+    for c, w in zip(np.vstack([p0, p1]), np.concatenate([width, width]), strict=True):
         contours.append(_octagon(c, w / 2))
     return CrossSection(contours, FillRule.Positive)
 
