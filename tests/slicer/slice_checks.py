@@ -66,6 +66,11 @@ def sheet(thickness=0.4, length=20.0, height=10.0):
     return mesh_of(Manifold.cube([thickness, length, height]))
 
 
+def l_sheet(thickness=0.4):
+    """Two ε sheets meeting at a corner, standing up (an L in plan view)."""
+    return mesh_of(Manifold.cube([thickness, 20, 8]) + Manifold.cube([15, thickness, 8]))
+
+
 # ---------------------------------------------------------------------------------------
 def placed(vertices, faces, bed_xy):
     """The placement the slicer promises: dropped onto z = 0, bbox centred on the bed."""

@@ -14,6 +14,7 @@ from slice_checks import (
     cube,
     expected_layers,
     hollow_box,
+    l_sheet,
     layer_heights,
     part_with_holes,
     placed,
@@ -33,6 +34,7 @@ MODELS = {
     "bridge": bridge_part,
     "thin_pin": thin_pin,
     "eps_sheet": sheet,
+    "eps_l_sheet": l_sheet,
 }
 
 BASE = Profile.for_printer(nozzle_diameter=0.4, build_volume=(200, 200, 180)).with_overrides(
@@ -133,3 +135,19 @@ def test_eps_sheet_is_printed_on_every_layer():
         # a 0.4 × 20 mm sheet: 8 mm² of cross-section per layer
         assert deposited / h == pytest.approx(0.4 * 20.0, rel=0.15), f"layer z={z}"
     assert len(zs) == expected_layers(10.0, profile.first_layer_height, profile.layer_height)
+
+
+def test_eps_sheet_is_one_bead_along_its_middle():
+    _, _, profile, _, rep = sliced("eps_sheet")
+    layers = rep.layers()
+    area = math.pi * (profile.filament_diameter / 2) ** 2
+    mid_x = profile.build_volume[0] / 2
+    for z in sorted(layers)[1:]:
+        idx = layers[z]
+        assert np.allclose(rep.start[idx, 0], mid_x, atol=0.01)
+        assert np.allclose(rep.end[idx, 0], mid_x, atol=0.01)
+        length = np.hypot(*(rep.end[idx, :2] - rep.start[idx, :2]).T).sum()
+        assert length == pytest.approx(20.0, abs=0.5)  # one pass, not a loop
+        width = rep.de[idx].sum() * area / (length * profile.layer_height) \
+            + profile.layer_height * (1 - math.pi / 4)
+        assert width == pytest.approx(0.4 + profile.layer_height * (1 - math.pi / 4), rel=0.03)
