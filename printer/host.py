@@ -708,6 +708,9 @@ class _Streamer:
         """
         if r is None or not self.checks_lines:
             return
+        if self.tickle_tries and not self.probe_until:
+            # Alive, and saying exactly where it stands: no need to wait for the tickle.
+            self.tickle_tries = 0
         self.confirm(r - 1)
         if self.probe_until:
             # After a resync no ok is pending for earlier lines: r - 1 is the truth.

@@ -254,6 +254,8 @@ class VirtualPrinter:
         self._master = -1
         self._slave = -1
         self.port: str | None = None
+        #: How many times a pty has been opened (2 after one disconnect + reconnect).
+        self.generation = 0
         self._slave_name: str | None = None
         self._log = None
         self._reset_state()
@@ -311,6 +313,7 @@ class VirtualPrinter:
         os.set_blocking(master, False)
         self._master, self._slave = master, slave
         self._slave_name = os.ttyname(slave)
+        self.generation += 1
         if self.link:
             tmp = f"{self.link}.tmp{os.getpid()}"
             if os.path.lexists(tmp):
@@ -597,11 +600,15 @@ class VirtualPrinter:
         f = self.faults
         if f.reset_after is not None and self._numbered_done == f.reset_after:
             self.stats["resets"] += 1
-            self._reset_state()
-            self._numbered_done = -10**9  # one reset per printer
             if self.firmware == "klipper":
+                # The MCU went away: Klipper shuts down and refuses further commands.
+                self._numbered_done = -10**9
+                self._halted = True
+                self._queue.clear()
                 self._send("!! Lost communication with MCU 'mcu'")
             else:
+                self._reset_state()
+                self._numbered_done = -10**9  # one reset per printer
                 for line in self.profile.banner or ("start",):
                     self._send(line)
             return True
@@ -796,7 +803,7 @@ class VirtualPrinter:
         if until is not None and now < until:
             if "next_keepalive" in state and now >= state["next_keepalive"]:
                 state["next_keepalive"] = now + self.keepalive
-                if self.firmware != "klipper":
+                if self.firmware in ("marlin", "prusa", "buddy"):
                     self._send("echo:busy: processing")
             return False
         return True
