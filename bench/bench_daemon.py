@@ -81,6 +81,11 @@ def rss_kb(pid: int) -> tuple[int, int]:
     return int(get["VmRSS"].split()[0]), int(get["VmHWM"].split()[0])
 
 
+def cpu_seconds(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def drop(spool: Path, name: str, v, f) -> float:
     part = spool / (name + ".part")
     write_stl(part, v, f)
@@ -129,6 +134,10 @@ def bench_latency(speedup: float) -> None:
         rss, hwm = rss_kb(r.proc.pid)
         print(f"idle daemon memory: RSS {rss / 1024:.1f} MB (peak {hwm / 1024:.1f} MB), "
               "printer connected, nothing to do")
+        c0, w0 = cpu_seconds(r.proc.pid), time.monotonic()
+        time.sleep(5.0)
+        cpu = (cpu_seconds(r.proc.pid) - c0) / (time.monotonic() - w0)
+        print(f"idle daemon CPU: {100 * cpu:.2f}% of one core")
         v, f = box((20.0, 20.0, 20.0))
         base = r.job_lines()
         t0 = drop(r.cfg.spool.path, "cube20.stl", v, f)

@@ -248,12 +248,16 @@ def test_refused_entries(tmp_path, daemon_factory):
     os.symlink(secret, spool / "link.gcode")
     drop(spool, "..\\..\\evil.gcode", tiny_gcode().encode())
     drop(spool, "reset.gcode", tiny_gcode(["M502"]).encode())
-    d.wait_for(lambda: len(d.jobs()) == 3 and all(settled(j) for j in d.jobs()),
-               what="three refusals")
+    d.wait_for(lambda: (d.status().get("printer") or {}).get("state") == "connected",
+               what="printer info")
+    drop(spool, "huge.gcode", tiny_gcode(["G1 X400 Y10 E1"]).encode())
+    d.wait_for(lambda: len(d.jobs()) == 4 and all(settled(j) for j in d.jobs()),
+               what="four refusals")
     reasons = {j.source_name: j.reason for j in d.jobs()}
     assert "symbolic link" in reasons["link.gcode"]
     assert "leave the spool" in reasons["..\\..\\evil.gcode"]
     assert "M502" in reasons["reset.gcode"] and "firmware-altering" in reasons["reset.gcode"]
+    assert "outside the printer's build volume 250 x 210 x 220 mm" in reasons["huge.gcode"]
     assert secret.read_text() == tiny_gcode()  # the link's target is untouched
     assert (d.cfg.failed_dir / "link.gcode").is_symlink()
     names = sorted(p.name for p in d.cfg.failed_dir.iterdir())
