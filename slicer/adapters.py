@@ -331,3 +331,15 @@ def slice_external(name: str, in_path: str | os.PathLike, out_path: str | os.Pat
     if progress:
         progress(name, 1.0)
     return summary
+
+
+def slice_with(name: str, in_path: str | os.PathLike, out_path: str | os.PathLike,
+               profile: Profile, *, progress: Progress = None) -> dict[str, Any]:
+    """Slice with the named engine: "embedded" (default), "cura" or "prusa"."""
+    if name in ("", "embedded", None):
+        from slicer.engine import slice_file
+
+        return slice_file(in_path, out_path, profile, progress=progress)
+    if name not in BINARIES:
+        raise SliceError(f"unknown slicer {name!r} (embedded, cura or prusa)")
+    return slice_external(name, in_path, out_path, profile, progress=progress)

@@ -72,3 +72,12 @@ def test_external_slicer_errors_are_surfaced(tool, tmp_path):
         adapters.slice_external(tool, bad, tmp_path / "x.gcode", PROFILE)
     assert "\n" not in str(info.value)
     assert not (tmp_path / "x.gcode").exists()
+
+
+def test_slice_with_dispatches_and_rejects_unknown(tmp_path):
+    stl = tmp_path / "c.stl"
+    trimesh.creation.box((10, 10, 4)).export(stl)
+    summary = adapters.slice_with("embedded", stl, tmp_path / "c.gcode", PROFILE)
+    assert summary["slicer"] == "embedded" and summary["layers"] == 20
+    with pytest.raises(SliceError, match="simplify3d"):
+        adapters.slice_with("simplify3d", stl, tmp_path / "d.gcode", PROFILE)
