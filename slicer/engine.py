@@ -90,6 +90,18 @@ def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progres
     mids = tops - heights / 2
     n = len(tops)
     res = profile.resolution
+    values = dict(profile.to_dict())
+    values.update(
+        layer_count=n, max_z=float(tops[-1]),
+        park_z=float(min(tops[-1] + 10.0, profile.build_volume[2])),
+        park_y=float(profile.build_volume[1] * 0.9),
+        travel_feedrate=profile.travel_speed * 60.0,
+    )
+    try:  # before the heavy work: a bad template fails fast
+        head = start_block(profile, values)
+        tail = render_template(profile.end_gcode, values)
+    except ValueError as exc:
+        raise SliceError(str(exc)) from None
 
     sections = []
     for i, z in enumerate(mids):
@@ -108,53 +120,38 @@ def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progres
                           profile.bottom_layers, spacing, profile.infill_percent >= 100)
     report("skins", 0.45)
 
-    plans: list[LayerPlan] = []
-    for i in range(n):
-        sh = shells[i]
-        paths = []
-        if i < profile.skirt_height:
-            paths.extend(skirt_paths(profile, sections[0], widths[i], float(heights[i])))
-        paths.extend(sh.loops)
-        paths.extend(sh.thin)
-        paths.extend(infill_paths(profile, i, sh.inner, solids[i], widths[i], float(heights[i])))
-        plans.append(LayerPlan(i, float(tops[i]), float(heights[i]), paths,
-                               geo.contours(sections[i])))
-        shells[i] = None  # free as we go
-        report("infill", 0.45 + i / n * 0.2)
-    del shells, solids, sections
-
+    # plan, order and write one layer at a time, so only one layer's paths exist at once
     writer = GcodeWriter(profile)
     pos = np.array([0.0, 0.0])
     bodies: list[str] = []
     seconds: list[float] = []
     filament = 0.0
-    for i, plan in enumerate(plans):
+    for i in range(n):
+        sh = shells[i]
+        h = float(heights[i])
+        paths = []
+        if i < profile.skirt_height:
+            paths.extend(skirt_paths(profile, sections[0], widths[i], h))
+        paths.extend(sh.loops)
+        paths.extend(sh.thin)
+        paths.extend(infill_paths(profile, i, sh.inner, solids[i], widths[i], h))
+        plan = LayerPlan(i, float(tops[i]), h, paths, geo.contours(sections[i]))
         ordered, _ = order_paths(plan.paths, pos)
         code = writer.layer(plan, ordered, pos)
         bodies.append(code.text)
         seconds.append(code.seconds + 0.1)  # Z move and layer change
         filament += code.filament_mm
         pos = code.end_pos
-        plan.paths = []
-        report("gcode", 0.65 + i / n * 0.35)
+        shells[i] = solids[i] = None  # free as we go
+        if i > 0:
+            sections[i - 1] = None  # (section 0 stays: the skirt follows it)
+        report("gcode", 0.45 + i / n * 0.55)
+    del shells, solids, sections
     if filament <= 0:
         raise SliceError("nothing to print: the model produced no extrusions")
 
     total = float(sum(seconds))
     p = profile
-    values = dict(p.to_dict())
-    values.update(
-        layer_count=n, max_z=float(tops[-1]),
-        park_z=float(min(tops[-1] + 10.0, p.build_volume[2])),
-        park_y=float(p.build_volume[1] * 0.9),
-        travel_feedrate=p.travel_speed * 60.0,
-    )
-    try:
-        head = start_block(p, values)
-        tail = render_template(p.end_gcode, values)
-    except ValueError as exc:
-        raise SliceError(str(exc)) from None
-
     cm3 = filament * p.filament_area / 1000.0
     summary = {
         "layers": n,
