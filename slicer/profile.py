@@ -17,6 +17,9 @@ from pathlib import Path
 from typing import Any
 
 FLAVOURS = ("marlin", "klipper", "reprapfirmware")
+#: firmware names a printer may report, mapped onto the G-code dialect they accept
+FLAVOUR_ALIASES = {"rrf": "reprapfirmware", "reprap": "reprapfirmware", "prusa": "marlin",
+                   "buddy": "marlin", "marlin2": "marlin", "unknown": "marlin", "": "marlin"}
 INFILL_PATTERNS = ("rectilinear", "grid")
 
 DEFAULT_START_GCODE = """\
@@ -161,16 +164,20 @@ class Profile:
         filament_diameter: float = 1.75,
         flavour: str = "marlin",
     ) -> Profile:
-        """Defaults derived from the printer: line width 1.125 × nozzle, layer 0.5 × nozzle."""
+        """Defaults derived from the printer: line width 1.125 × nozzle, layer 0.5 × nozzle.
+
+        ``flavour`` also accepts the printer area's firmware names (prusa, buddy, rrf, ...).
+        """
         n = float(nozzle_diameter)
         if not (math.isfinite(n) and n > 0):
             raise ProfileError(
                 f"nozzle_diameter must be a positive number, got {nozzle_diameter!r}"
             )
+        flavour = str(flavour or "").strip().lower()
         kwargs: dict[str, Any] = dict(
             nozzle_diameter=n,
             filament_diameter=float(filament_diameter),
-            flavour=flavour,
+            flavour=FLAVOUR_ALIASES.get(flavour, flavour),
             layer_height=round(0.5 * n, 4),
             first_layer_height=round(0.5 * n, 4),
             line_width=round(1.125 * n, 4),

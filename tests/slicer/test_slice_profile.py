@@ -15,6 +15,10 @@ def test_defaults_follow_the_nozzle_and_printer():
     assert p.build_volume == (300.0, 250.0, 200.0)
     assert p.filament_diameter == 2.85
     assert p.flavour == "klipper"
+    assert Profile.for_printer(flavour="rrf").flavour == "reprapfirmware"
+    assert Profile.for_printer(flavour="buddy").flavour == "marlin"
+    with pytest.raises(ProfileError, match="flavour"):
+        Profile.for_printer(flavour="makerbot")
 
 
 def test_overrides_parse_strings_and_reject_unknown_keys():
