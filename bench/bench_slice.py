@@ -31,8 +31,8 @@ sys.path.insert(0, str(ROOT))
 CHILD = r"""
 import json, sys, time
 t0 = time.perf_counter()
-import manifold3d, numpy, trimesh  # noqa: F401  (import cost reported apart from slicing)
-import slicer.gcode, slicer.ordering, slicer.planner  # noqa: F401
+import manifold3d, numpy  # noqa: F401  (import cost reported apart from slicing)
+import slicer.gcode, slicer.ordering, slicer.planner, slicer.stl  # noqa: F401
 from slicer.engine import slice_file
 from slicer.profile import Profile
 profile = Profile.for_printer().with_overrides(json.loads(sys.argv[3]))

@@ -196,13 +196,16 @@ def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progres
 
 
 def _load_mesh(path: FsPath) -> tuple[np.ndarray, np.ndarray]:
-    """Read a mesh file with trimesh (STL soup welded into an indexed mesh)."""
-    import trimesh
-
+    """Read STL with the slicer's own numpy reader; other formats through trimesh."""
     if not path.is_file():
         raise SliceError(f"no such file: {path}")
+    if path.suffix.lower() == ".stl":
+        from slicer.stl import read_stl
+
+        return read_stl(path)
+    import trimesh
+
     try:
-        # slice_mesh welds exact duplicates itself; skip trimesh's slower processing
         mesh = trimesh.load(str(path), force="mesh", process=False)
     except Exception as exc:  # trimesh raises many types for bad files
         raise SliceError(f"cannot read {path.name}: {exc}") from None
