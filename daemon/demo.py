@@ -54,6 +54,7 @@ close_grace_seconds = 0.2
 
 [printer]
 port = "virtual"
+virtual_firmware = "prusa"        # reports its nozzle (M862.1 Q): epsilon comes from it
 baud = 250000
 virtual_speedup = {speedup}
 reconnect_min_seconds = 0.5

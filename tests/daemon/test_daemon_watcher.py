@@ -3,6 +3,8 @@
 import os
 import time
 
+import pytest
+
 from daemon.watcher import SpoolWatcher
 
 
@@ -16,6 +18,7 @@ def wait_due(w: SpoolWatcher, seconds: float) -> list:
     return got
 
 
+@pytest.mark.slow
 def test_file_written_in_chunks_is_taken_only_after_close(tmp_path):
     w = SpoolWatcher(tmp_path, settle_seconds=0.3, close_grace_seconds=0.2)
     w.start()
