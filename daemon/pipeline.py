@@ -27,6 +27,7 @@ from daemon.safety import (
     UnsafeEntry,
     check_gcode,
     check_spool_entry,
+    display_name,
     safe_output_path,
     sanitise_name,
     strip_gcode,
@@ -122,7 +123,7 @@ class Spool:
         """Record a failed job for an entry refused at the door, move it to failed/."""
         safe = sanitise_name(path.name)
         dest = safe_output_path(self.cfg.failed_dir, safe, 0)
-        job_id = self.j.add_job(name=safe, source_name=path.name, kind="refused",
+        job_id = self.j.add_job(name=safe, source_name=display_name(path.name), kind="refused",
                                 work_dir="", input_path="", state=S.FAILED, reason=reason)
         if dest.name != safe:
             dest = safe_output_path(self.cfg.failed_dir, safe, job_id)

@@ -42,10 +42,20 @@ def is_partial_name(name: str) -> bool:
     return name.startswith(".") and "\\" not in name and "/" not in name
 
 
+def display_name(name: str) -> str:
+    """The name as text that can be stored and shown (undecodable bytes become U+FFFD)."""
+    return name.encode("utf-8", "surrogateescape").decode("utf-8", "replace")
+
+
 def check_name(name: str) -> None:
     """Refuse names that try to leave the spool or that carry control characters."""
     if not name or name in (".", ".."):
         raise UnsafeEntry(f"refused: {name!r} is not a file name")
+    try:
+        name.encode("utf-8")
+    except UnicodeEncodeError:
+        raise UnsafeEntry(f"refused: the name {display_name(name)!r} is not valid UTF-8; "
+                          "rename the file") from None
     if "\x00" in name or any(unicodedata.category(c) == "Cc" for c in name):
         raise UnsafeEntry(f"refused: the name {name!r} contains control characters")
     parts = re.split(r"[/\\]", name)

@@ -127,3 +127,19 @@ def test_a_job_sliced_for_another_nozzle_is_redone(tmp_path):
     assert link._stale(d.journal.get(jid), {"nozzle_diameter": 0.6}) is True
     assert d.journal.get(jid).state == S.QUEUED
     assert "0.6 mm nozzle" in d.journal.history(jid)[-1]["note"]
+
+
+def test_a_name_that_is_not_utf8_is_refused_not_stuck(tmp_path):
+    import os
+
+    d = Daemon(make_cfg(tmp_path))
+    raw = os.fsencode(str(d.spool.root)) + b"/bad\xff.gcode"
+    with open(raw, "wb") as fh:
+        fh.write(b"G28\n")
+    name = os.fsdecode(b"bad\xff.gcode")
+    jid = d.spool.intake(d.spool.root / name)
+    job = d.journal.get(jid)
+    assert job.state == S.FAILED and "not valid UTF-8" in job.reason
+    assert job.source_name == "bad\ufffd.gcode"
+    assert sorted(os.listdir(d.spool.root)) == [".preflight", "done", "failed"]
+    assert (d.cfg.failed_dir / job.name).exists()
