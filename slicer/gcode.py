@@ -151,20 +151,41 @@ class GcodeWriter:
             block[:, 2] = self.e_abs + np.cumsum(e)
         flat = block.ravel().tolist()
 
+        # time: the whole layer as one polyline (travels included); a layer faster than
+        # min_layer_time is slowed down (not below min_print_speed) so it can cool
+        seq = np.vstack([pos[None], pts])
+        active = moving & (m_per_path > 0)
+        n_retract = int((retract & active).sum())
+        lift = p.retract_lift
+        extra = n_retract * (2 * p.retract_length / p.retract_speed
+                             + (2 * lift / p.travel_speed if lift > 0 else 0.0))
+        accel = np.full(len(pts), p.print_acceleration)
+        accel[begins] = p.travel_acceleration
+
+        def layer_seconds(path_speeds: np.ndarray) -> float:
+            v = np.repeat(path_speeds, counts)  # speed of the segment *ending* at each point
+            v[begins] = p.travel_speed
+            return trapezoid_time(seq, v, accel, p.max_jerk) + extra
+
+        seconds = layer_seconds(speeds)
+        for _ in range(2):
+            if p.min_layer_time <= 0 or seconds >= p.min_layer_time * 0.999:
+                break
+            floor = np.minimum(speeds, p.min_print_speed)
+            speeds = np.maximum(speeds * (seconds / p.min_layer_time), floor)
+            seconds = layer_seconds(speeds)
+
         travel_f = p.travel_speed * 60.0
         r_feed = p.retract_speed * 60.0
-        lift = p.retract_lift
         fmt: list[str] = [head]
         vals: list[float] = []
         cursor = 0
         e_abs = self.e_abs
         feed = -1.0
-        n_retract = 0
         for i in range(npaths):
             m = int(m_per_path[i])
             if moving[i] and m:
                 if retract[i]:
-                    n_retract += 1
                     if p.relative_e:
                         fmt.append("G1 E%.5f F%.0f\n")
                         vals += (-p.retract_length, r_feed)
@@ -199,15 +220,6 @@ class GcodeWriter:
         self.e_abs = e_abs
         text = "".join(fmt) % tuple(vals)
 
-        # time: the whole layer as one polyline (travels included)
-        seq = np.vstack([pos[None], pts])
-        v = np.repeat(speeds, counts)  # speed of the segment *ending* at each point
-        a = np.full(len(pts), p.print_acceleration)
-        v[begins] = p.travel_speed
-        a[begins] = p.travel_acceleration
-        seconds = trapezoid_time(seq, v, a, p.max_jerk)
-        seconds += n_retract * (2 * p.retract_length / p.retract_speed
-                                + (2 * lift / p.travel_speed if lift > 0 else 0.0))
         return LayerCode(text, seconds, filament, pts[-1].copy())
 
 

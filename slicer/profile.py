@@ -93,6 +93,8 @@ class Profile:
     # cooling
     fan_speed: float = 100.0
     disable_fan_first_layers: int = 1
+    min_layer_time: float = 5.0
+    min_print_speed: float = 10.0
     # skirt
     skirts: int = 1
     skirt_distance: float = 3.0
@@ -117,6 +119,7 @@ class Profile:
             "external_perimeter_speed", "infill_speed", "solid_infill_speed", "thin_wall_speed",
             "travel_speed", "first_layer_speed", "print_acceleration", "travel_acceleration",
             "max_jerk", "retract_speed", "extrusion_multiplier", "filament_density",
+            "min_print_speed",
         )
         for name in positive:
             v = getattr(self, name)
@@ -125,6 +128,7 @@ class Profile:
         non_negative = (
             "perimeters", "top_layers", "bottom_layers", "infill_percent", "retract_length",
             "retract_lift", "retract_min_travel", "fan_speed", "disable_fan_first_layers",
+            "min_layer_time",
             "skirts", "skirt_distance", "skirt_height", "temperature", "first_layer_temperature",
             "bed_temperature", "first_layer_bed_temperature",
         )

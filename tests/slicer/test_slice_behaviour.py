@@ -217,3 +217,21 @@ def test_progress_climbs_per_layer_to_one():
     gcode_events = [x for s, x in events if s == "gcode"]
     # on a 100-layer job the G-code stage reports about once per layer
     assert len(gcode_events) >= result.summary["layers"] // 2
+
+
+def test_small_layers_are_slowed_down_to_the_minimum_layer_time():
+    from slice_checks import thin_pin
+
+    _, _, profile, _, rep = _slice(lambda: thin_pin(3.0, 10.0), min_layer_time=6.0,
+                                   min_print_speed=1.0, skirts=0)
+    layers = rep.layers()
+    zs = sorted(layers)
+    lengths = np.hypot(*(rep.end[:, :2] - rep.start[:, :2]).T)
+    for z in zs[2:-1]:
+        idx = layers[z]
+        # a lower bound from the replay itself: every extrusion at its commanded feedrate
+        cruise = float((lengths[idx] / (rep.feed[idx] / 60.0)).sum())
+        slowest = rep.feed[idx].min() / 60.0
+        assert cruise >= 6.0 * 0.85 or slowest <= 1.0 + 1e-6, f"layer {z}: {cruise:.2f} s"
+    _, _, _, _, fast = _slice(lambda: thin_pin(3.0, 10.0), min_layer_time=0, skirts=0)
+    assert fast.feed[fast.extruding].min() > rep.feed[rep.extruding].min()
