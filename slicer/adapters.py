@@ -113,6 +113,7 @@ def prusa_args(profile: Profile) -> list[str]:
         "max-fan-speed": p.fan_speed, "min-fan-speed": p.fan_speed,
         "disable-fan-first-layers": p.disable_fan_first_layers,
         "slowdown-below-layer-time": p.min_layer_time, "min-print-speed": p.min_print_speed,
+        "bridge-speed": p.bridge_speed, "bridge-fan-speed": p.bridge_fan_speed,
         "skirts": p.skirts, "skirt-distance": p.skirt_distance, "skirt-height": p.skirt_height,
         "extrusion-multiplier": p.extrusion_multiplier, "filament-density": p.filament_density,
         "resolution": p.resolution, "after-layer-gcode": "G92 E0",
@@ -182,6 +183,8 @@ def cura_settings(profile: Profile) -> tuple[dict[str, str], dict[str, str]]:
         "cool_fan_speed_max": p.fan_speed, "cool_fan_speed_0": 0,
         "cool_fan_full_layer": p.disable_fan_first_layers + 1,
         "cool_min_layer_time": p.min_layer_time, "cool_min_speed": p.min_print_speed,
+        "bridge_settings_enabled": "true", "bridge_skin_speed": p.bridge_speed,
+        "bridge_fan_speed": p.bridge_fan_speed,
         "material_flow": 100.0 * p.extrusion_multiplier,
     }
     glob: dict[str, Any] = {

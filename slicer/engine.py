@@ -134,7 +134,8 @@ def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progres
             paths.extend(skirt_paths(profile, sections[0], widths[i], h))
         paths.extend(sh.loops)
         paths.extend(sh.thin)
-        paths.extend(infill_paths(profile, i, sh.inner, solids[i], widths[i], h))
+        paths.extend(infill_paths(profile, i, sh.inner, solids[i], widths[i], h,
+                                  sections[i - 1] if i > 0 else None))
         plan = LayerPlan(i, float(tops[i]), h, paths, geo.contours(sections[i]))
         ordered, _ = order_paths(plan.paths, pos)
         code = writer.layer(plan, ordered, pos)

@@ -76,6 +76,7 @@ class GcodeWriter:
             "external_perimeter": p.external_perimeter_speed,
             "perimeter": p.perimeter_speed,
             "thin_wall": p.thin_wall_speed,
+            "bridge_infill": p.bridge_speed,
             "solid_infill": p.solid_infill_speed,
             "sparse_infill": p.infill_speed,
         }.get(role, p.perimeter_speed)
@@ -182,6 +183,9 @@ class GcodeWriter:
         cursor = 0
         e_abs = self.e_abs
         feed = -1.0
+        # bridges get their own fan speed; the layer's own is restored after them
+        normal_fan = p.fan_speed if plan.index >= p.disable_fan_first_layers else 0.0
+        in_bridge = False
         for i in range(npaths):
             m = int(m_per_path[i])
             if moving[i] and m:
@@ -207,6 +211,10 @@ class GcodeWriter:
                     feed = r_feed
             if m == 0:
                 continue
+            is_bridge = ordered[i][1].role == "bridge_infill"
+            if is_bridge != in_bridge and p.bridge_fan_speed != normal_fan:
+                fmt.append(fan_command(p.bridge_fan_speed if is_bridge else normal_fan))
+            in_bridge = is_bridge
             f = float(speeds[i]) * 60.0
             if f != feed:
                 fmt.append("G1 F%.0f\n")
@@ -217,6 +225,8 @@ class GcodeWriter:
             cursor += 3 * m
             if not p.relative_e:
                 e_abs = flat[cursor - 1]
+        if in_bridge and p.bridge_fan_speed != normal_fan:
+            fmt.append(fan_command(normal_fan))
         self.e_abs = e_abs
         text = "".join(fmt) % tuple(vals)
 

@@ -183,3 +183,21 @@ def segments_cross(
         hit = (d1 * d2 < 0) & (d3 * d4 < 0)
         out[i0:i0 + step] = hit.any(axis=1)
     return out
+
+
+def points_inside(polys: list[np.ndarray], pts: np.ndarray, chunk: int = 2_000_000) -> np.ndarray:
+    """Even-odd test of points (k, 2) against closed polygons; bool (k,). Vectorised."""
+    a, b = polygon_edges(polys)
+    out = np.zeros(len(pts), dtype=bool)
+    if len(a) == 0 or len(pts) == 0:
+        return out
+    step = max(1, chunk // len(a))
+    for i0 in range(0, len(pts), step):
+        px = pts[i0:i0 + step, 0][:, None]
+        py = pts[i0:i0 + step, 1][:, None]
+        ay, by_ = a[None, :, 1], b[None, :, 1]
+        straddle = (ay > py) != (by_ > py)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x_cross = a[None, :, 0] + (py - ay) * (b[None, :, 0] - a[None, :, 0]) / (by_ - ay)
+        out[i0:i0 + step] = (np.count_nonzero(straddle & (px < x_cross), axis=1) % 2) == 1
+    return out

@@ -10,8 +10,8 @@ import numpy as np
 
 from slicer.planner import Path
 
-ROLE_ORDER = ("skirt", "perimeter", "external_perimeter", "thin_wall", "solid_infill",
-              "sparse_infill")
+ROLE_ORDER = ("skirt", "perimeter", "external_perimeter", "thin_wall", "bridge_infill",
+              "solid_infill", "sparse_infill")
 
 
 def _nearest_neighbour(

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from manifold3d import CrossSection, JoinType, OpType
 
-from slicer.geometry import bead_spacing, contours, hatch
+from slicer.geometry import bead_spacing, contours, hatch, points_inside
 from slicer.profile import Profile
 
 MITER = JoinType.Miter
@@ -244,6 +244,43 @@ def skin_regions(
     return out
 
 
+def bridge_region(solid: CrossSection, below: CrossSection | None, spacing: float
+                  ) -> CrossSection:
+    """The part of a layer's solid skin printed over air (not over the layer below)."""
+    if below is None or solid.is_empty():
+        return CrossSection()
+    air = solid - below if not below.is_empty() else solid
+    if air.is_empty():
+        return air
+    opened = air.offset(-spacing / 2, MITER)  # ignore slivers along the walls
+    if opened.is_empty():
+        return opened
+    return opened.offset(spacing / 2, MITER) ^ solid
+
+
+def bridge_angle(bridge: CrossSection, below: CrossSection, spacing: float) -> float:
+    """Hatch angle (degrees) whose lines over ``bridge`` are best anchored on ``below``:
+    the largest length fraction of lines with both ends (one spacing beyond) supported."""
+    polys = contours(bridge)
+    support = contours(below)
+    best, best_score = 0.0, -1.0
+    for ang in range(0, 180, 15):
+        segs = hatch(polys, float(ang), spacing)
+        if len(segs) == 0:
+            continue
+        d = segs[:, 1] - segs[:, 0]
+        length = np.hypot(d[:, 0], d[:, 1])
+        u = d / np.maximum(length, 1e-12)[:, None]
+        ends = np.concatenate([segs[:, 0] - u * spacing, segs[:, 1] + u * spacing])
+        inside = points_inside(support, ends)
+        k = len(segs)
+        anchored = inside[:k] & inside[k:]
+        score = float(length[anchored].sum() / length.sum())
+        if score > best_score + 1e-9:
+            best, best_score = float(ang), score
+    return best
+
+
 def _hatch_paths(region: CrossSection, angles: list[float], spacing: float, width: float,
                  role: str, min_length: float) -> list[Path]:
     if region.is_empty():
@@ -258,17 +295,28 @@ def _hatch_paths(region: CrossSection, angles: list[float], spacing: float, widt
 
 def infill_paths(
     profile: Profile, layer_index: int, region: CrossSection, solid: CrossSection,
-    width: float, height: float,
+    width: float, height: float, below: CrossSection | None = None,
 ) -> list[Path]:
-    """Solid (100 %, alternating ±angle) and sparse (rectilinear/grid at infill_percent)."""
+    """Bridges (solid skin over air, lines anchored across the gap), solid infill (100 %,
+    alternating ±angle) and sparse infill (rectilinear/grid at infill_percent)."""
     s = bead_spacing(width, height)
     base = profile.infill_angle
     alt = base if layer_index % 2 == 0 else base + 90.0
-    out = _hatch_paths(solid, [alt], s, width, "solid_infill", 0.25 * s)
+    out: list[Path] = []
+    taken = solid  # everything printed solid on this layer, bridges included
+    bridge = bridge_region(solid, below, s)
+    if not bridge.is_empty():
+        angle = bridge_angle(bridge, below, s)
+        # anchor the bridge lines two spacings into the supported part of the region
+        bridge = bridge.offset(2.0 * s, MITER) ^ region
+        out += _hatch_paths(bridge, [angle], s, width, "bridge_infill", 0.25 * s)
+        solid = solid - bridge
+        taken = taken + bridge
+    out += _hatch_paths(solid, [alt], s, width, "solid_infill", 0.25 * s)
     pct = profile.infill_percent
     if pct <= 0 or region.is_empty():
         return out
-    sparse = region - solid if not solid.is_empty() else region
+    sparse = region - taken if not taken.is_empty() else region
     if sparse.is_empty():
         return out
     if pct >= 100:

@@ -74,6 +74,7 @@ class Profile:
     infill_speed: float = 80.0
     solid_infill_speed: float = 60.0
     thin_wall_speed: float = 30.0
+    bridge_speed: float = 25.0
     travel_speed: float = 150.0
     first_layer_speed: float = 20.0
     # motion (for the time estimate)
@@ -94,6 +95,7 @@ class Profile:
     fan_speed: float = 100.0
     disable_fan_first_layers: int = 1
     min_layer_time: float = 5.0
+    bridge_fan_speed: float = 100.0
     min_print_speed: float = 10.0
     # skirt
     skirts: int = 1
@@ -117,6 +119,7 @@ class Profile:
             "nozzle_diameter", "filament_diameter", "layer_height", "first_layer_height",
             "line_width", "first_layer_line_width", "resolution", "perimeter_speed",
             "external_perimeter_speed", "infill_speed", "solid_infill_speed", "thin_wall_speed",
+            "bridge_speed",
             "travel_speed", "first_layer_speed", "print_acceleration", "travel_acceleration",
             "max_jerk", "retract_speed", "extrusion_multiplier", "filament_density",
             "min_print_speed",
@@ -128,7 +131,7 @@ class Profile:
         non_negative = (
             "perimeters", "top_layers", "bottom_layers", "infill_percent", "retract_length",
             "retract_lift", "retract_min_travel", "fan_speed", "disable_fan_first_layers",
-            "min_layer_time",
+            "min_layer_time", "bridge_fan_speed",
             "skirts", "skirt_distance", "skirt_height", "temperature", "first_layer_temperature",
             "bed_temperature", "first_layer_bed_temperature",
         )
@@ -138,8 +141,9 @@ class Profile:
                 raise ProfileError(f"{name} must be zero or more, got {v!r}")
         if self.infill_percent > 100:
             raise ProfileError(f"infill_percent must be 0..100, got {self.infill_percent}")
-        if self.fan_speed > 100:
-            raise ProfileError(f"fan_speed must be 0..100 %, got {self.fan_speed}")
+        for name in ("fan_speed", "bridge_fan_speed"):
+            if getattr(self, name) > 100:
+                raise ProfileError(f"{name} must be 0..100 %, got {getattr(self, name)}")
         if self.flavour not in FLAVOURS:
             raise ProfileError(
                 f"flavour must be one of {', '.join(FLAVOURS)}, got {self.flavour!r}"

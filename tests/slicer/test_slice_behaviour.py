@@ -235,3 +235,29 @@ def test_small_layers_are_slowed_down_to_the_minimum_layer_time():
         assert cruise >= 6.0 * 0.85 or slowest <= 1.0 + 1e-6, f"layer {z}: {cruise:.2f} s"
     _, _, _, _, fast = _slice(lambda: thin_pin(3.0, 10.0), min_layer_time=0, skirts=0)
     assert fast.feed[fast.extruding].min() > rep.feed[rep.extruding].min()
+
+
+def test_bridge_lines_span_the_gap_slowly_with_the_bridge_fan():
+    _, _, profile, _, rep = _slice(bridge_part, skirts=0, infill_percent=10, fan_speed=50,
+                                   bridge_fan_speed=100, bridge_speed=20)
+    layers = rep.layers()
+    zs = sorted(layers)
+    x0 = profile.build_volume[0] / 2 - 14.5
+    y0 = profile.build_volume[1] / 2 - 4.0
+    z = min(z for z in zs if z > 10.0)
+    idx = layers[z]
+    mid = (rep.start[idx, :2] + rep.end[idx, :2]) / 2
+    # inside the gap and clear of the deck's walls
+    in_gap = idx[(mid[:, 0] > x0 + 5) & (mid[:, 0] < x0 + 19) & (mid[:, 1] > y0 + 1.2)
+                 & (mid[:, 1] < y0 + 6.8)]
+    d = rep.end[in_gap, :2] - rep.start[in_gap, :2]
+    length = np.hypot(d[:, 0], d[:, 1])
+    along_x = np.abs(d[:, 0]) > 0.99 * length
+    assert length[along_x].sum() > 0.9 * length.sum()  # pillar to pillar, not diagonal
+    long = in_gap[length > 10]
+    assert len(long) > 10 and set(rep.feed[long]) == {20 * 60.0}
+    first_bridge_line = rep.line_no[long].min()
+    last_bridge_line = rep.line_no[long].max()
+    before = [s for no, s in rep.fan if no < first_bridge_line]
+    after = [s for no, s in rep.fan if last_bridge_line < no < rep.line_no[idx].max() + 50]
+    assert before[-1] == 255 and after and after[0] == round(255 * 0.5)

@@ -97,6 +97,15 @@ def test_full_infill_volume_matches_mesh(name):
     ratio = extruded / volume
     assert 0.93 <= ratio <= 1.08, f"extruded/mesh volume = {ratio:.3f}"
     assert result.summary["filament_cm3"] == pytest.approx(extruded / 1000, rel=0.01)
+    # and layer by layer: nothing printed twice, nothing left out
+    solid = placed(v, f, profile.build_volume)
+    layers = rep.layers()
+    zs = sorted(layers)
+    for z, h in zip(zs, layer_heights(zs), strict=True):
+        want = solid.slice(z - h / 2).area() * h
+        got = rep.de[layers[z]].sum() * area
+        if want > 1.0:  # mm³: tiny tips of spheres and pins aside
+            assert got / want == pytest.approx(1.0, abs=0.07), f"layer z={z}"
 
 
 @pytest.mark.parametrize("name", list(MODELS))
