@@ -228,6 +228,9 @@ def skin_regions(
             out.append(r)
             continue
         neigh = [sections[j] for j in range(i - bottom, i + top + 1) if j != i]
+        if not neigh:  # no top or bottom layers asked for
+            out.append(CrossSection())
+            continue
         cover = CrossSection.batch_boolean(neigh, OpType.Intersect) if len(neigh) > 1 \
             else neigh[0]
         solid = r - cover
