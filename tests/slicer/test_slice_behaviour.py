@@ -261,3 +261,19 @@ def test_bridge_lines_span_the_gap_slowly_with_the_bridge_fan():
     before = [s for no, s in rep.fan if no < first_bridge_line]
     after = [s for no, s in rep.fan if last_bridge_line < no < rep.line_no[idx].max() + 50]
     assert before[-1] == 255 and after and after[0] == round(255 * 0.5)
+
+
+@pytest.mark.parametrize("over", [
+    {"top_layers": 0, "bottom_layers": 0},
+    {"perimeters": 0},
+    {"infill_percent": 0},
+    {"infill_pattern": "rectilinear", "relative_e": False, "retract_lift": 0.3},
+    {"perimeters": 5, "infill_percent": 60, "skirts": 3},
+])
+def test_setting_extremes_still_print_inside_the_part(over):
+    v, f, profile, result, rep = _slice(sphere, **{"skirts": 0, **over})
+    ext = rep.extruding
+    assert ext.any() and result.summary["filament_mm"] > 0
+    c = np.array(profile.build_volume[:2]) / 2
+    reach = np.hypot(*(rep.end[ext, :2] - c).T).max()
+    assert reach <= 10.0 + 0.3 + (profile.skirt_distance + 3 * 0.45 if profile.skirts else 0)
