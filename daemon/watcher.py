@@ -3,11 +3,14 @@
 A file is taken only once it is complete:
 
 - on Linux (inotify) after close-after-write (``IN_CLOSE_WRITE``) or after it was
-  renamed into the spool, and then ``close_grace_seconds`` without a new write;
+  renamed within the spool (``x.part`` -> ``x.stl``), and then ``close_grace_seconds``
+  without a new write;
+- a file renamed in from outside the spool (inotify reports a creation without
+  writes) once its size and mtime have been stable for ``settle_seconds``;
 - a file found by a scan (at start-up, or on a network share watched by polling)
   once its size and mtime have been stable for ``settle_seconds``;
-- a file that inotify saw being written but never saw closed (a lost event) only
-  after it has been stable for ``max(60 s, 12 x settle_seconds)``.
+- a file that inotify saw being written but never saw closed (a lost event), or
+  an empty one, only after it has been stable for ``max(60 s, 12 x settle_seconds)``.
 
 Hidden files and partial names (``.part``, ``.tmp``, ``~``...) are ignored; only
 entries directly in the spool are considered (``done/``, ``failed/`` and the
@@ -120,8 +123,12 @@ class SpoolWatcher:
                     c.closed_at, c.writing = now, False
                 elif self.poll:
                     c.last_change = now
-                elif event.event_type == "created" or c.closed_at is None:
-                    c.writing, c.closed_at, c.last_change = True, None, now
+                elif event.event_type == "created":
+                    # a new file, or one renamed in from outside the spool (inotify then
+                    # reports a creation): writes that follow mark it as being written
+                    c.closed_at, c.last_change = None, now
+                elif c.closed_at is None:
+                    c.writing, c.last_change = True, now
                 else:  # written/touched again after a close (scp -p sets times): wait again
                     c.last_change = now
         self.wakeup.set()
@@ -191,6 +198,8 @@ class SpoolWatcher:
                 if c.closed_at is not None:
                     ok = now - max(c.closed_at, c.last_change) >= self.grace
                 elif c.writing:
+                    ok = quiet >= max(60.0, 12 * self.settle)
+                elif st.st_size == 0:  # created, nothing written yet: wait for a close
                     ok = quiet >= max(60.0, 12 * self.settle)
                 else:
                     ok = quiet >= self.settle and now - c.first_seen >= self.settle

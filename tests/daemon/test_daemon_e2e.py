@@ -143,24 +143,36 @@ def test_slow_writer_is_taken_only_when_complete(tmp_path, daemon_factory):
 def test_hundred_files_at_once_are_all_accounted_for(tmp_path, daemon_factory):
     d = daemon_factory(write_config(tmp_path, auto_print=False))
     spool = d.cfg.spool.path
-    names = []
-    for i in range(100):
+    staging = tmp_path / "staging"
+    staging.mkdir()
+    (spool / "early.gcode").write_text(tiny_gcode(moves=5))  # waiting before the start
+    names = ["early.gcode"]
+    mesh = broken_stl(tmp_path / "m.stl").read_bytes()
+    for i in range(99):
         if i % 10 == 9:
             name = f"note{i:03d}.txt"
         elif i % 10 == 4:
             name = f"reset{i:03d}.gcode"
+        elif i % 25 == 0:
+            name = f"mesh{i:03d}.stl"
         else:
             name = f"part{i:03d}.gcode"
-        extra = ["M502"] if name.startswith("reset") else []
-        (spool / name).write_text(tiny_gcode(extra, moves=5))
+        if name.endswith(".stl"):
+            (staging / name).write_bytes(mesh)
+        else:
+            extra = ["M502"] if name.startswith("reset") else []
+            (staging / name).write_text(tiny_gcode(extra, moves=5))
         names.append(name)
-    d.start()  # 100 files waiting at start-up: the scan takes them
+    d.start()
+    for name in names[1:]:  # a burst: 99 renames into the watched spool
+        os.rename(staging / name, spool / name)
     d.wait_for(lambda: len(d.jobs()) == 100 and all(
         str(j.state) == "ready" or settled(j) for j in d.jobs()), what="100 outcomes")
     st = d.states()
     assert sorted(st) == sorted(names)
     for name, s in st.items():
-        assert s == ("ready" if name.startswith("part") else "failed"), (name, s)
+        good = name.startswith(("part", "mesh", "early"))
+        assert s == ("ready" if good else "failed"), (name, s)
         if s == "failed":
             assert (d.cfg.failed_dir / name).exists()
     reasons = {j.source_name: j.reason for j in d.jobs()}

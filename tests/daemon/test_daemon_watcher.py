@@ -75,3 +75,29 @@ def test_polling_mode_waits_for_stable_size(tmp_path):
         assert wait_due(w, 2.5) == ["p.stl"]
     finally:
         w.stop()
+
+
+def test_file_renamed_in_from_outside_is_taken_once_stable(tmp_path):
+    spool = tmp_path / "spool"
+    spool.mkdir()
+    (tmp_path / "m.stl").write_bytes(b"model")
+    w = SpoolWatcher(spool, settle_seconds=0.4, close_grace_seconds=0.1)
+    w.start()
+    try:
+        os.rename(tmp_path / "m.stl", spool / "m.stl")
+        assert wait_due(w, 1.5) == ["m.stl"]
+    finally:
+        w.stop()
+
+
+def test_empty_new_file_waits_for_its_writer(tmp_path):
+    w = SpoolWatcher(tmp_path, settle_seconds=0.3, close_grace_seconds=0.1)
+    w.start()
+    try:
+        fh = open(tmp_path / "e.stl", "wb")  # noqa: SIM115
+        assert wait_due(w, 1.0) == []      # created, empty, still open
+        fh.write(b"data")
+        fh.close()
+        assert wait_due(w, 1.0) == ["e.stl"]
+    finally:
+        w.stop()
