@@ -117,6 +117,7 @@ def prusa_args(profile: Profile) -> list[str]:
         "skirts": p.skirts, "skirt-distance": p.skirt_distance, "skirt-height": p.skirt_height,
         "extrusion-multiplier": p.extrusion_multiplier, "filament-density": p.filament_density,
         "resolution": p.resolution, "after-layer-gcode": "G92 E0",
+        "seam-position": "rear" if p.seam_position == "rear" else "nearest",
         "start-gcode": start, "end-gcode": end,
     }
     flags = {
@@ -185,6 +186,7 @@ def cura_settings(profile: Profile) -> tuple[dict[str, str], dict[str, str]]:
         "cool_min_layer_time": p.min_layer_time, "cool_min_speed": p.min_print_speed,
         "bridge_settings_enabled": "true", "bridge_skin_speed": p.bridge_speed,
         "bridge_fan_speed": p.bridge_fan_speed,
+        "z_seam_type": "back" if p.seam_position == "rear" else "shortest",
         "material_flow": 100.0 * p.extrusion_multiplier,
     }
     glob: dict[str, Any] = {

@@ -137,7 +137,7 @@ def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progres
         paths.extend(infill_paths(profile, i, sh.inner, solids[i], widths[i], h,
                                   sections[i - 1] if i > 0 else None))
         plan = LayerPlan(i, float(tops[i]), h, paths, geo.contours(sections[i]))
-        ordered, _ = order_paths(plan.paths, pos)
+        ordered, _ = order_paths(plan.paths, pos, profile.seam_position)
         code = writer.layer(plan, ordered, pos)
         bodies.append(code.text)
         seconds.append(code.seconds + 0.1)  # Z move and layer change

@@ -15,9 +15,13 @@ ROLE_ORDER = ("skirt", "perimeter", "external_perimeter", "thin_wall", "bridge_i
 
 
 def _nearest_neighbour(
-    paths: list[Path], pos: np.ndarray
+    paths: list[Path], pos: np.ndarray, rear_seam: bool = False
 ) -> tuple[list[tuple[np.ndarray, Path]], np.ndarray]:
-    """Order ``paths`` greedily from ``pos``; returns (oriented points, path) and the end pos."""
+    """Order ``paths`` greedily from ``pos``; returns (oriented points, path) and the end pos.
+
+    With ``rear_seam``, closed loops start at their rearmost vertex (largest y, then
+    smallest x) instead of the nearest one, so that seams line up at the back of the part.
+    """
     ends_only = [p.points if p.closed or len(p.points) == 2 else p.points[[0, -1]]
                  for p in paths]
     counts = np.fromiter((len(a) for a in ends_only), dtype=np.int64, count=len(paths))
@@ -40,6 +44,8 @@ def _nearest_neighbour(
         p = paths[i]
         k = int(vidx[j])
         if p.closed:
+            if rear_seam:
+                k = int(np.lexsort((p.points[:, 0], -p.points[:, 1]))[0])
             ring = np.concatenate([p.points[k:], p.points[:k + 1]])
             out.append((ring, p))
         else:
@@ -49,9 +55,12 @@ def _nearest_neighbour(
     return out, np.array([x, y])
 
 
-def order_paths(paths: list[Path], pos: np.ndarray) -> tuple[list[tuple[np.ndarray, Path]],
-                                                             np.ndarray]:
-    """All paths of one layer in print order as (oriented points, path) pairs, plus end pos."""
+def order_paths(paths: list[Path], pos: np.ndarray, seam: str = "rear"
+                ) -> tuple[list[tuple[np.ndarray, Path]], np.ndarray]:
+    """All paths of one layer in print order as (oriented points, path) pairs, plus end pos.
+
+    ``seam``: "rear" starts external perimeters at their rearmost vertex, "nearest" at the
+    vertex nearest to the nozzle."""
     groups: dict[str, list[Path]] = {}
     for p in paths:
         groups.setdefault(p.role, []).append(p)
@@ -60,6 +69,7 @@ def order_paths(paths: list[Path], pos: np.ndarray) -> tuple[list[tuple[np.ndarr
         group = groups.get(role)
         if not group:
             continue
-        oriented, pos = _nearest_neighbour(group, pos)
+        oriented, pos = _nearest_neighbour(
+            group, pos, rear_seam=seam == "rear" and role == "external_perimeter")
         result.extend(oriented)
     return result, pos

@@ -21,6 +21,7 @@ FLAVOURS = ("marlin", "klipper", "reprapfirmware")
 FLAVOUR_ALIASES = {"rrf": "reprapfirmware", "reprap": "reprapfirmware", "prusa": "marlin",
                    "buddy": "marlin", "marlin2": "marlin", "unknown": "marlin", "": "marlin"}
 INFILL_PATTERNS = ("rectilinear", "grid")
+SEAM_POSITIONS = ("rear", "nearest")
 
 DEFAULT_START_GCODE = """\
 M140 S{first_layer_bed_temperature:.0f} ; bed
@@ -64,6 +65,7 @@ class Profile:
     top_layers: int = 4
     bottom_layers: int = 3
     thin_walls: bool = True
+    seam_position: str = "rear"
     # infill
     infill_percent: float = 20.0
     infill_pattern: str = "grid"
@@ -152,6 +154,11 @@ class Profile:
             raise ProfileError(
                 f"infill_pattern must be one of {', '.join(INFILL_PATTERNS)}, "
                 f"got {self.infill_pattern!r}"
+            )
+        if self.seam_position not in SEAM_POSITIONS:
+            raise ProfileError(
+                f"seam_position must be one of {', '.join(SEAM_POSITIONS)}, "
+                f"got {self.seam_position!r}"
             )
         for name, h in (("layer_height", self.layer_height),
                         ("first_layer_height", self.first_layer_height)):

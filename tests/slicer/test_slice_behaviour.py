@@ -277,3 +277,23 @@ def test_setting_extremes_still_print_inside_the_part(over):
     c = np.array(profile.build_volume[:2]) / 2
     reach = np.hypot(*(rep.end[ext, :2] - c).T).max()
     assert reach <= 10.0 + 0.3 + (profile.skirt_distance + 3 * 0.45 if profile.skirts else 0)
+
+
+def _layers_starting_at_the_rear(rep) -> float:
+    layers = rep.layers()
+    zs = sorted(layers)[5:-5]
+    hits = 0
+    for z in zs:
+        idx = layers[z]
+        rear = rep.start[idx, 1].max()
+        begins = [j for j in idx if j > 0 and not rep.extruding[j - 1]]
+        hits += any(abs(rep.start[j, 1] - rear) < 1e-6 for j in begins)
+    return hits / len(zs)
+
+
+def test_external_perimeter_seams_line_up_at_the_rear():
+    # a path (the outer loop) begins at the rearmost point of every layer
+    _, _, _, _, rear = _slice(sphere, skirts=0, seam_position="rear")
+    assert _layers_starting_at_the_rear(rear) == 1.0
+    _, _, _, _, nearest = _slice(sphere, skirts=0, seam_position="nearest")
+    assert _layers_starting_at_the_rear(nearest) < 0.5
