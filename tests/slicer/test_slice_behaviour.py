@@ -286,8 +286,8 @@ def _layers_starting_at_the_rear(rep) -> float:
     for z in zs:
         idx = layers[z]
         rear = rep.start[idx, 1].max()
-        begins = [j for j in idx if j > 0 and not rep.extruding[j - 1]]
-        hits += any(abs(rep.start[j, 1] - rear) < 1e-6 for j in begins)
+        begins = idx[~rep.extruding[idx - 1]]  # extrusions right after a non-extruding move
+        hits += bool((np.abs(rep.start[begins, 1] - rear) < 1e-6).any())
     return hits / len(zs)
 
 
