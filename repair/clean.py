@@ -13,7 +13,14 @@ import numpy as np
 
 from repair.check import degenerate_face_mask, weld_exact
 
-__all__ = ["Cleaned", "clean_soup", "degenerate_mask", "drop_unreferenced", "unique_faces"]
+__all__ = [
+    "Cleaned",
+    "cancel_opposite_faces",
+    "clean_soup",
+    "degenerate_mask",
+    "drop_unreferenced",
+    "unique_faces",
+]
 
 
 def degenerate_mask(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -33,6 +40,42 @@ def unique_faces(faces: np.ndarray) -> np.ndarray:
     s = np.sort(faces, axis=1)
     _, first = np.unique(s, axis=0, return_index=True)
     return np.sort(first)
+
+
+def cancel_opposite_faces(faces: np.ndarray) -> np.ndarray:
+    """Sorted indices of the faces left when coincident faces of a *solid* cancel.
+
+    Faces on the same vertex set count +1 or -1 by orientation (relative to the first);
+    opposite pairs cancel (two solids touching, or a wedge collapsed flat) and one face is
+    kept, with the sign of the sum, when it is non-zero. Unlike :func:`unique_faces`, this
+    keeps a closed oriented surface closed.
+    """
+    if len(faces) < 2:
+        return np.arange(len(faces))
+    s = np.sort(faces, axis=1)
+    _, first, inv = np.unique(s, axis=0, return_index=True, return_inverse=True)
+    inv = inv.reshape(-1)
+    # Orientation parity: a face and its sorted row are related by an even or odd
+    # permutation.
+    par = _even_permutation(faces)
+    sign = np.where(par == par[first][inv], 1, -1)
+    total = np.bincount(inv, weights=sign)
+    groups = np.bincount(inv)
+    keep_group = total[inv] != 0
+    pos = total[inv] > 0
+    # Among each surviving group keep one face whose sign matches the sum.
+    cand = np.flatnonzero(keep_group & ((sign > 0) == pos))
+    _, one = np.unique(inv[cand], return_index=True)
+    out = cand[one]
+    del groups
+    return np.sort(out)
+
+
+def _even_permutation(faces: np.ndarray) -> np.ndarray:
+    """True where the face's vertex order is an even permutation of its sorted order."""
+    a, b, c = faces[:, 0], faces[:, 1], faces[:, 2]
+    # Rotations of (lo, mid, hi) are even: exactly one "descent" among the cyclic pairs.
+    return ((a < b).astype(int) + (b < c) + (c < a)) == 2
 
 
 def drop_unreferenced(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -84,13 +127,17 @@ class Cleaned:
     duplicates_removed: int
 
 
-def clean_soup(vertices: np.ndarray, faces: np.ndarray) -> Cleaned:
-    """Weld exactly equal vertices, move degenerate faces to segments, keep one layer."""
+def clean_soup(vertices: np.ndarray, faces: np.ndarray, *, solid: bool = False) -> Cleaned:
+    """Weld exactly equal vertices, move degenerate faces to segments, keep one layer.
+
+    With ``solid=True`` (closed oriented input) coincident faces cancel by orientation
+    (:func:`cancel_opposite_faces`) instead.
+    """
     v, f = weld_exact(np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64))
     deg = degenerate_mask(v, f)
     segments = _segments_of(v, f[deg])
     f = f[~deg]
-    keep = unique_faces(f)
+    keep = cancel_opposite_faces(f) if solid else unique_faces(f)
     dup = len(f) - len(keep)
     f = f[keep]
     v, f = drop_unreferenced(v, f)

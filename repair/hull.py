@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from repair.check import weld_exact
-from repair.clean import degenerate_mask, drop_unreferenced, unique_faces
+from repair.clean import cancel_opposite_faces, degenerate_mask, drop_unreferenced, unique_faces
 
 __all__ = ["HullSplit", "outer_hull_split", "resolve"]
 
@@ -38,7 +38,7 @@ def _remesh(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
 
 
 def resolve(
-    vertices: np.ndarray, faces: np.ndarray, *, max_rounds: int = 4
+    vertices: np.ndarray, faces: np.ndarray, *, max_rounds: int = 4, solid: bool = False
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """Make ``(vertices, faces)`` a polyhedron: no two faces meet except in a shared edge
     or vertex, no degenerate and no duplicate faces.
@@ -46,6 +46,9 @@ def resolve(
     Exact intersection points are rounded to doubles; points that round together are
     welded, and faces that this collapses are dropped and the arrangement recomputed (a
     face made collinear leaves a T-junction the next pass splits exactly).
+
+    With ``solid=True`` (the input is a closed oriented surface, e.g. a result rounded to
+    float32) coincident faces cancel by orientation instead of keeping one layer.
 
     Returns ``(vertices, faces, birth, pairs)``: ``birth[i]`` is the input face face ``i``
     came from; ``pairs`` counts the intersecting face pairs found by the first pass.
@@ -64,7 +67,7 @@ def resolve(
         v, f = weld_exact(v, f)
         deg = degenerate_mask(v, f)
         keep = np.flatnonzero(~deg)
-        keep = keep[unique_faces(f[keep])]
+        keep = keep[(cancel_opposite_faces if solid else unique_faces)(f[keep])]
         changed = len(keep) != len(f)
         f, birth = f[keep], birth[keep]
         v, f = drop_unreferenced(v, f)
@@ -124,6 +127,10 @@ def outer_hull_split(vertices: np.ndarray, faces: np.ndarray) -> HullSplit:
         return HullSplit(e, e, i, i, 0, 1)
     import igl.copyleft.cgal as cgal
 
+    from repair.thicken import orient_patches
+
+    # libigl grows its patches across two-face edges assuming they agree in orientation.
+    faces = orient_patches(faces)[0]
     n_cells, cells = cgal.extract_cells(
         np.ascontiguousarray(vertices, dtype=np.float64),
         np.ascontiguousarray(faces, dtype=np.int64),

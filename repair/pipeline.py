@@ -42,7 +42,7 @@ from repair.check import (
     round_to_float32,
     weld_exact,
 )
-from repair.clean import clean_soup, drop_unreferenced
+from repair.clean import clean_soup, degenerate_mask, drop_unreferenced
 from repair.deviation import max_deviation
 from repair.hull import outer_hull_split, resolve
 from repair.thicken import sheet_slabs
@@ -186,6 +186,41 @@ def _union_fast_path(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return weld_exact(rv, rf)
 
 
+def _manifold_union(
+    parts: list[tuple[np.ndarray, np.ndarray]],
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Union of closed oriented pieces (the solid outer hull, sheet slabs, wire prisms)
+    by manifold3d's robust booleans; None if manifold3d rejects a piece. The result is
+    verified (and resolved exactly if need be) by the caller's float32 check."""
+    import manifold3d as m3d
+
+    solids = []
+    try:
+        for v, f in parts:
+            if len(f) == 0:
+                continue
+            v, f = drop_unreferenced(*weld_exact(v, f))
+            mesh = m3d.Mesh(
+                vert_properties=np.ascontiguousarray(v, dtype=np.float32),
+                tri_verts=np.ascontiguousarray(f, dtype=np.uint32),
+            )
+            whole = m3d.Manifold(mesh)
+            if whole.status() != m3d.Error.NoError:
+                return None
+            solids.extend(whole.decompose())
+        if not solids:
+            return None
+        out = m3d.Manifold.batch_boolean(solids, m3d.OpType.Add) if len(solids) > 1 else solids[0]
+        res = out.to_mesh()
+    except Exception:  # noqa: BLE001 - any failure means: take the exact path
+        return None
+    rv = np.asarray(res.vert_properties, dtype=np.float64)[:, :3]
+    rf = np.asarray(res.tri_verts, dtype=np.int64)
+    if len(rf) == 0:
+        return None
+    return weld_exact(rv, rf)
+
+
 # --------------------------------------------------------------------------- exact path
 
 
@@ -198,10 +233,17 @@ class _Tally:
     wires: int = 0
     singular_edges: int = 0
     passes: int = 0
+    collapsed: int = 0
 
 
 def _outer_hull(
-    v: np.ndarray, f: np.ndarray, eps: float, tally: _Tally, segments: np.ndarray | None = None
+    v: np.ndarray,
+    f: np.ndarray,
+    eps: float,
+    tally: _Tally,
+    segments: np.ndarray | None = None,
+    *,
+    solid: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Resolve, take the outer hull, thicken sheets/wires and repeat until no sheet is left.
 
@@ -212,7 +254,7 @@ def _outer_hull(
     first_poly = (np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64))
     for round_ in range(MAX_THICKEN_ROUNDS + 1):
         tally.passes += 1
-        rv, rf, birth, pairs = resolve(v, f)
+        rv, rf, birth, pairs = resolve(v, f, solid=solid or round_ > 0)
         if tally.intersecting_pairs < 0:
             tally.intersecting_pairs = pairs
         split = outer_hull_split(rv, rf)
@@ -234,11 +276,64 @@ def _outer_hull(
         if not extra:
             sv, sf = drop_unreferenced(rv, split.solid_faces)
             return sv, sf, first_poly, first_hull_birth
+        fused = _manifold_union([(rv, split.solid_faces), *extra])
+        if fused is not None:
+            sv, sf = fused
+            return sv, sf, first_poly, first_hull_birth
         v, f = _concat([(rv, split.solid_faces), *extra])
-        c = clean_soup(v, f)
+        c = clean_soup(v, f, solid=True)
         v, f = c.vertices, c.faces
     sv, sf = drop_unreferenced(v, f)
     return sv, sf, first_poly, first_hull_birth
+
+
+def _damaged_faces(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """Faces that are degenerate, duplicated, intersect another, or sit on an edge that is
+    open, non-manifold or traversed twice the same way."""
+    bad = degenerate_mask(v, f)
+    s = np.sort(f, axis=1)
+    _, inv, cnt = np.unique(s, axis=0, return_inverse=True, return_counts=True)
+    bad |= cnt[inv.reshape(-1)] > 1
+    he = np.stack([f.reshape(-1), f[:, [1, 2, 0]].reshape(-1)], axis=1)
+    _, einv, ecnt = np.unique(np.sort(he, axis=1), axis=0, return_inverse=True,
+                              return_counts=True)  # fmt: skip
+    _, hinv, hcnt = np.unique(he, axis=0, return_inverse=True, return_counts=True)
+    bad_he = (ecnt[einv.reshape(-1)] != 2) | (hcnt[hinv.reshape(-1)] > 1)
+    bad |= bad_he.reshape(-1, 3).any(axis=1)
+    ok = np.flatnonzero(~bad)
+    pairs = intersecting_face_pairs(v, f[ok])
+    if len(pairs):
+        bad[ok[pairs.reshape(-1)]] = True
+    return np.flatnonzero(bad)
+
+
+def _collapse_damaged(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Merge the endpoints of the shortest edge of every damaged face when that edge is
+    within float32 rounding scale (union-find over all such edges at once); the merged
+    vertex keeps one endpoint's position, so nothing moves by more than ~4 ulps x chain."""
+    bad = _damaged_faces(v, f)
+    if len(bad) == 0:
+        return v, f
+    p = v[f[bad]]
+    ln = np.linalg.norm(p[:, [1, 2, 0]] - p, axis=2)
+    k = np.argmin(ln, axis=1)
+    # Only edges at the scale of float32 rounding: a few ulps of the largest coordinate.
+    tol = float(np.abs(v).max()) * 2.0**-18
+    short = ln[np.arange(len(bad)), k] <= tol
+    a = f[bad[short], k[short]]
+    b = f[bad[short], (k[short] + 1) % 3]
+    if len(a) == 0:
+        return v, f
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n = len(v)
+    g = coo_matrix((np.ones(len(a), dtype=np.int8), (a, b)), shape=(n, n))
+    _, lab = connected_components(g, directed=False)
+    # Representative: the lowest vertex index of each group keeps its position.
+    rep = np.full(lab.max() + 1, n, dtype=np.int64)
+    np.minimum.at(rep, lab, np.arange(n))
+    return v, rep[lab][f]
 
 
 def _finish(
@@ -258,14 +353,19 @@ def _finish(
             verdict.degenerate_faces or verdict.duplicate_faces or verdict.intersecting_pairs
             or verdict.boundary_edges or verdict.misoriented_edges
         )
-        if verdict.nonmanifold_edges and not rounding_damage:
+        if rounding_damage:
+            # Rounding made slivers flip or collapse: collapse the shortest edge of each
+            # damaged face (moves nothing by more than that edge), then resolve again.
+            v32, f32 = _collapse_damaged(v32, f32)
+            tally.collapsed += 1
+        elif verdict.nonmanifold_edges:
             # Parts that touch along an edge: thicken the edge so they fuse.
             edges, cnt = _edge_use(f32)
             sing = edges[cnt > 2]
             tally.singular_edges += len(sing)
             extra.append(cylinders(v32[sing], eps))
-        c = clean_soup(*_concat([(v32, f32), *extra]))
-        v, f, _, _ = _outer_hull(c.vertices, c.faces, eps, tally)
+        c = clean_soup(*_concat([(v32, f32), *extra]), solid=True)
+        v, f, _, _ = _outer_hull(c.vertices, c.faces, eps, tally, solid=True)
     assert verdict is not None
     v32, f32 = weld_exact(round_to_float32(v), f)
     return v32, f32, check_printable(v32, f32)

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["MITER_LIMIT", "sheet_slabs"]
+__all__ = ["MITER_LIMIT", "orient_patches", "sheet_slabs"]
 
 #: Largest vertex offset, as a multiple of eps/2 (bounds Attene's deviation D by 0.575 eps).
 MITER_LIMIT = 1.15
@@ -53,7 +53,7 @@ def _edge_pairs(eid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return starts, seconds, cnt[eid]
 
 
-def _orient(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def orient_patches(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Orient every orientable manifold patch consistently.
 
     Returns ``(faces, cut)`` where ``cut`` marks the half-edges (3f+k) whose edge must be
@@ -155,7 +155,7 @@ def sheet_slabs(
     if len(faces) == 0:
         return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
     v = np.asarray(vertices, dtype=np.float64)
-    f, cut = _orient(faces)
+    f, cut = orient_patches(faces)
     ids = _split_vertices(f, cut)
     n = int(ids.max()) + 1
     fs = ids.reshape(-1, 3)
@@ -164,13 +164,14 @@ def sheet_slabs(
 
     p = pos[fs]  # (m, 3, 3)
     fn = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    fn /= np.linalg.norm(fn, axis=1, keepdims=True)
+    fl = np.linalg.norm(fn, axis=1, keepdims=True)
+    fn = np.divide(fn, fl, out=np.zeros_like(fn), where=fl > 0)  # tiny slivers: no say
     # Angle-weighted vertex normals.
     e0 = p[:, [1, 2, 0]] - p
     e1 = p[:, [2, 0, 1]] - p
-    cosang = np.einsum("ijk,ijk->ij", e0, e1) / (
-        np.linalg.norm(e0, axis=2) * np.linalg.norm(e1, axis=2)
-    )
+    el = np.linalg.norm(e0, axis=2) * np.linalg.norm(e1, axis=2)
+    dots = np.einsum("ijk,ijk->ij", e0, e1)
+    cosang = np.divide(dots, el, out=np.ones_like(dots), where=el > 0)
     ang = np.arccos(np.clip(cosang, -1.0, 1.0))  # (m, 3)
     vn = np.zeros((n, 3))
     for k in range(3):
@@ -183,8 +184,11 @@ def sheet_slabs(
         some = np.zeros(n, dtype=np.int64)
         some[ids] = corner_face
         vn[weak] = fn[some[weak]]
+        still = np.linalg.norm(vn, axis=1) == 0
+        vn[still] = (0.0, 0.0, 1.0)
     # Miter: keep the slab ~eps thick along each face normal, up to the limit.
     cos_c = np.einsum("ij,ij->i", vn[ids], np.repeat(fn, 3, axis=0))
+    cos_c[np.repeat(fl[:, 0] == 0, 3)] = 1.0
     min_cos = np.full(n, 1.0)
     np.minimum.at(min_cos, ids, cos_c)
     scale = 1.0 / np.maximum(min_cos, 1.0 / MITER_LIMIT)
