@@ -91,6 +91,9 @@ class _Hangup:
         self.reason = reason
 
 
+_EOL = (9, 10, 13)
+
+
 def flavour_of(firmware_name: str) -> str:
     """marlin / prusa / buddy / klipper / rrf / unknown from a FIRMWARE_NAME value."""
     low = firmware_name.lower()
@@ -172,6 +175,8 @@ class PrinterHost:
         self._closing = threading.Event()
         self._write_lock = threading.Lock()
         self._last_port_check = 0.0
+        #: Bytes received that no printer sends (8-bit or control): wrong baud rate.
+        self.noise_bytes = 0
 
     # ------------------------------------------------------------------ lifecycle
     def __enter__(self) -> PrinterHost:
@@ -252,6 +257,7 @@ class PrinterHost:
                 return
             if not data:
                 continue
+            self.noise_bytes += sum(1 for b in data if b >= 128 or (b < 32 and b not in _EOL))
             buf += data
             while True:
                 cut = buf.find(b"\n")
@@ -315,7 +321,7 @@ class PrinterHost:
         while True:
             now = time.monotonic()
             if now >= deadline:
-                if garbage:
+                if garbage or self.noise_bytes:
                     raise WrongBaud(
                         f"only garbage from {self.port} at {self.baud} baud; the baud rate is "
                         "probably wrong (try 115200 or 250000)"
@@ -467,7 +473,9 @@ class PrinterHost:
         """The streaming mode ``auto`` resolves to for this printer."""
         if self.mode != "auto":
             return self.mode
-        return "buffered" if self.flavour != "unknown" else "ping-pong"
+        # RepRapFirmware drops a bad line without a word; with one line in flight the
+        # timeout that follows can only mean that line, so ping-pong is the safe choice.
+        return "buffered" if self.flavour not in ("unknown", "rrf") else "ping-pong"
 
     def emergency_stop(self) -> None:
         """Send ``M112`` now (Marlin's emergency parser acts on it immediately)."""
@@ -522,6 +530,8 @@ class _Streamer:
         self.rewind_r = 0
         self.hold_until = 0.0
         self.max_sent = 0
+        self.resync_mark = 0
+        self.stuck = 0
         self.after_resend = False
         self.resends = 0
         self.resends_ignored = 0
@@ -746,6 +756,16 @@ class _Streamer:
     def resync(self) -> None:
         """The tickle's reply arrived: every earlier line ran or never arrived."""
         self.tickle_tries = 0
+        done = self.delivered()
+        if done > self.resync_mark:
+            self.resync_mark, self.stuck = done, 0
+        else:
+            self.stuck += 1
+            if self.stuck > self.h.retries:
+                raise PrinterTimeout(
+                    f"the printer on {self.h.port} answers but never accepts line {done + 1} "
+                    f"after {self.stuck} recoveries"
+                )
         if not self.checks_lines:
             self.ack_through(self.next_n)
             return

@@ -452,7 +452,12 @@ class VirtualPrinter:
         self._wire_next += n * byte_time
         self._wire_last = self._wire_next - byte_time
         self.stats["bytes_received"] += n
-        if self._halted or self.faults.garbage or self._baud_mismatch():
+        if self._halted:
+            return
+        if self.faults.garbage or self._baud_mismatch():
+            # At the wrong speed our bytes are noise to it and its replies noise to us.
+            if b"\n" in chunk:
+                self._send("echo:Unknown command: \"\"")
             return
         p = self.faults.corrupt
         rng = self._rng
@@ -528,7 +533,7 @@ class VirtualPrinter:
         number: int | None = None
         command = raw
         checks = self.profile.checks
-        if raw.startswith("N"):
+        if raw.startswith("N") and (checks != "none" or re.match(r"N-?\d", raw)):
             number = _leading_int(raw[1:])
             star = raw.rfind("*")
             body = raw[:star] if star >= 0 else raw
@@ -562,8 +567,15 @@ class VirtualPrinter:
                     return
                 self._last_n = number
         else:
-            star = raw.find("*")
+            star = raw.rfind("*")
             if star >= 0:
+                # A checksum without a line number: noise ate the "N".
+                if checks == "marlin":
+                    self._line_error("No Line Number with checksum")
+                    return
+                if checks == "rrf" and _leading_int(raw[star + 1:]) != checksum(raw[:star]):
+                    self.stats["silent_drops"] += 1
+                    return
                 command = raw[:star].strip()
         if not command:
             return
