@@ -359,27 +359,30 @@ class PrinterHost:
             pass
 
     def query(self, command: str, timeout: float | None = None) -> list[str]:
-        """Send one unnumbered command; return every line up to and including its ``ok``.
-
-        Not for use while streaming. Raises PrinterTimeout if no ``ok`` arrives.
+        """Send one unnumbered, read-only command; return every line up to and including
+        its ``ok``. Line noise can eat the command: it is re-sent up to ``retries``
+        times, then PrinterTimeout. Not for use while streaming.
         """
         wait = self.timeout if timeout is None else timeout
-        self._write(command)
-        out: list[str] = []
-        deadline = time.monotonic() + wait
-        while True:
-            line = self._next_line(deadline - time.monotonic())
-            if line is None:
-                if time.monotonic() >= deadline:
-                    raise PrinterTimeout(f"no answer to {command} from {self.port} in {wait:g} s")
-                continue
-            reply = R.parse_reply(line)
-            self._fatal(reply, f"answering {command}")
-            if reply.kind == "busy" or (reply.kind == "temperature" and reply.waiting):
-                deadline = time.monotonic() + wait
-            out.append(line)
-            if reply.kind == "ok":
-                return out
+        for attempt in range(self.retries + 1):
+            # A leading newline ends whatever half line noise may have left behind.
+            self._write(command if attempt == 0 else "\n" + command)
+            out: list[str] = []
+            deadline = time.monotonic() + wait
+            while True:
+                line = self._next_line(deadline - time.monotonic())
+                if line is None:
+                    if time.monotonic() >= deadline:
+                        break
+                    continue
+                reply = R.parse_reply(line)
+                self._fatal(reply, f"answering {command}")
+                if reply.kind == "busy" or (reply.kind == "temperature" and reply.waiting):
+                    deadline = time.monotonic() + wait
+                out.append(line)
+                if reply.kind == "ok":
+                    return out
+        raise PrinterTimeout(f"no answer to {command} from {self.port} in {wait:g} s")
 
     def _identify(self) -> None:
         lines = self.query("M115")
@@ -739,7 +742,8 @@ class _Streamer:
         self.drop_inflight_from(r)
         self.next_n = min(self.next_n, r)
         self.rewind_r = r
-        self.hold_until = now + stale * 10.0 / self.h.baud + self.h.resend_settle
+        # Nothing else on the wire (ping-pong): no echo can follow, resend at once.
+        self.hold_until = now + stale * 10.0 / self.h.baud + self.h.resend_settle if stale else 0.0
 
     def on_timeout(self) -> None:
         h = self.h
