@@ -248,6 +248,8 @@ class VirtualPrinter:
         #: collisions): a limit of the firmware protocol, reported, never hidden.
         self.undetected_corruptions: list[int] = []
         self._rng = random.Random(self.faults.seed)
+        self._baud_checked_at = -1.0
+        self._baud_wrong = False
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -268,13 +270,17 @@ class VirtualPrinter:
             return [cmd for _, cmd in self.executed_numbered]
 
     def start(self) -> str:
-        """Open the pty, start the serving thread; return the slave path (or the link)."""
+        """Open the pty and start the serving thread; return the pty slave path.
+
+        With ``link``, a symlink at that path points to the slave (and is re-pointed
+        after a reconnect); ``port`` is the path a host should open (link or slave).
+        """
         if self.log_path:
             self._log = open(self.log_path, "a", buffering=1, encoding="utf-8")  # noqa: SIM115
         self._open_pty()
         self._thread = threading.Thread(target=self._run, name="virtual-printer", daemon=True)
         self._thread.start()
-        return self.port or ""
+        return self._slave_name or ""
 
     def stop(self) -> None:
         """Stop serving and close the pty (the link is removed)."""
@@ -395,6 +401,14 @@ class VirtualPrinter:
 
     def _baud_mismatch(self) -> bool:
         """True when the host set a standard speed on the tty that differs from ours."""
+        now = time.monotonic()
+        if now < self._baud_checked_at + 0.2:
+            return self._baud_wrong
+        self._baud_checked_at = now
+        self._baud_wrong = self._tty_speed_differs()
+        return self._baud_wrong
+
+    def _tty_speed_differs(self) -> bool:
         if self._slave < 0:
             return False
         try:
