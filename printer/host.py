@@ -127,7 +127,9 @@ class PrinterHost:
     Klipper macro that prints the nozzle diameter. timeout: seconds without any
     sign of life before the lost-``ok`` recovery starts; retries: tickles before
     giving up. resend_settle: extra seconds to let echoes of a resend request
-    arrive before resending (USB-serial latency). rx_buffer / queue_size: the
+    arrive before resending (USB-serial latency). nudge: seconds of silence after
+    which a bare newline is sent once, to finish a line whose newline noise ate.
+    rx_buffer / queue_size: the
     firmware's RX buffer bytes and command queue length (Marlin defaults 128 and 4).
     """
 
@@ -143,6 +145,7 @@ class PrinterHost:
         retries: int = 4,
         handshake_timeout: float = 5.0,
         resend_settle: float = 0.01,
+        nudge: float = 0.1,
         rx_buffer: int = 128,
         queue_size: int = 4,
         filament_fallback: float = DEFAULT_FILAMENT,
@@ -157,6 +160,7 @@ class PrinterHost:
         self.timeout = float(timeout)
         self.retries = int(retries)
         self.resend_settle = float(resend_settle)
+        self.nudge = float(nudge)
         self.handshake_timeout = float(handshake_timeout)
         self.rx_buffer = int(rx_buffer)
         self.queue_size = int(queue_size)
@@ -534,6 +538,7 @@ class _Streamer:
         self.hold_until = 0.0
         self.max_sent = 0
         self.resync_mark = 0
+        self.nudged = False
         self.stuck = 0
         self.after_resend = False
         self.resends = 0
@@ -624,10 +629,15 @@ class _Streamer:
                 wait = min(self.h.timeout - (now - self.last_life), 0.25)
                 if self.hold_until > now:
                     wait = min(wait, self.hold_until - now)
+                if self.inflight and not self.nudged and self.checks_lines:
+                    wait = min(wait, self.last_life + h.nudge - now)
                 line = h._next_line(max(wait, 0.0))
                 if line is None:
-                    if time.monotonic() - self.last_life >= self.h.timeout:
+                    quiet = time.monotonic() - self.last_life
+                    if quiet >= self.h.timeout:
                         self.on_timeout()
+                    elif quiet >= h.nudge and self.inflight and not self.nudged:
+                        self.nudge()
                     continue
                 self.on_line(line)
                 self.report()
@@ -680,6 +690,7 @@ class _Streamer:
         if kind == "temperature" and not reply.waiting:
             return  # auto-report: not a sign that our lines are moving
         self.last_life = time.monotonic()
+        self.nudged = False
         if kind == "ok":
             self.on_ok(reply, after_resend)
         elif kind == "resend":
@@ -744,6 +755,14 @@ class _Streamer:
         self.rewind_r = r
         # Nothing else on the wire (ping-pong): no echo can follow, resend at once.
         self.hold_until = now + stale * 10.0 / self.h.baud + self.h.resend_settle if stale else 0.0
+
+    def nudge(self) -> None:
+        """Send a bare newline. If noise ate the end of our last line, the firmware is
+        still waiting for it; the newline completes it, the checksum fails and a resend
+        follows at once instead of after the timeout. An empty line is otherwise
+        ignored (Marlin, Prusa, RepRapFirmware skip it without a reply)."""
+        self.nudged = True
+        self.h._write("")
 
     def on_timeout(self) -> None:
         h = self.h
