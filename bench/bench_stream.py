@@ -1,7 +1,8 @@
 """Streaming benchmark: lines/s and the fraction of the serial link's physical limit.
 
-For ping-pong and buffered modes, at 115200 and 250000 baud, on a clean line and with
-1% of host->printer bytes corrupted, it streams the same G-code to the virtual printer
+For ping-pong, buffered and auto (buffered, one line in flight while noisy) modes,
+at 115200 and 250000 baud, on a clean line and with 1% of host->printer bytes
+corrupted, it streams the same G-code to the virtual printer
 (moves sped up so that the link, not the motion, is the bottleneck) and prints:
 
     lines/s, payload bytes/s, link use = bytes sent / (baud / 10)
@@ -65,7 +66,7 @@ def main() -> int:
     print(f"{'mode':10} {'baud':>7} {'noise':>6} {'lines/s':>9} {'bytes/s':>9} "
           f"{'link use':>9} {'vs clean':>9} {'resends':>8} exactly-once")
     for baud in (115200, 250000):
-        for mode in ("ping-pong", "buffered"):
+        for mode in ("ping-pong", "buffered", "auto"):
             clean_rate = None
             for corrupt in (0.0, 0.01):
                 r = run(mode, baud, corrupt, lines)

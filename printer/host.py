@@ -24,6 +24,8 @@ in order, or ``stream`` raises. The mechanism:
 Two streaming modes: ``ping-pong`` (one line in flight) and ``buffered`` (at most
 ``rx_buffer`` unacknowledged bytes and ``queue_size`` lines in flight; with
 ADVANCED_OK, ``ok N<n>`` tells exactly which lines have left the RX buffer).
+``auto`` picks buffered for a recognised firmware and drops to one line in flight
+while resends are frequent (a noisy line), returning to buffered when it is clean.
 """
 
 from __future__ import annotations
@@ -525,6 +527,8 @@ class _Streamer:
         self.progress = progress
         self.cancel = cancel
         self.mode = host.chosen_mode()
+        self.adaptive = host.mode == "auto" and self.mode == "buffered"
+        self.noise = 0.0  # decaying count of recent resends
         self.checks_lines = host.flavour != "klipper"
         self.resend_has_ok = host.flavour not in ("prusa", "rrf", "klipper")
         self.frames: dict[int, str] = {}
@@ -572,9 +576,15 @@ class _Streamer:
             self.last_progress = now
             self.progress(done, self.total)
 
+    def noisy(self) -> bool:
+        """In auto mode, fall back to one line in flight while resends are frequent:
+        on a noisy line every error throws away the whole buffered window."""
+        return self.adaptive and self.noise > 1.5
+
     def pop_inflight(self) -> None:
         n, size = self.inflight.popleft()
         self.inflight_bytes -= size
+        self.noise *= 0.97
 
     def drop_inflight_from(self, n: int) -> None:
         """Forget in-flight entries with N >= n (they will be sent again)."""
@@ -593,7 +603,7 @@ class _Streamer:
             self.probe_until = 0
         if self.hold_until and time.monotonic() < self.hold_until:
             return False
-        if self.next_n <= self.probe_until or self.mode == "ping-pong":
+        if self.next_n <= self.probe_until or self.mode == "ping-pong" or self.noisy():
             return not self.inflight
         if not self.inflight:
             return True
@@ -749,6 +759,7 @@ class _Streamer:
             self.resends_ignored += 1
             return
         self.resends += 1
+        self.noise += 1.0
         stale = sum(size for n, size in self.inflight if n > r)
         self.drop_inflight_from(r)
         self.next_n = min(self.next_n, r)
