@@ -227,3 +227,14 @@ def test_20000_lines_with_corruption_and_lost_oks():
         assert result.lines == 20000
         assert vp.stats["bytes_corrupted"] > 1000 and vp.stats["oks_dropped"] > 50
         assert_exactly_once(vp, lines)
+
+
+def test_temperature_auto_reports_do_not_hide_a_lost_ok():
+    """M155 reports arrive all the time; they must not count as the printer answering."""
+    lines = program(150)
+    with VirtualPrinter("marlin", faults=Faults(drop_ok=0.03, seed=4), **FAST) as vp, \
+            PrinterHost(vp.port, vp.baud, **HOST) as host:
+        host.query("M155 S0.05")
+        result = host.stream(lines)
+        assert result.timeouts > 0
+        assert_exactly_once(vp, lines)
