@@ -221,8 +221,10 @@ def test_20000_lines_with_corruption_and_lost_oks():
     lines = [f"G1 X{i % 200}.{i % 10} Y{(i * 7) % 200}.5 E{i * 0.01:.3f} F6000"
              for i in range(20000)]
     faults = Faults(corrupt=0.01, drop_ok=0.005, seed=20000)
+    # buffered, the harder case: up to 4 lines in flight, so every error has echoes
     with VirtualPrinter("marlin", faults=faults, **FAST) as vp, \
-            PrinterHost(vp.port, vp.baud, **HOST) as host:
+            PrinterHost(vp.port, vp.baud, mode="buffered",
+                        **dict(HOST, timeout=0.1, nudge=0.03)) as host:
         result = host.stream(lines)
         assert result.lines == 20000
         assert vp.stats["bytes_corrupted"] > 1000 and vp.stats["oks_dropped"] > 50
