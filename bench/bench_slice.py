@@ -32,7 +32,7 @@ CHILD = r"""
 import json, sys, time
 t0 = time.perf_counter()
 import manifold3d, numpy  # noqa: F401  (import cost reported apart from slicing)
-import slicer.gcode, slicer.ordering, slicer.planner, slicer.stl  # noqa: F401
+import repair.io, slicer.gcode, slicer.ordering, slicer.planner  # noqa: F401
 from slicer.engine import slice_file
 from slicer.profile import Profile
 profile = Profile.for_printer().with_overrides(json.loads(sys.argv[3]))

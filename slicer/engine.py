@@ -197,22 +197,14 @@ def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progres
 
 
 def _load_mesh(path: FsPath) -> tuple[np.ndarray, np.ndarray]:
-    """Read STL with the slicer's own numpy reader; other formats through trimesh."""
-    if not path.is_file():
-        raise SliceError(f"no such file: {path}")
-    if path.suffix.lower() == ".stl":
-        from slicer.stl import read_stl
-
-        return read_stl(path)
-    import trimesh
+    """Read any mesh format preflight accepts, through repair.io (the one reader)."""
+    from repair.io import MeshReadError, load_mesh
 
     try:
-        mesh = trimesh.load(str(path), force="mesh", process=False)
-    except Exception as exc:  # trimesh raises many types for bad files
-        raise SliceError(f"cannot read {path.name}: {exc}") from None
-    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-        raise SliceError(f"{path.name} holds no triangles")
-    return np.asarray(mesh.vertices), np.asarray(mesh.faces)
+        mesh = load_mesh(path)
+    except MeshReadError as exc:
+        raise SliceError(str(exc)) from None
+    return mesh.vertices, mesh.faces
 
 
 def slice_file(in_path: str | os.PathLike, out_path: str | os.PathLike, profile: Profile, *,
