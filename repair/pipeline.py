@@ -427,7 +427,7 @@ def repair_mesh(
 
     if before.ok:
         path = "unchanged"
-        out_v, out_f = weld_exact(round_to_float32(v_in), f_in)
+        out_v, out_f = round_to_float32(v_in), f_in.copy()
         verdict = before
         deviation = 0.0
         clock.lap("finish", 0.9)

@@ -1,0 +1,258 @@
+"""Known-answer cases for the as-exact-as-possible repair (repair.pipeline)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from repair.check import check_printable
+from repair.pipeline import RepairError, repair_mesh
+
+EPS = 0.4
+
+
+def box(lo=(0.0, 0.0, 0.0), hi=(1.0, 1.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
+    """Axis-aligned box, outward-oriented, 12 triangles."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    c = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], float)
+    v = lo + c * (hi - lo)
+    f = np.array([
+        [0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+        [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3],
+    ])  # fmt: skip
+    if signed_volume(v, f) < 0:
+        f = f[:, ::-1]
+    return v, f
+
+
+def signed_volume(v, f) -> float:
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    return float(np.einsum("ij,ij->", a, np.cross(b, c)) / 6.0)
+
+
+def concat(*parts):
+    vs, fs, off = [], [], 0
+    for v, f in parts:
+        vs.append(v)
+        fs.append(f + off)
+        off += len(v)
+    return np.vstack(vs), np.vstack(fs)
+
+
+def assert_printable(res):
+    pr = check_printable(res.vertices.astype(np.float32), res.faces)
+    assert pr.ok, pr.failures()
+    assert res.report["printable"]["ok"]
+    json.dumps(res.report)  # serialisable
+
+
+def test_already_printable_is_unchanged():
+    v, f = box()
+    res = repair_mesh(v, f, EPS)
+    assert res.report["path"] == "unchanged"
+    assert np.array_equal(res.faces, f)
+    assert np.array_equal(res.vertices[res.faces], v[f])
+    assert res.report["deviation"] == 0.0
+
+
+def test_overlapping_closed_parts_give_the_exact_union():
+    import manifold3d as m3d
+
+    a = box((0, 0, 0), (2, 2, 2))
+    b = box((1, 1, 1), (3, 3.5, 3))
+    v, f = concat(a, b)
+    res = repair_mesh(v, f, EPS)
+    assert_printable(res)
+    want = m3d.Manifold.batch_boolean(
+        [m3d.Manifold.cube((2, 2, 2)), m3d.Manifold.cube((2, 2.5, 2)).translate((1, 1, 1))],
+        m3d.OpType.Add,
+    ).volume()
+    assert res.report["volume"] == pytest.approx(want, rel=1e-9)
+    assert res.report["deviation"] < 1e-9
+    assert res.report["after"]["components"] == 1
+
+
+def test_nested_shells_keep_the_outer_one_only():
+    v, f = concat(box((0, 0, 0), (4, 4, 4)), box((1, 1, 1), (2, 2, 2)))
+    res = repair_mesh(v, f, EPS)
+    assert_printable(res)
+    assert res.report["volume"] == pytest.approx(64.0)
+    assert len(res.faces) == 12
+    assert res.report["after"]["components_dropped_internal"] == 1
+
+
+def test_all_faces_flipped_are_fixed():
+    v, f = box((0, 0, 0), (3, 2, 1))
+    res = repair_mesh(v, f[:, ::-1], EPS)
+    assert_printable(res)
+    assert res.report["volume"] == pytest.approx(6.0)
+    assert len(res.faces) == 12
+    assert res.report["deviation"] < 1e-9
+
+
+def test_flattened_cube_becomes_a_slab_of_thickness_epsilon():
+    v, f = box((0, 0, 0), (10, 10, 10))
+    v = v.copy()
+    v[:, 2] = 0.0
+    res = repair_mesh(v, f, EPS)
+    assert_printable(res)
+    z = res.vertices[:, 2]
+    assert z.max() - z.min() == pytest.approx(EPS, rel=1e-6)
+    assert res.report["volume"] == pytest.approx(100.0 * EPS, rel=1e-3)
+    assert res.report["deviation"] <= 0.6 * EPS
+
+
+def test_open_surface_is_thickened():
+    v, f = box((0, 0, 0), (5, 5, 5))
+    top = v[f][:, :, 2].min(axis=1) == 5.0
+    res = repair_mesh(v, f[~top], EPS)  # an open-topped box: all sheet
+    assert_printable(res)
+    assert res.report["after"]["sheet_triangles_thickened"] == 10
+    assert 0.0 < res.report["volume"] < 125.0
+    assert res.report["deviation"] <= 0.6 * EPS
+
+
+def test_lone_segment_becomes_an_epsilon_cylinder():
+    v = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 10.0], [0.0, 0.0, 4.0]])
+    res = repair_mesh(v, np.array([[0, 1, 2]]), EPS)  # collinear: a wire
+    assert_printable(res)
+    assert res.report["after"]["wires_inflated"] == 1
+    lo, hi = res.vertices.min(axis=0), res.vertices.max(axis=0)
+    assert hi[2] - lo[2] == pytest.approx(10.0, rel=1e-6)
+    assert max(hi[0] - lo[0], hi[1] - lo[1]) == pytest.approx(EPS, rel=1e-3)
+    r = np.hypot(res.vertices[:, 0], res.vertices[:, 1])
+    assert r.max() == pytest.approx(EPS / 2, rel=1e-5)
+    assert res.report["deviation"] == pytest.approx(EPS / 2, rel=1e-3)
+
+
+def test_cube_with_zero_thickness_fin_keeps_the_cube_exact():
+    cube = box((0, 0, 0), (10, 10, 10))
+    fin = (np.array([[10.0, 5.0, 2.0], [15.0, 5.0, 2.0], [10.0, 5.0, 8.0]]), np.array([[0, 1, 2]]))
+    v, f = concat(cube, fin)
+    res = repair_mesh(v, f, EPS)
+    assert_printable(res)
+    assert res.report["after"]["sheet_triangles_thickened"] >= 1
+    assert res.report["volume"] > 1000.0
+    assert res.report["deviation"] <= 0.6 * EPS
+    # Every cube corner is still a vertex; the cube's faces away from the fin are exact.
+    out = {tuple(p) for p in res.vertices}
+    for p in cube[0]:
+        assert tuple(p) in out
+    far = res.vertices[:, 0] < 9.0
+    assert np.all(
+        np.isclose(res.vertices[far], 0.0) | np.isclose(res.vertices[far], 10.0)
+        | (res.vertices[far] > 0) & (res.vertices[far] < 10.0)
+    )  # fmt: skip
+    assert res.vertices[:, 0].max() <= 15.0 + 0.6 * EPS
+
+
+def klein_bottle(n: int = 40, m: int = 20) -> tuple[np.ndarray, np.ndarray]:
+    """The figure-8 immersion of the Klein bottle (self-intersecting, non-orientable)."""
+    r = 3.0
+    u = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    w = np.linspace(0, 2 * np.pi, m, endpoint=False)
+    uu, ww = np.meshgrid(u, w, indexing="ij")
+    a = r + np.cos(uu / 2) * np.sin(ww) - np.sin(uu / 2) * np.sin(2 * ww)
+    v = np.stack([a * np.cos(uu), a * np.sin(uu),
+                  np.sin(uu / 2) * np.sin(ww) + np.cos(uu / 2) * np.sin(2 * ww)], -1)  # fmt: skip
+    v = v.reshape(-1, 3) * 10.0
+    i, j = np.meshgrid(np.arange(n), np.arange(m), indexing="ij")
+    i, j = i.ravel(), j.ravel()
+    i1 = (i + 1) % n
+    # Crossing u = 2 pi maps w to -w.
+    j_next = np.where(i1 == 0, (-j) % m, j)
+    j1_next = np.where(i1 == 0, (-(j + 1)) % m, (j + 1) % m)
+    a0, a1 = i * m + j, i * m + (j + 1) % m
+    b0, b1 = i1 * m + j_next, i1 * m + j1_next
+    f = np.concatenate([np.stack([a0, b0, b1], 1), np.stack([a0, b1, a1], 1)])
+    return v, f
+
+
+@pytest.mark.slow
+def test_klein_bottle_becomes_its_outer_hull():
+    import igl.copyleft.cgal as cgal
+
+    v, f = klein_bottle()
+    res = repair_mesh(v, f, EPS)
+    assert_printable(res)
+    hv, hf, _, _ = cgal.outer_hull(v, f)
+    assert res.report["volume"] > 0
+    # The outer hull is closed here: the output lies on the input surface.
+    assert res.report["deviation"] < 1e-3
+    assert res.vertices.max(axis=0) == pytest.approx(hv.max(axis=0), abs=1e-4)
+    assert res.vertices.min(axis=0) == pytest.approx(hv.min(axis=0), abs=1e-4)
+
+
+def test_random_triangles_become_a_printable_solid():
+    rng = np.random.default_rng(7)
+    tri = rng.uniform(0, 20, size=(40, 3, 3))
+    res = repair_mesh(tri.reshape(-1, 3), np.arange(120).reshape(-1, 3), EPS)
+    assert_printable(res)
+    assert res.report["volume"] > 0
+    assert res.report["deviation"] <= 0.6 * EPS
+
+
+def test_everything_collapsed_to_a_point_is_an_error():
+    v = np.zeros((3, 3)) + 5.0
+    with pytest.raises(RepairError, match="nothing printable"):
+        repair_mesh(v, np.array([[0, 1, 2], [2, 1, 0]]), EPS)
+
+
+def test_bad_epsilon_is_an_error():
+    v, f = box()
+    with pytest.raises(RepairError, match="epsilon"):
+        repair_mesh(v, f, 0.0)
+
+
+def test_progress_is_reported():
+    seen = []
+    v, f = concat(box((0, 0, 0), (2, 2, 2)), box((1, 1, 1), (3, 3, 3)))
+    repair_mesh(v, f, EPS, progress=lambda s, x: seen.append((s, x)))
+    assert seen and seen[-1][1] == 1.0
+    assert all(0.0 <= x <= 1.0 for _, x in seen)
+
+
+def _write_ascii_stl(path, v, f):
+    lines = ["solid t"]
+    for tri in v[f]:
+        lines += ["facet normal 0 0 0", "outer loop"]
+        lines += [f"vertex {float(p[0])} {float(p[1])} {float(p[2])}" for p in tri]
+        lines += ["endloop", "endfacet"]
+    lines.append("endsolid t")
+    path.write_text("\n".join(lines) + "\n")
+
+
+def test_cli_repairs_a_file_and_writes_a_report(tmp_path):
+    from repair.io import load_mesh
+
+    src = tmp_path / "two.stl"
+    _write_ascii_stl(src, *concat(box((0, 0, 0), (2, 2, 2)), box((1, 1, 1), (3, 3, 3))))
+    out, rep = tmp_path / "out.stl", tmp_path / "r.json"
+    proc = subprocess.run(
+        [sys.executable, "-m", "daemon", "repair", str(src), "-o", str(out),
+         "--epsilon", "0.5", "--report", str(rep)],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads(rep.read_text())
+    assert report["epsilon"] == 0.5 and report["printable"]["ok"]
+    assert report["volume"] == pytest.approx(15.0)
+    m = load_mesh(out)
+    assert check_printable(m.vertices, m.faces).ok
+
+
+def test_cli_fails_with_one_line_for_nothing_printable(tmp_path):
+    src = tmp_path / "dot.stl"
+    _write_ascii_stl(src, np.ones((3, 3)), np.array([[0, 1, 2]]))
+    proc = subprocess.run(
+        [sys.executable, "-m", "daemon", "repair", str(src), "-o", str(tmp_path / "o.stl")],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert proc.returncode != 0
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("preflight: ")
+    assert not (tmp_path / "o.stl").exists()
