@@ -4,8 +4,9 @@ streams ready jobs one at a time.
 
 A print that stops part-way (unplugged, reset, halted, the daemon stopping) marks
 its job **interrupted** with the reason; it is never re-sent by itself, only by
-``preflight jobs requeue ID``. A stream that failed before the first line was
-acknowledged leaves the job ready (nothing reached the printer).
+``preflight jobs requeue ID``. Only a stream that failed before any of the job's
+lines was written to the port leaves the job ready (nothing reached the printer);
+once a line is on the wire the firmware may have run it, acknowledged or not.
 """
 
 from __future__ import annotations
@@ -109,7 +110,7 @@ class PrinterLink(threading.Thread):
             except Exception as e:  # never let the printer thread die
                 log.exception("job %d: print failed", job.id)
                 self._finish_broken(job.id, f"internal error while printing: "
-                                            f"{type(e).__name__}: {e}", acked=1)
+                                            f"{type(e).__name__}: {e}", sent=None)
                 self._disconnect()
 
     def _port(self) -> str:
@@ -244,8 +245,8 @@ class PrinterLink(threading.Thread):
             pr = {"acked_lines": acked[0], "total_lines": total, "seconds": secs,
                   "error": str(e)}
             self._disconnect()
-            self._finish_broken(job.id, f"{e} after {acked[0]} of {total} lines", acked=acked[0],
-                                print_result=pr)
+            self._finish_broken(job.id, f"{e} after {acked[0]} of {total} lines",
+                                sent=e.lines_sent, print_result=pr)
             return
         finally:
             with self._lock:
@@ -282,12 +283,14 @@ class PrinterLink(threading.Thread):
                           progress=1.0 if state == S.DONE else None)
         self.spool.archive(job_id)
 
-    def _finish_broken(self, job_id: int, why: str, *, acked: int,
+    def _finish_broken(self, job_id: int, why: str, *, sent: int | None,
                        print_result: dict[str, Any] | None = None) -> None:
+        """End a print that broke off. ``sent`` is how many of its lines reached the
+        port (None: unknown, so assume the print started)."""
         job = self.j.get(job_id)
         if job is None or job.state != S.PRINTING:
             return
-        if acked == 0:
+        if sent == 0:
             self.j.transition(job_id, S.READY, note=f"not started: {why}", progress=None)
             log.warning("job %d: the print did not start (%s); it stays ready", job_id, why)
             return

@@ -4,7 +4,13 @@ from __future__ import annotations
 
 
 class PrinterError(Exception):
-    """Base class for everything that can go wrong on the printer link."""
+    """Base class for everything that can go wrong on the printer link.
+
+    ``lines_sent`` is set by PrinterHost.stream: how many of the job's numbered lines
+    had been written to the port when the error happened (None outside a stream).
+    """
+
+    lines_sent: int | None = None
 
 
 class PortNotFound(PrinterError):

@@ -499,10 +499,19 @@ class PrinterHost:
     ) -> StreamResult:
         """Deliver the commands of ``lines`` (comments/blank lines dropped) exactly once,
         in order. Returns when the firmware has acknowledged every one; raises a
-        PrinterError subclass otherwise (StreamCancelled after cooldown + motors off).
+        PrinterError subclass otherwise (StreamCancelled after cooldown + motors off),
+        whose ``lines_sent`` attribute counts the job's lines written to the port.
         """
         commands = clean_lines(lines)
-        return _Streamer(self, commands, progress, cancel).run()
+        streamer = _Streamer(self, commands, progress, cancel)
+        try:
+            return streamer.run()
+        except PrinterError as exc:
+            # How many numbered lines went out on the wire before the failure: a caller
+            # must treat a job with any line sent as possibly started (the firmware may
+            # have run it even if no ``ok`` came back).
+            exc.lines_sent = streamer.max_sent
+            raise
 
     def _cooldown(self) -> None:
         for command in COOLDOWN:

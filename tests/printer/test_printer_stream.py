@@ -175,9 +175,14 @@ def test_printer_that_stops_answering_fails_after_bounded_retries():
                 if done >= 1:
                     vp.faults = Faults(drop_ok=1.0)  # from now on the printer never says ok
 
-            with pytest.raises(PrinterTimeout, match="stopped answering"):
+            with pytest.raises(PrinterTimeout, match="stopped answering") as err:
                 host.stream(lines, progress=mute)
         assert_prefix_once(vp, lines)
+        # The error tells the caller how far the job got onto the wire, so a daemon
+        # never treats a job whose lines the firmware may have run as "not started".
+        ran = sum(1 for n, _ in vp.executed_numbered if n is not None and n >= 1)
+        assert err.value.lines_sent >= ran >= 1
+
 
 
 def test_cancel_sends_cooldown_and_motors_off():
