@@ -54,6 +54,8 @@ Progress = Callable[[str, float], None] | None
 
 #: Rounds of "round to float32, verify, resolve again" before giving up.
 MAX_FINISH_ROUNDS = 10
+#: Diameter of the prisms that fuse parts touching along an edge, as a fraction of eps.
+SINGULAR_EDGE_DIAMETER = 0.1
 #: Rounds of "thicken the sheets, take the outer hull of the union".
 MAX_THICKEN_ROUNDS = 3
 
@@ -211,6 +213,9 @@ def _manifold_union(
         if not solids:
             return None
         out = m3d.Manifold.batch_boolean(solids, m3d.OpType.Add) if len(solids) > 1 else solids[0]
+        # Collapse what float32 cannot hold apart anyway: slivers and sub-ulp features.
+        size = max(float(np.abs(np.asarray(p[0])).max()) for p in parts if len(p[1]))
+        out = out.simplify(size * 2.0**-17)
         res = out.to_mesh()
     except Exception:  # noqa: BLE001 - any failure means: take the exact path
         return None
@@ -341,11 +346,19 @@ def _finish(
 ) -> tuple[np.ndarray, np.ndarray, Printability]:
     """Round to float32, verify, and resolve again until the written mesh is printable."""
     verdict: Printability | None = None
+    worse = 0
+    last_damage = None
     for _ in range(MAX_FINISH_ROUNDS):
         v32, f32 = weld_exact(round_to_float32(v), f)
         verdict = check_printable(v32, f32)
         if verdict.ok:
             return v32, f32, verdict
+        damage = verdict.intersecting_pairs + verdict.degenerate_faces + verdict.nonmanifold_edges
+        if last_damage is not None and damage > last_damage:
+            worse += 1
+            if worse >= 3:  # diverging: give up rather than grow without bound
+                break
+        last_damage = damage
         if len(f32) == 0:
             break
         extra: list[tuple[np.ndarray, np.ndarray]] = []
@@ -363,7 +376,7 @@ def _finish(
             edges, cnt = _edge_use(f32)
             sing = edges[cnt > 2]
             tally.singular_edges += len(sing)
-            extra.append(cylinders(v32[sing], eps))
+            extra.append(cylinders(v32[sing], eps * SINGULAR_EDGE_DIAMETER))
         c = clean_soup(*_concat([(v32, f32), *extra]), solid=True)
         v, f, _, _ = _outer_hull(c.vertices, c.faces, eps, tally, solid=True)
     assert verdict is not None
@@ -386,7 +399,7 @@ def repair_mesh(
     ``vertices`` (n, 3) mm, ``faces`` (m, 3) indices; ``epsilon`` (mm, > 0) is the
     thickness given to zero-thickness sheets and the diameter given to wires -- the
     printer's nozzle diameter. Solid parts are kept exactly (their outer hull); only
-    sheets and wires move the surface, by at most ``0.575 * epsilon``.
+    sheets and wires move the surface, by at most ``0.6 * epsilon``.
 
     The result's coordinates are float32 values (what a binary STL stores) and it passes
     :func:`repair.check.check_printable` on them, or :class:`RepairError` is raised.
