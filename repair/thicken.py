@@ -162,8 +162,9 @@ def face_prisms(
     m = len(f)
     d = 0.5 * epsilon * fn[:, None, :]
     pv = np.concatenate([p + d, p - d], axis=1).reshape(-1, 3)  # 6 per prism
-    local = np.array([[0, 1, 2], [3, 5, 4],
-                      [0, 3, 4], [0, 4, 1], [1, 4, 5], [1, 5, 2], [2, 5, 3], [2, 3, 0]])  # fmt: skip
+    local = np.array(
+        [[0, 1, 2], [3, 5, 4], [0, 3, 4], [0, 4, 1], [1, 4, 5], [1, 5, 2], [2, 5, 3], [2, 3, 0]]
+    )
     pf = (local[None] + 6 * np.arange(m)[:, None, None]).reshape(-1, 3)
     # Creases: edges shared by two of the faces whose normals differ.
     he = np.stack([f.reshape(-1), f[:, [1, 2, 0]].reshape(-1)], axis=1)
