@@ -179,7 +179,7 @@ def face_prisms(
 
 
 def sheet_slabs(
-    vertices: np.ndarray, faces: np.ndarray, epsilon: float
+    vertices: np.ndarray, faces: np.ndarray, epsilon: float, *, _depth: int = 0
 ) -> tuple[np.ndarray, np.ndarray]:
     """Closed slabs of thickness about ``epsilon`` (mm) around the sheet ``faces``.
 
@@ -234,31 +234,48 @@ def sheet_slabs(
     # Boundary half-edges of the slab's own faces: walls.
     he = np.stack([fs.reshape(-1), fs[:, [1, 2, 0]].reshape(-1)], axis=1)
     _, eid, cnt = np.unique(np.sort(he, axis=1), axis=0, return_inverse=True, return_counts=True)
-    bnd = he[cnt[eid.reshape(-1)] == 1]
+    is_bnd = cnt[eid.reshape(-1)] == 1
+    bnd = he[is_bnd]
+    wall_face = np.flatnonzero(is_bnd) // 3
     a, b = bnd[:, 0], bnd[:, 1]
     walls = np.vstack([np.stack([b, a, a + n], axis=1), np.stack([b, a + n, b + n], axis=1)])
     out_f = np.vstack([fs, fs[:, ::-1] + n, walls]).astype(np.int64)
-    return _replace_bad_slabs(out_v, out_f, v, f, epsilon)
+    return _replace_bad_slabs(out_v, out_f, v, f, epsilon, wall_face, _depth)
 
 
 def _replace_bad_slabs(
-    sv: np.ndarray, sf: np.ndarray, v: np.ndarray, f: np.ndarray, epsilon: float
+    sv: np.ndarray,
+    sf: np.ndarray,
+    v: np.ndarray,
+    f: np.ndarray,
+    epsilon: float,
+    wall_face: np.ndarray,
+    depth: int,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Slabs that fold onto themselves (sharp folds, slits left by cuts) are not valid
-    solids; their patches get per-face prisms instead (:func:`face_prisms`)."""
+    """Where a slab folds onto itself (sharp folds, slits left by cuts) it is not a valid
+    solid: the sheet faces involved (and their vertex neighbours) get per-face prisms
+    (:func:`face_prisms`) and the rest of the sheet is slabbed again without them."""
     from repair.check import intersecting_face_pairs
 
     m = len(f)
     lab = _components(len(sv), np.r_[sf[:, 0], sf[:, 1]], np.r_[sf[:, 1], sf[:, 2]])
     flab = lab[sf[:, 0]]
     pairs = intersecting_face_pairs(sv, sf)
+    if len(pairs):
+        pairs = pairs[flab[pairs[:, 0]] == flab[pairs[:, 1]]]
     if len(pairs) == 0:
         return sv, sf
-    bad_comp = np.unique(flab[pairs[:, 0]][flab[pairs[:, 0]] == flab[pairs[:, 1]]])
-    if len(bad_comp) == 0:
+    # Slab face -> sheet face: top i, bottom m + i, walls via their half-edge.
+    owner = np.r_[np.arange(m), np.arange(m), wall_face, wall_face]
+    bad = np.zeros(m, dtype=bool)
+    bad[owner[pairs.reshape(-1)]] = True
+    touched = np.zeros(int(f.max()) + 1, dtype=bool)
+    touched[f[bad].reshape(-1)] = True
+    bad |= touched[f].any(axis=1)
+    if bad.mean() > 0.2 or depth >= 2:
+        # Folding everywhere (e.g. a neck narrower than eps): prisms would be too many;
+        # keep the slab and let the union / exact arrangement sort the overlaps out.
         return sv, sf
-    bad_face = np.isin(flab, bad_comp)
-    bad_patch_face = bad_face[:m]  # the first m slab faces are the patch's own faces
-    pv, pf = face_prisms(v, f[bad_patch_face], epsilon)
-    keep = sf[~bad_face]
-    return np.vstack([sv, pv]), np.vstack([keep, pf + len(sv)]).astype(np.int64)
+    gv, gf = sheet_slabs(v, f[~bad], epsilon, _depth=depth + 1)
+    pv, pf = face_prisms(v, f[bad], epsilon)
+    return np.vstack([gv, pv]), np.vstack([gf, pf + len(gv)]).astype(np.int64)
