@@ -53,9 +53,9 @@ __all__ = ["RepairError", "RepairResult", "repair_file", "repair_mesh"]
 Progress = Callable[[str, float], None] | None
 
 #: Rounds of "round to float32, verify, resolve again" before giving up.
-MAX_FINISH_ROUNDS = 10
+MAX_FINISH_ROUNDS = 12
 #: Diameter of the prisms that fuse parts touching along an edge, as a fraction of eps.
-SINGULAR_EDGE_DIAMETER = 0.1
+SINGULAR_EDGE_DIAMETER = 0.5
 #: Rounds of "thicken the sheets, take the outer hull of the union".
 MAX_THICKEN_ROUNDS = 3
 
