@@ -55,7 +55,7 @@ Progress = Callable[[str, float], None] | None
 #: Rounds of "round to float32, verify, resolve again" before giving up.
 MAX_FINISH_ROUNDS = 12
 #: Diameter of the prisms that fuse parts touching along an edge, as a fraction of eps.
-SINGULAR_EDGE_DIAMETER = 0.5
+SINGULAR_EDGE_DIAMETER = 0.1
 #: Rounds of "thicken the sheets, take the outer hull of the union".
 MAX_THICKEN_ROUNDS = 3
 

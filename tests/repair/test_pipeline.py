@@ -174,8 +174,8 @@ def klein_bottle(n: int = 40, m: int = 20) -> tuple[np.ndarray, np.ndarray]:
 
 @pytest.mark.slow
 @pytest.mark.xfail(reason="known gap: unorientable closed shells confuse the cell extraction "
-                   "(the inconsistent edges are not cut before libigl extract_cells)",
-                   strict=False)  # fmt: skip
+                   "(the inconsistent edges are not cut before libigl extract_cells); "
+                   "takes minutes, so not run", run=False)  # fmt: skip
 def test_klein_bottle_becomes_its_outer_hull():
     import igl.copyleft.cgal as cgal
 
