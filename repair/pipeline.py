@@ -465,9 +465,9 @@ def repair_mesh(
             path = "union"
             out_v, out_f = fv, ff
             tally.intersecting_pairs = before.intersecting_pairs
-            comp_in = _edge_components(c.faces)
-            n_in = int(comp_in.max()) + 1
-            dropped_components = max(0, n_in - verdict.components) if n_in > 1 else 0
+            # Shells merged by the union are not "dropped"; the count of shells united is
+            # in before.components.
+            dropped_components = 0
         else:
             path = "exact"
             sv, sf, poly, hull_birth = _outer_hull(c.vertices, c.faces, eps, tally, c.segments)
