@@ -465,9 +465,15 @@ def repair_mesh(
             path = "union"
             out_v, out_f = fv, ff
             tally.intersecting_pairs = before.intersecting_pairs
-            # Shells merged by the union are not "dropped"; the count of shells united is
-            # in before.components.
-            dropped_components = 0
+            # A shell is dropped as internal when none of its vertices survives the union.
+            comp_in = _edge_components(c.faces)
+            key = np.dtype((np.void, 24))
+            vin = np.ascontiguousarray(round_to_float32(c.vertices)).view(key).ravel()
+            vout = np.ascontiguousarray(out_v).view(key).ravel()
+            kept = np.isin(vin, vout)
+            seen = np.zeros(int(comp_in.max()) + 1, dtype=bool)
+            seen[comp_in[kept[c.faces].any(axis=1)]] = True
+            dropped_components = int(np.count_nonzero(~seen))
         else:
             path = "exact"
             sv, sf, poly, hull_birth = _outer_hull(c.vertices, c.faces, eps, tally, c.segments)
