@@ -498,10 +498,15 @@ def repair_mesh(
         )  # fmt: skip
         clock.lap("deviation", 0.95)
 
-    labels = _edge_components(out_f)
-    n_parts = int(labels.max()) + 1 if len(labels) else 0
-    part_vol = _volumes(out_v, out_f, labels, n_parts) if n_parts else np.zeros(0)
-    part_tris = np.bincount(labels, minlength=n_parts)
+    if verdict.components == 1:  # the check already counted: skip relabelling
+        n_parts = 1
+        part_vol = np.array([verdict.volume])
+        part_tris = np.array([len(out_f)])
+    else:
+        labels = _edge_components(out_f)
+        n_parts = int(labels.max()) + 1 if len(labels) else 0
+        part_vol = _volumes(out_v, out_f, labels, n_parts) if n_parts else np.zeros(0)
+        part_tris = np.bincount(labels, minlength=n_parts)
     order = np.argsort(-part_vol)
     report["after"] = {
         "triangles": int(len(out_f)),
