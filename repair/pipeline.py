@@ -44,6 +44,7 @@ from repair.check import (
 )
 from repair.clean import clean_soup, degenerate_mask, drop_unreferenced
 from repair.deviation import max_deviation
+from repair.holes import HolesClosed, close_small_holes
 from repair.hull import outer_hull_split, resolve
 from repair.thicken import sheet_slabs
 from repair.wires import cylinders, visible_segments
@@ -437,6 +438,7 @@ def repair_mesh(
     }
     tally = _Tally()
     degenerate_removed = duplicates_removed = dropped_components = 0
+    holes = HolesClosed()
 
     if before.ok:
         path = "unchanged"
@@ -452,9 +454,11 @@ def repair_mesh(
             raise RepairError(
                 f"nothing printable: all {len(f_in)} triangles collapse to a single point"
             )
+        cv, cf, holes = close_small_holes(c.vertices, c.faces)
+        clock.lap("holes", 0.25)
         fast = None
         if len(c.segments) == 0:
-            fast = _union_fast_path(c.vertices, c.faces)
+            fast = _union_fast_path(cv, cf)
         clock.lap("union", 0.4)
         verdict = None
         if fast is not None:
@@ -476,10 +480,10 @@ def repair_mesh(
             dropped_components = int(np.count_nonzero(~seen))
         else:
             path = "exact"
-            sv, sf, poly, hull_birth = _outer_hull(c.vertices, c.faces, eps, tally, c.segments)
+            sv, sf, poly, hull_birth = _outer_hull(cv, cf, eps, tally, c.segments)
             clock.lap("hull_and_thicken", 0.6)
-            if len(c.faces):
-                comp_in = _edge_components(c.faces)
+            if len(cf):
+                comp_in = _edge_components(cf)
                 seen = np.unique(comp_in[hull_birth]) if len(hull_birth) else []
                 dropped_components = int(comp_in.max()) + 1 - len(seen)
             if len(sf) == 0:
@@ -523,6 +527,7 @@ def repair_mesh(
         "singular_edges_thickened": int(tally.singular_edges),
         "arrangement_passes": int(tally.passes),
     }
+    report["holes_closed"] = holes.to_dict()
     report["path"] = path
     report["deviation"] = deviation
     report["deviation_over_epsilon"] = deviation / eps
@@ -554,6 +559,9 @@ def _summary(r: dict[str, Any]) -> str:
     ):
         if a.get(key):
             fixes.append(f"{a[key]} {label}")
+    h = r.get("holes_closed") or {}
+    if h.get("count"):
+        fixes.append(f"{h['count']} small hole(s) closed ({h['area']:.4g} mm² of lid)")
     if a["sheet_triangles_thickened"]:
         fixes.append(
             f"{a['sheet_area_thickened']:.4g} mm² of sheet thickened to {r['epsilon']:g} mm"

@@ -116,6 +116,39 @@ def test_open_surface_is_thickened():
     assert res.report["deviation"] <= 0.6 * EPS
 
 
+def sphere_with_holes(n_holes: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """An icosphere of radius 10 mm (5120 triangles) with the one-ring of ``n_holes``
+    well separated vertices removed (hexagonal holes, perimeter ~3 mm each), and the
+    volume of the closed sphere."""
+    import trimesh
+
+    s = trimesh.creation.icosphere(subdivisions=4, radius=10.0)
+    v, f = np.asarray(s.vertices, float), np.asarray(s.faces, np.int64)
+    closed_volume = signed_volume(v, f)
+    targets = [np.argmax(v @ d) for d in np.eye(3)[:n_holes]]
+    keep = ~np.isin(f, targets).any(axis=1)
+    return v, f[keep], closed_volume
+
+
+def test_sphere_with_small_holes_is_closed_not_thickened():
+    v, f, closed_volume = sphere_with_holes(3)
+    assert len(f) == 5120 - 3 * 6
+    res = repair_mesh(v, f, EPS)
+    assert_printable(res)
+    after = res.report["after"]
+    assert res.report["holes_closed"]["count"] == 3
+    assert after["sheet_triangles_thickened"] == 0
+    assert after["wires_inflated"] == 0 and after["singular_edges_thickened"] == 0
+    assert after["components"] == 1
+    assert res.report["volume"] == pytest.approx(closed_volume, rel=0.01)
+    # The rest of the sphere is kept exactly: every input triangle is in the output.
+    out = {tuple(sorted(map(tuple, t))) for t in res.vertices[res.faces].tolist()}
+    inp = v[f].astype(np.float32).astype(np.float64)
+    assert all(tuple(sorted(map(tuple, t))) in out for t in inp.tolist())
+    assert res.report["deviation"] <= res.report["holes_closed"]["max_lid_radius"] + 1e-6
+    assert "3 small hole(s) closed" in res.report["summary"]
+
+
 def test_lone_segment_becomes_an_epsilon_cylinder():
     v = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 10.0], [0.0, 0.0, 4.0]])
     res = repair_mesh(v, np.array([[0, 1, 2]]), EPS)  # collinear: a wire

@@ -1,0 +1,212 @@
+"""Close the small holes of almost-closed shells (Bøhn & Wozny's shell closure).
+
+An open scan or a sloppy export is often a closed shell with a few small holes. Attene's
+algorithm would treat the whole open shell as a zero-thickness sheet and thicken all of
+it; a user expects the holes to be filled instead, after which the shell is solid and the
+exact path keeps it exactly. Genuine open surfaces (an open-topped box, a fin, a single
+sheet) are left alone: only a shell whose boundary is a small fraction of its edges gets
+its holes closed, and only the holes whose perimeter is small against the shell's size.
+
+Each closed hole gets a lid: one triangle for a 3-edge hole, otherwise a fan from the
+loop's centroid (one new vertex). The lid is oriented against the hole's rim faces, so a
+consistently oriented shell stays consistently oriented. Lids may cross the shell where
+a hole is strongly non-planar; the exact self-intersection resolution that follows
+repairs such crossings.
+
+Units are mm. Arrays: vertices float64 (n, 3), faces int64 (m, 3). Pure functions;
+the edge bookkeeping is vectorised, the only Python loop runs once per boundary vertex
+to trace loops (boundaries are small by construction: at most a few percent of edges).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = [
+    "MAX_BOUNDARY_FRACTION",
+    "MAX_PERIMETER_FRACTION",
+    "HolesClosed",
+    "boundary_loops",
+    "close_small_holes",
+]
+
+#: A shell is "almost closed" when at most this fraction of its edges are boundary edges.
+MAX_BOUNDARY_FRACTION = 0.03
+#: A hole is "small" when its perimeter is at most this fraction of the shell's bounding
+#: box diagonal.
+MAX_PERIMETER_FRACTION = 0.5
+
+
+@dataclass(frozen=True)
+class HolesClosed:
+    """What :func:`close_small_holes` did: ``count`` holes closed, ``area`` mm² of lid
+    added, ``lid_triangles`` triangles added, ``max_perimeter`` mm of the largest hole
+    closed and ``max_lid_radius`` mm, a bound on how far any lid point lies from its rim
+    (hence from the input surface)."""
+
+    count: int = 0
+    area: float = 0.0
+    lid_triangles: int = 0
+    max_perimeter: float = 0.0
+    max_lid_radius: float = 0.0
+
+    def to_dict(self) -> dict[str, float | int]:
+        return {
+            "count": int(self.count),
+            "area": round(float(self.area), 9),
+            "lid_triangles": int(self.lid_triangles),
+            "max_perimeter": float(self.max_perimeter),
+            "max_lid_radius": float(self.max_lid_radius),
+        }
+
+
+def _face_components(faces: np.ndarray, eid: np.ndarray, n_edges: int) -> np.ndarray:
+    """Edge-connected component of each face (faces sharing any edge are connected)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    m = len(faces)
+    fid = np.repeat(np.arange(m), 3)
+    # Bipartite face-edge graph: faces 0..m-1, edges m..m+n_edges-1.
+    g = coo_matrix((np.ones(3 * m, dtype=np.int8), (fid, m + eid)), shape=(m + n_edges,) * 2)
+    return connected_components(g, directed=False)[1][:m].astype(np.int64)
+
+
+def boundary_loops(faces: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
+    """Closed loops of boundary edges (edges used by exactly one face).
+
+    Returns the loops, each an int64 array of vertex indices ordered *against* the rim
+    faces' orientation (the order a lid needs to continue that orientation), and the face
+    component label (edge-connected) of each loop's rim. Loops through a vertex where the
+    boundary is not a simple curve (more than one boundary edge leaving or entering it)
+    are not returned: such a hole is left to the sheet thickening.
+    """
+    f = np.asarray(faces, dtype=np.int64)
+    if len(f) == 0:
+        return [], np.zeros(0, dtype=np.int64)
+    he = np.stack([f.reshape(-1), f[:, [1, 2, 0]].reshape(-1)], axis=1)  # (3m, 2) a->b
+    und = np.sort(he, axis=1)
+    _, eid, cnt = np.unique(und, axis=0, return_inverse=True, return_counts=True)
+    eid = eid.reshape(-1)
+    comp = _face_components(f, eid, len(cnt))
+    bnd = np.flatnonzero(cnt[eid] == 1)
+    if len(bnd) == 0:
+        return [], np.zeros(0, dtype=np.int64)
+    # A lid edge runs b->a for the rim's a->b.
+    src, dst = he[bnd, 1], he[bnd, 0]
+    rim_comp = comp[bnd // 3]
+    out_deg = np.bincount(src, minlength=int(f.max()) + 1)
+    in_deg = np.bincount(dst, minlength=int(f.max()) + 1)
+    simple = (out_deg[src] == 1) & (in_deg[src] == 1) & (out_deg[dst] == 1) & (in_deg[dst] == 1)
+    nxt = dict(zip(src[simple].tolist(), dst[simple].tolist(), strict=True))
+    vcomp = dict(zip(src[simple].tolist(), rim_comp[simple].tolist(), strict=True))
+    loops: list[np.ndarray] = []
+    labels: list[int] = []
+    seen: set[int] = set()
+    for start in nxt:
+        if start in seen:
+            continue
+        loop = [start]
+        seen.add(start)
+        cur = nxt[start]
+        ok = True
+        while cur != start:
+            if cur in seen or cur not in nxt:
+                ok = False
+                break
+            seen.add(cur)
+            loop.append(cur)
+            cur = nxt[cur]
+        if ok and len(loop) >= 3:
+            loops.append(np.asarray(loop, dtype=np.int64))
+            labels.append(vcomp[start])
+    return loops, np.asarray(labels, dtype=np.int64)
+
+
+def close_small_holes(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    *,
+    max_boundary_fraction: float = MAX_BOUNDARY_FRACTION,
+    max_perimeter_fraction: float = MAX_PERIMETER_FRACTION,
+) -> tuple[np.ndarray, np.ndarray, HolesClosed]:
+    """Fill the small holes of almost-closed shells with lids.
+
+    A hole (a simple loop of boundary edges) is closed when its shell (edge-connected
+    component) has at most ``max_boundary_fraction`` of its edges on the boundary and the
+    loop's perimeter is at most ``max_perimeter_fraction`` of the shell's bounding-box
+    diagonal (mm). Input faces and vertices are kept unchanged (same indices); lids are
+    appended (new centroid vertices after the old ones, lid faces after the old faces).
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    if len(f) == 0:
+        return v, f, HolesClosed()
+    loops, labels = boundary_loops(f)
+    if not loops:
+        return v, f, HolesClosed()
+    # Per-component sizes: edges, boundary edges and bounding-box diagonal.
+    he = np.stack([f.reshape(-1), f[:, [1, 2, 0]].reshape(-1)], axis=1)
+    _, eid, cnt = np.unique(np.sort(he, axis=1), axis=0, return_inverse=True,
+                            return_counts=True)  # fmt: skip
+    eid = eid.reshape(-1)
+    comp = _face_components(f, eid, len(cnt))
+    n = int(comp.max()) + 1
+    # Each undirected edge belongs to one component (its faces are edge-connected).
+    edge_comp = np.empty(len(cnt), dtype=np.int64)
+    edge_comp[eid] = np.repeat(comp, 3)
+    n_edges = np.bincount(edge_comp, minlength=n)
+    n_bnd = np.bincount(edge_comp[cnt == 1], minlength=n)
+    lo = np.full((n, 3), np.inf)
+    hi = np.full((n, 3), -np.inf)
+    corner = v[f.reshape(-1)]
+    fc = np.repeat(comp, 3)
+    for k in range(3):
+        np.minimum.at(lo[:, k], fc, corner[:, k])
+        np.maximum.at(hi[:, k], fc, corner[:, k])
+    diag = np.linalg.norm(hi - lo, axis=1)
+    almost_closed = n_bnd <= max_boundary_fraction * n_edges
+
+    new_v: list[np.ndarray] = []
+    new_f: list[np.ndarray] = []
+    count = lid_tris = 0
+    area = max_perim = max_radius = 0.0
+    nv = len(v)
+    for loop, c in zip(loops, labels.tolist(), strict=True):
+        if not almost_closed[c]:
+            continue
+        p = v[loop]
+        perim = float(np.linalg.norm(np.roll(p, -1, axis=0) - p, axis=1).sum())
+        if perim > max_perimeter_fraction * diag[c]:
+            continue
+        if len(loop) == 3:
+            tris = loop[None, :]
+            pts = p
+            # Any point of a triangle lies within its inradius (2 area / perimeter) of an edge.
+            radius = float(np.linalg.norm(np.cross(p[1] - p[0], p[2] - p[0]))) / perim
+        else:
+            centre = p.mean(axis=0)
+            new_v.append(centre[None, :])
+            k = len(loop)
+            tris = np.stack([loop, np.roll(loop, -1), np.full(k, nv)], axis=1)
+            nv += 1
+            pts = np.vstack([p, centre[None, :]])
+            radius = float(np.linalg.norm(p - centre, axis=1).max())
+        if len(loop) == 3:
+            area += 0.5 * float(np.linalg.norm(np.cross(p[1] - p[0], p[2] - p[0])))
+        else:
+            c0 = pts[-1]
+            cr = np.cross(p - c0, np.roll(p, -1, axis=0) - c0)
+            area += 0.5 * float(np.linalg.norm(cr, axis=1).sum())
+        new_f.append(tris)
+        count += 1
+        lid_tris += len(tris)
+        max_perim = max(max_perim, perim)
+        max_radius = max(max_radius, radius)
+    if count == 0:
+        return v, f, HolesClosed()
+    out_v = np.vstack([v, *new_v]) if new_v else v
+    out_f = np.vstack([f, *new_f])
+    return out_v, out_f, HolesClosed(count, area, lid_tris, max_perim, max_radius)
