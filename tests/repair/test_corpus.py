@@ -1,6 +1,7 @@
 """Every real broken model in ../shared/corpus comes out printable (on the float32
 coordinates actually written), with Attene's deviation D <= 0.6 eps where sheets or wires
-were thickened and D ~ 0 where the outer hull was already closed."""
+were thickened, D ~ 0 where the outer hull was already closed, and D within the lid's
+reach from its rim where small holes were closed."""
 
 from __future__ import annotations
 
@@ -25,10 +26,8 @@ NOTHING_PRINTABLE = {"Ghostkeeper_zero_size_cube.stl"}
 #: Known gaps (sheet-heavy open models): the union of their self-folding eps-slabs is not
 #: yet made self-intersection free on float32 within minutes. Not run, to keep CI short.
 KNOWN_GAPS = {
-    "admesh_fill-holes-bad.stl": "takes minutes: self-folding slab of an almost closed shell",
     "mikedh_bunny.ply": "takes minutes: self-folding slab of an open scan",
     "mikedh_cycloidal.ply": "takes minutes: 100 overlapping shells with sheets",
-    "mikedh_suzanne.ply": "takes minutes: self-folding slab",
     "mikedh_soup.stl": "float32 rounding of crossing slabs diverges",
     "mikedh_chair_model.obj": "float32 rounding of crossing slabs diverges",
     "mikedh_target.obj": "singular edges remain after the finish rounds",
@@ -64,8 +63,11 @@ def test_corpus_model_repairs_to_a_printable_solid(name, tmp_path):
         after["sheet_triangles_thickened"] or after["wires_inflated"]
         or after["singular_edges_thickened"]
     )  # fmt: skip
+    # A lid over a small hole adds surface the input did not have: D (output -> input)
+    # there is bounded by how far the lid reaches from its rim, not by eps.
+    lid = report["holes_closed"]["max_lid_radius"]
     if thickened:
-        assert report["deviation"] <= 0.6 * EPS
+        assert report["deviation"] <= max(0.6 * EPS, lid)
     else:
         size = float(np.ptp(written.vertices, axis=0).max())
-        assert report["deviation"] <= 1e-5 * size + 1e-6
+        assert report["deviation"] <= 1e-5 * size + 1e-6 + lid
