@@ -152,13 +152,22 @@ def weld_exact(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.
     h = b0 * np.uint64(0x9E3779B97F4A7C15)
     h ^= b1 * np.uint64(0xC2B2AE3D27D4EB4F) + (h >> np.uint64(29))
     h ^= b2 * np.uint64(0x165667B19E3779F9) + (h >> np.uint64(31))
+    # Columns to verify equal hashes with (1-D gathers are much cheaper than 2-D ones).
+    if dtype == np.float32:
+        cols = ((b0 << np.uint64(32)) | b1, b2)
+    else:
+        cols = (b0, b1, b2)
     del b0, b1, b2
     order = np.argsort(h)
     hs = h[order]
-    same_hash = hs[1:] == hs[:-1]
-    sb = bits[order]
-    same_row = np.all(sb[1:] == sb[:-1], axis=1)
-    if np.any(same_hash & ~same_row):
+    same_row = hs[1:] == hs[:-1]
+    del hs
+    # Only neighbours with equal hashes can be equal rows: check just those, exactly.
+    pos = np.flatnonzero(same_row)
+    o0, o1 = order[pos], order[pos + 1]
+    collision = any(not np.array_equal(c[o0], c[o1]) for c in cols)
+    del cols, pos, o0, o1
+    if collision:
         order = np.lexsort((bits[:, 2], bits[:, 1], bits[:, 0]))
         sb = bits[order]
         same_row = np.all(sb[1:] == sb[:-1], axis=1)
@@ -172,6 +181,21 @@ def weld_exact(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.
 # --------------------------------------------------------------------------- topology
 
 
+def _argsort_with_keys(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(order, key[order])`` for non-negative int64 keys, ties in index order.
+
+    When key and index fit together in 63 bits, one plain (SIMD) sort of
+    ``key << bits | index`` replaces the much slower argsort and the gather after it.
+    """
+    n = len(key)
+    shift = max(int(n).bit_length(), 1)
+    if n and int(key.max()) < (1 << (63 - shift)):
+        packed = np.sort((key << np.int64(shift)) | np.arange(n, dtype=np.int64))
+        return packed & np.int64((1 << shift) - 1), packed >> np.int64(shift)
+    order = np.argsort(key, kind="stable")
+    return order, key[order]
+
+
 def _edge_stats(faces: np.ndarray, n_vertices: int) -> tuple[int, int, int, int, np.ndarray]:
     """(boundary, nonmanifold, misoriented, components, face labels) from the half-edges."""
     m = len(faces)
@@ -180,8 +204,7 @@ def _edge_stats(faces: np.ndarray, n_vertices: int) -> tuple[int, int, int, int,
     lo = np.minimum(a, b)
     hi = np.maximum(a, b)
     key = lo * np.int64(max(n_vertices, 1)) + hi
-    order = np.argsort(key)
-    skey = key[order]
+    order, skey = _argsort_with_keys(key)
     first = np.r_[True, skey[1:] != skey[:-1]]
     starts = np.flatnonzero(first)
     counts = np.diff(np.r_[starts, len(skey)])
@@ -259,6 +282,14 @@ def degenerate_face_mask(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     Decided exactly on the given float64 coordinates: a floating-point filter settles
     almost every face, the rest are evaluated with integer arithmetic. No tolerance.
     """
+    return _degeneracy_and_volume(vertices, faces)[0]
+
+
+def _degeneracy_and_volume(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, float]:
+    """(degenerate face mask, signed volume in mm³), sharing the corner gathers and the
+    edge cross products (volume = sum of (a - centre) . ((b - a) x (c - a)) / 6, which
+    equals the divergence-theorem sum; centring on the bounding box limits cancellation).
+    """
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     f0, f1, f2 = faces[:, 0], faces[:, 1], faces[:, 2]
@@ -268,10 +299,13 @@ def degenerate_face_mask(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     w = c - a
     # The cross product is zero exactly iff all three 2D orientations are zero.
     certain_nonzero = np.zeros(len(faces), dtype=bool)
-    for i, j in ((1, 2), (2, 0), (0, 1)):
+    volume = 0.0
+    centre = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0)) if len(faces) else None
+    for k, (i, j) in enumerate(((1, 2), (2, 0), (0, 1))):
         left = u[:, i] * w[:, j]
         right = u[:, j] * w[:, i]
         det = left - right
+        volume += float(np.dot(a[:, k] - centre[k], det)) if len(faces) else 0.0
         bound = _ORIENT2D_ERRBOUND * (np.abs(left) + np.abs(right))
         certain_nonzero |= (det != 0.0) & (np.abs(det) > bound)
     unsure = np.flatnonzero(~certain_nonzero & ~repeated)
@@ -286,22 +320,10 @@ def degenerate_face_mask(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
             d = ua[:, i] * wa[:, j] - ua[:, j] * wa[:, i]
             zero &= d == 0
         degenerate[unsure] = zero
-    return degenerate
+    return degenerate, volume / 6.0
 
 
 # --------------------------------------------------------------------------- geometry
-
-
-def _signed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
-    """Signed enclosed volume in mm³ (positive for outward-oriented closed meshes)."""
-    if len(faces) == 0:
-        return 0.0
-    # Centre the coordinates (bounding box of all vertices) to limit cancellation.
-    centre = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
-    a = vertices[faces[:, 0]] - centre
-    b = vertices[faces[:, 1]] - centre
-    c = vertices[faces[:, 2]] - centre
-    return float(np.einsum("ij,ij->", a, np.cross(b, c)) / 6.0)
 
 
 def intersecting_face_pairs(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -435,10 +457,9 @@ def check_printable(
         )  # fmt: skip
 
     boundary, nonmanifold, misoriented, components, labels = _edge_stats(f, len(v))
-    degenerate = degenerate_face_mask(v, f)
+    degenerate, volume = _degeneracy_and_volume(v, f)
     n_degenerate = int(np.count_nonzero(degenerate))
     n_duplicate = _duplicate_faces(f)
-    volume = _signed_volume(v, f)
 
     # The exact intersection test needs proper triangles, each vertex triple once.
     keep = np.flatnonzero(~degenerate)
