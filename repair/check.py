@@ -160,14 +160,17 @@ def weld_exact(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.
     del b0, b1, b2
     order = np.argsort(h)
     hs = h[order]
-    same_row = hs[1:] == hs[:-1]
+    same_hash = hs[1:] == hs[:-1]
     del hs
-    # Only neighbours with equal hashes can be equal rows: check just those, exactly.
-    pos = np.flatnonzero(same_row)
-    o0, o1 = order[pos], order[pos + 1]
-    collision = any(not np.array_equal(c[o0], c[o1]) for c in cols)
-    del cols, pos, o0, o1
-    if collision:
+    # Equal neighbours in hash order, compared exactly on all bits. Equal rows have equal
+    # hashes, so they are neighbours unless a different row with the same hash sits
+    # between them: then (equal hash, different row) shows up somewhere -> fall back.
+    same_row = np.ones(len(v) - 1, dtype=bool)
+    for c in cols:
+        cs = c[order]
+        same_row &= cs[1:] == cs[:-1]
+    del cols, cs
+    if np.any(same_hash & ~same_row):
         order = np.lexsort((bits[:, 2], bits[:, 1], bits[:, 0]))
         sb = bits[order]
         same_row = np.all(sb[1:] == sb[:-1], axis=1)

@@ -828,9 +828,15 @@ def load_mesh(
 
 def face_normals32(vertices32: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Unit normals (float32, (m, 3)) of the triangles; zero for degenerate ones."""
-    tri = vertices32[faces].astype(np.float64)
-    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return _triangle_normals32(np.asarray(vertices32)[faces])
+
+
+def _triangle_normals32(tri: np.ndarray) -> np.ndarray:
+    """Unit normals (float32, (m, 3)) of triangles given by corners (m, 3, 3), computed
+    in float64; zero for degenerate ones."""
+    a = tri[:, 0].astype(np.float64)
+    n = np.cross(tri[:, 1] - a, tri[:, 2] - a)
+    length = np.sqrt(np.einsum("ij,ij->i", n, n))[:, None]
     with np.errstate(invalid="ignore", divide="ignore"):
         n = np.where(length > 0, n / length, 0.0)
     return n.astype(np.float32)
@@ -847,10 +853,11 @@ def write_stl(path: str | os.PathLike[str], vertices: np.ndarray, faces: np.ndar
     f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     if len(f) and (f.min() < 0 or f.max() >= len(v)):
         raise ValueError("face indices out of range")
-    v32 = v.astype(np.float32)
-    rec = np.zeros(len(f), dtype=_STL_DTYPE)
-    rec["v"] = v32[f]
-    rec["normal"] = face_normals32(v32, f)
+    tri = v.astype(np.float32)[f]  # (m, 3, 3): one gather, shared by corners and normals
+    rec = np.empty(len(f), dtype=_STL_DTYPE)
+    rec["v"] = tri
+    rec["normal"] = _triangle_normals32(tri)
+    rec["attr"] = 0
     header = b"binary STL written by preflight (units: mm)".ljust(80, b" ")
     out = Path(path)
     fd, tmp = tempfile.mkstemp(prefix="." + out.name + ".", suffix=".tmp", dir=out.parent)
