@@ -124,7 +124,7 @@ def _run_one(tool: str, spec: str, q) -> None:
                 out = load_mesh(dst)
                 ok = check_printable(out.vertices, out.faces).ok
                 q.put({"tris": int(len(f)), "out": out.triangles, "s": dt,
-                       "peak_mb": float("nan"), "ok": ok})  # fmt: skip
+                       "peak_mb": None, "ok": ok})  # fmt: skip
             return
         if tool == "preflight":
             from repair.pipeline import repair_mesh
@@ -206,8 +206,9 @@ def main() -> int:
                 cells.append(f"{r['error'][:38]:>38}")
             else:
                 rate = r["tris"] / max(r["s"], 1e-9)
+                mem = f"{r['peak_mb']:5.0f}MB" if r["peak_mb"] is not None else "    -  "
                 cells.append(f"{r['s']:6.2f}s {rate / 1e3:6.0f}k/s {r['out']:8d}t "
-                             f"{r['peak_mb']:5.0f}MB {'OK ' if r['ok'] else 'BAD'}")  # fmt: skip
+                             f"{mem} {'OK ' if r['ok'] else 'BAD'}")  # fmt: skip
         print(f"{name[:36]:36} {tris:8d} " + " ".join(cells), flush=True)
     print()
     for t in TOOLS:
