@@ -30,6 +30,7 @@ __all__ = [
     "HolesClosed",
     "boundary_loops",
     "close_small_holes",
+    "flap_faces",
 ]
 
 #: A shell is "almost closed" when at most this fraction of its edges are boundary edges.
@@ -44,13 +45,16 @@ class HolesClosed:
     """What :func:`close_small_holes` did: ``count`` holes closed, ``area`` mm² of lid
     added, ``lid_triangles`` triangles added, ``max_perimeter`` mm of the largest hole
     closed and ``max_lid_radius`` mm, a bound on how far any lid point lies from its rim
-    (hence from the input surface)."""
+    (hence from the input surface); ``flaps_removed`` faces (``flap_area`` mm²) dangling
+    off the shell next to a hole were removed so the hole could be closed."""
 
     count: int = 0
     area: float = 0.0
     lid_triangles: int = 0
     max_perimeter: float = 0.0
     max_lid_radius: float = 0.0
+    flaps_removed: int = 0
+    flap_area: float = 0.0
 
     def to_dict(self) -> dict[str, float | int]:
         return {
@@ -59,6 +63,8 @@ class HolesClosed:
             "lid_triangles": int(self.lid_triangles),
             "max_perimeter": float(self.max_perimeter),
             "max_lid_radius": float(self.max_lid_radius),
+            "flaps_removed": int(self.flaps_removed),
+            "flap_area": round(float(self.flap_area), 9),
         }
 
 
@@ -125,29 +131,11 @@ def boundary_loops(faces: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
     return loops, np.asarray(labels, dtype=np.int64)
 
 
-def close_small_holes(
-    vertices: np.ndarray,
-    faces: np.ndarray,
-    *,
-    max_boundary_fraction: float = MAX_BOUNDARY_FRACTION,
-    max_perimeter_fraction: float = MAX_PERIMETER_FRACTION,
-) -> tuple[np.ndarray, np.ndarray, HolesClosed]:
-    """Fill the small holes of almost-closed shells with lids.
-
-    A hole (a simple loop of boundary edges) is closed when its shell (edge-connected
-    component) has at most ``max_boundary_fraction`` of its edges on the boundary and the
-    loop's perimeter is at most ``max_perimeter_fraction`` of the shell's bounding-box
-    diagonal (mm). Input faces and vertices are kept unchanged (same indices); lids are
-    appended (new centroid vertices after the old ones, lid faces after the old faces).
-    """
-    v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(faces, dtype=np.int64)
-    if len(f) == 0:
-        return v, f, HolesClosed()
-    loops, labels = boundary_loops(f)
-    if not loops:
-        return v, f, HolesClosed()
-    # Per-component sizes: edges, boundary edges and bounding-box diagonal.
+def _shells(
+    v: np.ndarray, f: np.ndarray, max_boundary_fraction: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per face: edge-connected component and the use count of each of its 3 edges
+    (m, 3); per component: "almost closed" flag and bounding-box diagonal (mm)."""
     he = np.stack([f.reshape(-1), f[:, [1, 2, 0]].reshape(-1)], axis=1)
     _, eid, cnt = np.unique(np.sort(he, axis=1), axis=0, return_inverse=True,
                             return_counts=True)  # fmt: skip
@@ -168,9 +156,68 @@ def close_small_holes(
         np.maximum.at(hi[:, k], fc, corner[:, k])
     diag = np.linalg.norm(hi - lo, axis=1)
     almost_closed = n_bnd <= max_boundary_fraction * n_edges
+    return comp, cnt[eid].reshape(-1, 3), almost_closed, diag
+
+
+def flap_faces(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    *,
+    max_boundary_fraction: float = MAX_BOUNDARY_FRACTION,
+) -> np.ndarray:
+    """Mask of the *flaps* of almost-closed shells: faces with an open edge and an edge
+    shared by more than two faces (a triangle dangling off, or folded over, an edge of
+    the shell, as scanners leave them), no larger than 4x the median face area.
+
+    Such a flap keeps the hole next to it from being a simple loop; removing it lets the
+    hole be closed. Flaps of shells that are not almost closed are not flagged (those
+    are sheets, and sheets are thickened).
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    if len(f) == 0:
+        return np.zeros(0, dtype=bool)
+    comp, use, almost_closed, _ = _shells(v, f, max_boundary_fraction)
+    flap = (use == 1).any(axis=1) & (use > 2).any(axis=1) & almost_closed[comp]
+    if not flap.any():
+        return flap
+    p = v[f]
+    area = np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    return flap & (area <= 4.0 * np.median(area))
+
+
+def close_small_holes(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    *,
+    max_boundary_fraction: float = MAX_BOUNDARY_FRACTION,
+    max_perimeter_fraction: float = MAX_PERIMETER_FRACTION,
+) -> tuple[np.ndarray, np.ndarray, HolesClosed]:
+    """Fill the small holes of almost-closed shells with lids.
+
+    A hole (a simple loop of boundary edges) is closed when its shell (edge-connected
+    component) has at most ``max_boundary_fraction`` of its edges on the boundary and the
+    loop's perimeter is at most ``max_perimeter_fraction`` of the shell's bounding-box
+    diagonal (mm). Flaps (:func:`flap_faces`) of such shells are removed first, and stay
+    removed only when their shell had a hole closed. Vertices are kept (same indices;
+    lid centroids are appended); faces keep their order except that the flaps kept move
+    after the others; lid faces are appended.
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    if len(f) == 0:
+        return v, f, HolesClosed()
+    flaps = flap_faces(v, f, max_boundary_fraction=max_boundary_fraction)
+    flap_f = f[flaps]
+    f = f[~flaps]
+    loops, labels = boundary_loops(f)
+    if not loops:
+        return v, np.vstack([f, flap_f]), HolesClosed()
+    _, _, almost_closed, diag = _shells(v, f, max_boundary_fraction)
 
     new_v: list[np.ndarray] = []
     new_f: list[np.ndarray] = []
+    closed_in: list[int] = []
     count = lid_tris = 0
     area = max_perim = max_radius = 0.0
     nv = len(v)
@@ -201,12 +248,28 @@ def close_small_holes(
             cr = np.cross(p - c0, np.roll(p, -1, axis=0) - c0)
             area += 0.5 * float(np.linalg.norm(cr, axis=1).sum())
         new_f.append(tris)
+        closed_in.append(c)
         count += 1
         lid_tris += len(tris)
         max_perim = max(max_perim, perim)
         max_radius = max(max_radius, radius)
-    if count == 0:
-        return v, f, HolesClosed()
+    # A flap stays removed only when its shell had holes closed (the shell is a scan with
+    # holes, its flaps scanner noise next to them); the others go back (fins are sheets).
+    gone = np.zeros(len(flap_f), dtype=bool)
+    if len(flap_f) and new_f:
+        comp, _, _, _ = _shells(v, f, max_boundary_fraction)
+        lidded = np.zeros(len(v), dtype=bool)
+        lidded[f[np.isin(comp, np.asarray(closed_in, dtype=np.int64))].reshape(-1)] = True
+        gone = lidded[flap_f].any(axis=1)
+    n_flaps = int(np.count_nonzero(gone))
+    p = v[flap_f[gone]]
+    flap_area = 0.5 * float(
+        np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1).sum()
+    )
     out_v = np.vstack([v, *new_v]) if new_v else v
-    out_f = np.vstack([f, *new_f])
-    return out_v, out_f, HolesClosed(count, area, lid_tris, max_perim, max_radius)
+    out_f = np.vstack([f, flap_f[~gone], *new_f])
+    return (
+        out_v,
+        out_f,
+        HolesClosed(count, area, lid_tris, max_perim, max_radius, n_flaps, flap_area),
+    )

@@ -563,6 +563,8 @@ def _summary(r: dict[str, Any]) -> str:
     h = r.get("holes_closed") or {}
     if h.get("count"):
         fixes.append(f"{h['count']} small hole(s) closed ({h['area']:.4g} mm² of lid)")
+    if h.get("flaps_removed"):
+        fixes.append(f"{h['flaps_removed']} flap triangle(s) beside holes removed")
     if a["sheet_triangles_thickened"]:
         fixes.append(
             f"{a['sheet_area_thickened']:.4g} mm² of sheet thickened to {r['epsilon']:g} mm"

@@ -26,7 +26,6 @@ NOTHING_PRINTABLE = {"Ghostkeeper_zero_size_cube.stl"}
 #: Known gaps (sheet-heavy open models): the union of their self-folding eps-slabs is not
 #: yet made self-intersection free on float32 within minutes. Not run, to keep CI short.
 KNOWN_GAPS = {
-    "mikedh_bunny.ply": "takes minutes: self-folding slab of an open scan",
     "mikedh_cycloidal.ply": "takes minutes: 100 overlapping shells with sheets",
     "mikedh_soup.stl": "float32 rounding of crossing slabs diverges",
     "mikedh_chair_model.obj": "float32 rounding of crossing slabs diverges",

@@ -149,6 +149,27 @@ def test_sphere_with_small_holes_is_closed_not_thickened():
     assert "3 small hole(s) closed" in res.report["summary"]
 
 
+def test_flap_beside_a_hole_of_a_scan_is_removed_and_the_hole_closed():
+    v, f, closed_volume = sphere_with_holes(2)
+    # A triangle dangling off an edge of the shell (the edge now has 3 faces) at the rim
+    # of a hole, as scanners leave them.
+    e = np.sort(f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    edges, cnt = np.unique(e, axis=0, return_counts=True)
+    rim = np.unique(edges[cnt == 1])
+    a, b = next(
+        (p, q) for p, q in edges[cnt == 2] if (p in rim) != (q in rim)
+    )  # an inner edge from the rim of a hole into the shell
+    apex = 0.5 * (v[a] + v[b]) * 1.02
+    v2 = np.vstack([v, apex])
+    f2 = np.vstack([f, [[a, b, len(v)]]])
+    res = repair_mesh(v2, f2, EPS)
+    assert_printable(res)
+    holes = res.report["holes_closed"]
+    assert holes["flaps_removed"] == 1 and holes["count"] == 2
+    assert res.report["after"]["sheet_triangles_thickened"] == 0
+    assert res.report["volume"] == pytest.approx(closed_volume, rel=0.01)
+
+
 def test_lone_segment_becomes_an_epsilon_cylinder():
     v = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 10.0], [0.0, 0.0, 4.0]])
     res = repair_mesh(v, np.array([[0, 1, 2]]), EPS)  # collinear: a wire
