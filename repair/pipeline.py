@@ -5,6 +5,8 @@ Stages (each timed in the report):
 
 1. ``clean``   weld exactly coincident vertices, move degenerate triangles to a list of
    segments (wires), keep one layer of equivalent triangles (:mod:`repair.clean`);
+   ``holes``: close the small holes of almost-closed shells with lids (:mod:`repair.holes`),
+   so an open scan becomes a solid instead of a sheet;
 2. ``resolve`` exact arrangement of the self-intersections (CGAL via libigl), so the
    triangles form a polyhedron (:mod:`repair.hull`);
 3. ``hull``    cells of space; keep the faces that see the outside, split into the solid
