@@ -195,11 +195,13 @@ def close_small_holes(
 ) -> tuple[np.ndarray, np.ndarray, HolesClosed]:
     """Fill the small holes of almost-closed shells with lids.
 
-    A hole (a simple loop of boundary edges) is closed when its shell (edge-connected
+    A hole (a simple loop of boundary edges) is *small* when its shell (edge-connected
     component) has at most ``max_boundary_fraction`` of its edges on the boundary and the
     loop's perimeter is at most ``max_perimeter_fraction`` of the shell's bounding-box
-    diagonal (mm). Flaps (:func:`flap_faces`) of such shells are removed first, and stay
-    removed only when their shell had a hole closed. Vertices are kept (same indices;
+    diagonal (mm). A shell's holes are closed only when all of them are small, so the
+    shell comes out closed; otherwise it is left as it is (a sheet). Flaps
+    (:func:`flap_faces`) of such shells are removed first, and stay removed only when
+    their shell had its holes closed. Vertices are kept (same indices;
     lid centroids are appended); faces keep their order except that the flaps kept move
     after the others; lid faces are appended.
     """
@@ -213,7 +215,18 @@ def close_small_holes(
     loops, labels = boundary_loops(f)
     if not loops:
         return v, np.vstack([f, flap_f]), HolesClosed()
-    _, _, almost_closed, diag = _shells(v, f, max_boundary_fraction)
+    comp, use, almost_closed, diag = _shells(v, f, max_boundary_fraction)
+    # Lids only where they close the shell: every boundary edge of it is on a small hole.
+    # Closing some holes of a shell that stays open would not make it solid (it is still a
+    # sheet, and is thickened), the lids would only add surface.
+    n_bnd = np.bincount(comp, weights=(use == 1).sum(axis=1), minlength=len(diag))
+    perims = np.array(
+        [np.linalg.norm(np.roll(v[lp], -1, axis=0) - v[lp], axis=1).sum() for lp in loops]
+    )
+    small = almost_closed[labels] & (perims <= max_perimeter_fraction * diag[labels])
+    sizes = np.array([len(lp) for lp in loops], dtype=np.float64)
+    covered = np.bincount(labels[small], weights=sizes[small], minlength=len(diag))
+    closable = (covered == n_bnd) & (n_bnd > 0)
 
     new_v: list[np.ndarray] = []
     new_f: list[np.ndarray] = []
@@ -221,13 +234,10 @@ def close_small_holes(
     count = lid_tris = 0
     area = max_perim = max_radius = 0.0
     nv = len(v)
-    for loop, c in zip(loops, labels.tolist(), strict=True):
-        if not almost_closed[c]:
+    for loop, c, perim in zip(loops, labels.tolist(), perims.tolist(), strict=True):
+        if not closable[c]:
             continue
         p = v[loop]
-        perim = float(np.linalg.norm(np.roll(p, -1, axis=0) - p, axis=1).sum())
-        if perim > max_perimeter_fraction * diag[c]:
-            continue
         if len(loop) == 3:
             tris = loop[None, :]
             pts = p

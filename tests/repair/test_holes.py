@@ -49,3 +49,14 @@ def test_a_finely_meshed_bowl_is_not_closed():
     _, _, holes = close_small_holes(v, bowl)
     assert len(boundary_loops(bowl)[0]) == 1
     assert holes.count == 0
+
+
+def test_a_shell_that_would_stay_open_gets_no_lids():
+    # Two small holes and one large one: lidding the small ones would not close it.
+    v, f = icosphere()
+    small = [np.argmax(v @ d) for d in np.eye(3)[:2]]
+    keep = ~np.isin(f, small).any(axis=1) & (v[f][:, :, 2].max(axis=1) < 9.0)
+    assert len(boundary_loops(f[keep])[0]) == 3
+    out_v, out_f, holes = close_small_holes(v, f[keep])
+    assert holes.count == 0
+    assert np.array_equal(out_f, f[keep])
