@@ -68,6 +68,14 @@ class HolesClosed:
         }
 
 
+def _edge_ids(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Undirected edge id of each face corner's edge (3m,) and each edge's use count."""
+    e = np.sort(np.stack([faces.reshape(-1), faces[:, [1, 2, 0]].reshape(-1)], axis=1), axis=1)
+    key = e[:, 0] * (int(faces.max()) + 1) + e[:, 1]
+    _, eid, cnt = np.unique(key, return_inverse=True, return_counts=True)
+    return eid.reshape(-1), cnt
+
+
 def _face_components(faces: np.ndarray, eid: np.ndarray, n_edges: int) -> np.ndarray:
     """Edge-connected component of each face (faces sharing any edge are connected)."""
     from scipy.sparse import coo_matrix
@@ -93,9 +101,7 @@ def boundary_loops(faces: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
     if len(f) == 0:
         return [], np.zeros(0, dtype=np.int64)
     he = np.stack([f.reshape(-1), f[:, [1, 2, 0]].reshape(-1)], axis=1)  # (3m, 2) a->b
-    und = np.sort(he, axis=1)
-    _, eid, cnt = np.unique(und, axis=0, return_inverse=True, return_counts=True)
-    eid = eid.reshape(-1)
+    eid, cnt = _edge_ids(f)
     comp = _face_components(f, eid, len(cnt))
     bnd = np.flatnonzero(cnt[eid] == 1)
     if len(bnd) == 0:
@@ -136,10 +142,7 @@ def _shells(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per face: edge-connected component and the use count of each of its 3 edges
     (m, 3); per component: "almost closed" flag and bounding-box diagonal (mm)."""
-    he = np.stack([f.reshape(-1), f[:, [1, 2, 0]].reshape(-1)], axis=1)
-    _, eid, cnt = np.unique(np.sort(he, axis=1), axis=0, return_inverse=True,
-                            return_counts=True)  # fmt: skip
-    eid = eid.reshape(-1)
+    eid, cnt = _edge_ids(f)
     comp = _face_components(f, eid, len(cnt))
     n = int(comp.max()) + 1
     # Each undirected edge belongs to one component (its faces are edge-connected).
@@ -147,14 +150,13 @@ def _shells(
     edge_comp[eid] = np.repeat(comp, 3)
     n_edges = np.bincount(edge_comp, minlength=n)
     n_bnd = np.bincount(edge_comp[cnt == 1], minlength=n)
-    lo = np.full((n, 3), np.inf)
-    hi = np.full((n, 3), -np.inf)
-    corner = v[f.reshape(-1)]
-    fc = np.repeat(comp, 3)
-    for k in range(3):
-        np.minimum.at(lo[:, k], fc, corner[:, k])
-        np.maximum.at(hi[:, k], fc, corner[:, k])
-    diag = np.linalg.norm(hi - lo, axis=1)
+    order = np.argsort(np.repeat(comp, 3), kind="stable")
+    corner = v[f.reshape(-1)[order]]
+    start = np.searchsorted(np.repeat(comp, 3)[order], np.arange(n))
+    diag = np.linalg.norm(
+        np.maximum.reduceat(corner, start, axis=0) - np.minimum.reduceat(corner, start, axis=0),
+        axis=1,
+    )
     almost_closed = n_bnd <= max_boundary_fraction * n_edges
     return comp, cnt[eid].reshape(-1, 3), almost_closed, diag
 
@@ -207,8 +209,8 @@ def close_small_holes(
     """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
-    if len(f) == 0:
-        return v, f, HolesClosed()
+    if len(f) == 0 or not np.any(_edge_ids(f)[1] == 1):
+        return v, f, HolesClosed()  # no open edge: nothing to close
     flaps = flap_faces(v, f, max_boundary_fraction=max_boundary_fraction)
     flap_f = f[flaps]
     f = f[~flaps]
