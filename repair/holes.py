@@ -4,8 +4,12 @@ An open scan or a sloppy export is often a closed shell with a few small holes. 
 algorithm would treat the whole open shell as a zero-thickness sheet and thicken all of
 it; a user expects the holes to be filled instead, after which the shell is solid and the
 exact path keeps it exactly. Genuine open surfaces (an open-topped box, a fin, a single
-sheet) are left alone: only a shell whose boundary is a small fraction of its edges gets
-its holes closed, and only the holes whose perimeter is small against the shell's size.
+sheet) are left alone: only a shell whose boundary is a small fraction of its edges, and
+whose holes all have a perimeter small against the shell's size, gets its holes closed --
+all of them, so it comes out closed (lidding some holes of a shell that stays open would
+only add surface to a sheet). Triangles dangling off an edge of such a shell next to its
+holes (flaps, as scanners leave them: an open edge plus an edge of three or more faces)
+are removed, or the holes beside them would not be simple loops.
 
 Each closed hole gets a lid: one triangle for a 3-edge hole, otherwise a fan from the
 loop's centroid (one new vertex). The lid is oriented against the hole's rim faces, so a
@@ -36,7 +40,8 @@ __all__ = [
 #: A shell is "almost closed" when at most this fraction of its edges are boundary edges.
 MAX_BOUNDARY_FRACTION = 0.03
 #: A hole is "small" when its perimeter is at most this fraction of the shell's bounding
-#: box diagonal.
+#: box diagonal. The rim of a flat sheet is at least twice as long as the sheet is wide,
+#: and a bowl's rim (pi d) is longer than its diagonal, so neither is ever "small".
 MAX_PERIMETER_FRACTION = 0.5
 
 
