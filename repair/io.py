@@ -859,13 +859,20 @@ def write_stl(path: str | os.PathLike[str], vertices: np.ndarray, faces: np.ndar
     rec["normal"] = _triangle_normals32(tri)
     rec["attr"] = 0
     header = b"binary STL written by preflight (units: mm)".ljust(80, b" ")
+    count = np.uint32(len(f)).tobytes()
+    write_atomic(path, [header, count, rec.tobytes()])
+
+
+def write_atomic(path: str | os.PathLike[str], chunks: list[bytes]) -> None:
+    """Write ``chunks`` to ``path`` atomically: a temporary file in the same folder
+    (mode 0644), then a rename, so a reader never sees a half-written file."""
     out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix="." + out.name + ".", suffix=".tmp", dir=out.parent)
     try:
         with os.fdopen(fd, "wb") as fh:
-            fh.write(header)
-            fh.write(np.uint32(len(f)).tobytes())
-            fh.write(rec.tobytes())
+            for chunk in chunks:
+                fh.write(chunk)
         os.chmod(tmp, 0o644)
         os.replace(tmp, out)
     except BaseException:

@@ -9,7 +9,6 @@ estimated_seconds (trapezoidal motion estimate; heating time is not included).
 from __future__ import annotations
 
 import os
-import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path as FsPath
@@ -222,16 +221,6 @@ def slice_file(in_path: str | os.PathLike, out_path: str | os.PathLike, profile:
 
 def write_gcode(path: str | os.PathLike, text: str) -> None:
     """Write G-code atomically (temporary file in the same folder, then rename)."""
-    dst = FsPath(path)
-    dst.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{dst.name}.", dir=str(dst.parent))
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as fh:
-            fh.write(text)
-        os.replace(tmp, dst)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    from repair.io import write_atomic
+
+    write_atomic(path, [text.encode("utf-8")])
