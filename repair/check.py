@@ -33,6 +33,7 @@ import numpy as np
 __all__ = [
     "Printability",
     "check_printable",
+    "check_printable_pairs",
     "degenerate_face_mask",
     "intersecting_face_pairs",
     "round_to_float32",
@@ -429,6 +430,18 @@ def check_printable(
     Raises ``ValueError`` for malformed input (bad shapes, out-of-range indices,
     non-finite coordinates); a mesh that is merely broken gets a verdict, not an error.
     """
+    return check_printable_pairs(vertices, faces, as_float32=as_float32)[0]
+
+
+def check_printable_pairs(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    *,
+    as_float32: bool = False,
+) -> tuple[Printability, np.ndarray]:
+    """:func:`check_printable`, also returning the intersecting face pairs (k, 2) as
+    indices into ``faces`` (into the welded faces when ``as_float32``), so that a repair
+    loop does not test them twice."""
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces)
     if v.ndim != 2 or (v.size and v.shape[1] != 3):
@@ -450,7 +463,12 @@ def check_printable(
 
     m = len(f)
     if m == 0:
-        return Printability(
+        return _empty_verdict(as_float32), np.zeros((0, 2), dtype=np.int64)
+    return _verdict(v, f, as_float32)
+
+
+def _empty_verdict(as_float32: bool) -> Printability:
+    return Printability(
             closed=False, edge_manifold=True, oriented=True, positive_volume=False,
             no_degenerate_faces=True, no_duplicate_faces=True, no_self_intersections=True,
             shells_outward=None, triangles=0, boundary_edges=0, nonmanifold_edges=0,
@@ -459,6 +477,9 @@ def check_printable(
             volume=0.0, float32=as_float32,
         )  # fmt: skip
 
+
+def _verdict(v: np.ndarray, f: np.ndarray, as_float32: bool) -> tuple[Printability, np.ndarray]:
+    m = len(f)
     boundary, nonmanifold, misoriented, components, labels = _edge_stats(f, len(v))
     degenerate, volume = _degeneracy_and_volume(v, f)
     n_degenerate = int(np.count_nonzero(degenerate))
@@ -470,7 +491,7 @@ def check_printable(
     if n_duplicate:
         keep = keep[_first_of_duplicates(fk)]
         fk = f[keep]
-    pairs = intersecting_face_pairs(v, fk)
+    pairs = keep[intersecting_face_pairs(v, fk)]
 
     solid_so_far = (
         boundary == 0 and nonmanifold == 0 and misoriented == 0
@@ -483,7 +504,7 @@ def check_printable(
     else:
         misnested = _misnested_shells(v, f, labels, components)
 
-    return Printability(
+    verdict = Printability(
         closed=boundary == 0,
         edge_manifold=nonmanifold == 0,
         oriented=misoriented == 0,
@@ -504,3 +525,4 @@ def check_printable(
         volume=volume,
         float32=as_float32,
     )
+    return verdict, pairs

@@ -40,6 +40,7 @@ import numpy as np
 from repair.check import (
     Printability,
     check_printable,
+    check_printable_pairs,
     intersecting_face_pairs,
     round_to_float32,
     weld_exact,
@@ -48,6 +49,7 @@ from repair.clean import clean_soup, degenerate_mask, drop_unreferenced
 from repair.deviation import max_deviation
 from repair.holes import HolesClosed, close_small_holes
 from repair.hull import outer_hull_split, resolve
+from repair.mend import is_cycle, mend_intersections, round_avoiding_crossings
 from repair.thicken import sheet_slabs
 from repair.wires import cylinders, visible_segments
 
@@ -57,6 +59,8 @@ Progress = Callable[[str, float], None] | None
 
 #: Rounds of "round to float32, verify, resolve again" before giving up.
 MAX_FINISH_ROUNDS = 12
+#: From this finish round on, damaged faces first lose their float32-scale edges.
+COLLAPSE_FROM = 1
 #: Diameter of the prisms that fuse parts touching along an edge, as a fraction of eps.
 SINGULAR_EDGE_DIAMETER = 0.1
 #: Rounds of "thicken the sheets, take the outer hull of the union".
@@ -147,6 +151,31 @@ def _concat(parts: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.
 # --------------------------------------------------------------------------- fast paths
 
 
+def _manifolds_of(v: np.ndarray, f: np.ndarray, labels: np.ndarray | None = None) -> list | None:
+    """One manifold3d solid per edge-connected component of ``(v, f)`` (float32), or None
+    if manifold3d rejects one. Much faster than ``Manifold.decompose`` on many pieces."""
+    import manifold3d as m3d
+
+    lab = _edge_components(f) if labels is None else labels
+    order = np.argsort(lab, kind="stable")
+    cuts = np.r_[0, np.flatnonzero(np.diff(lab[order])) + 1, len(lab)]
+    v32 = np.ascontiguousarray(v, dtype=np.float32)
+    out = []
+    for i in range(len(cuts) - 1):
+        ff = f[order[cuts[i] : cuts[i + 1]]]
+        used, inv = np.unique(ff, return_inverse=True)
+        solid = m3d.Manifold(
+            m3d.Mesh(
+                vert_properties=np.ascontiguousarray(v32[used]),
+                tri_verts=np.ascontiguousarray(inv.reshape(-1, 3), dtype=np.uint32),
+            )
+        )
+        if solid.status() != m3d.Error.NoError:
+            return None
+        out.append(solid)
+    return out
+
+
 def _union_fast_path(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     """Exact union of closed, edge-manifold, consistently oriented shells that intersect
     only one another (never themselves), by manifold3d. None when not applicable."""
@@ -172,15 +201,10 @@ def _union_fast_path(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarr
     import manifold3d as m3d
 
     try:
-        mesh = m3d.Mesh(
-            vert_properties=np.ascontiguousarray(v, dtype=np.float32),
-            tri_verts=np.ascontiguousarray(f, dtype=np.uint32),
-        )
-        whole = m3d.Manifold(mesh)
-        if whole.status() != m3d.Error.NoError:
+        parts = _manifolds_of(v, f, labels)
+        if not parts:
             return None
-        parts = whole.decompose() if n > 1 else [whole]
-        out = m3d.Manifold.batch_boolean(parts, m3d.OpType.Add) if len(parts) > 1 else whole
+        out = m3d.Manifold.batch_boolean(parts, m3d.OpType.Add) if len(parts) > 1 else parts[0]
         res = out.to_mesh()
     except Exception:  # noqa: BLE001 - any failure means: take the exact path
         return None
@@ -204,15 +228,10 @@ def _manifold_union(
         for v, f in parts:
             if len(f) == 0:
                 continue
-            v, f = drop_unreferenced(*weld_exact(v, f))
-            mesh = m3d.Mesh(
-                vert_properties=np.ascontiguousarray(v, dtype=np.float32),
-                tri_verts=np.ascontiguousarray(f, dtype=np.uint32),
-            )
-            whole = m3d.Manifold(mesh)
-            if whole.status() != m3d.Error.NoError:
+            pieces = _manifolds_of(*drop_unreferenced(*weld_exact(v, f)))
+            if pieces is None:
                 return None
-            solids.extend(whole.decompose())
+            solids.extend(pieces)
         if not solids:
             return None
         out = m3d.Manifold.batch_boolean(solids, m3d.OpType.Add) if len(solids) > 1 else solids[0]
@@ -315,7 +334,9 @@ def _damaged_faces(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     return np.flatnonzero(bad)
 
 
-def _collapse_damaged(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _collapse_damaged(
+    v: np.ndarray, f: np.ndarray, reach: float = 2.0**-18
+) -> tuple[np.ndarray, np.ndarray]:
     """Merge the endpoints of the shortest edge of every damaged face when that edge is
     within float32 rounding scale (union-find over all such edges at once); the merged
     vertex keeps one endpoint's position, so nothing moves by more than ~4 ulps x chain."""
@@ -326,7 +347,7 @@ def _collapse_damaged(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndar
     ln = np.linalg.norm(p[:, [1, 2, 0]] - p, axis=2)
     k = np.argmin(ln, axis=1)
     # Only edges at the scale of float32 rounding: a few ulps of the largest coordinate.
-    tol = float(np.abs(v).max()) * 2.0**-18
+    tol = float(np.abs(v).max()) * reach
     short = ln[np.arange(len(bad)), k] <= tol
     a = f[bad[short], k[short]]
     b = f[bad[short], (k[short] + 1) % 3]
@@ -344,42 +365,73 @@ def _collapse_damaged(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndar
     return v, rep[lab][f]
 
 
+def _drop_collapsed(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """After merging vertices: drop faces with a repeated vertex and unused vertices (a
+    closed cycle stays one; coincident copies are merged by weight in the mend)."""
+    f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0])]
+    return drop_unreferenced(v, f)
+
+
 def _finish(
     v: np.ndarray, f: np.ndarray, eps: float, tally: _Tally
 ) -> tuple[np.ndarray, np.ndarray, Printability]:
-    """Round to float32, verify, and resolve again until the written mesh is printable."""
+    """Round to float32, verify, and mend until the written mesh is printable.
+
+    A closed surface is mended where it is damaged (:mod:`repair.mend`: exact local
+    arrangement of the crossing faces, winding-number choice of the pieces); from the
+    second round on, the shortest edge of each damaged face is first collapsed when it is
+    at float32-rounding scale, so that rounding cannot keep re-creating the same slivers.
+    Edges shared by more than two faces (parts touching along an edge) are thickened
+    into thin prisms that fuse the parts. An open result takes the whole arrangement and
+    outer hull again.
+    """
     verdict: Printability | None = None
     worse = 0
     last_damage = None
-    for _ in range(MAX_FINISH_ROUNDS):
-        v32, f32 = weld_exact(round_to_float32(v), f)
-        verdict = check_printable(v32, f32)
+    for round_ in range(MAX_FINISH_ROUNDS):
+        v32, f32 = weld_exact(round_avoiding_crossings(v, f)[0], f)
+        verdict, pairs = check_printable_pairs(v32, f32)
         if verdict.ok:
             return v32, f32, verdict
         damage = verdict.intersecting_pairs + verdict.degenerate_faces + verdict.nonmanifold_edges
-        if last_damage is not None and damage > last_damage:
+        grew = last_damage is not None and damage > last_damage
+        if grew:
             worse += 1
-            if worse >= 3:  # diverging: give up rather than grow without bound
+            if worse >= 4:  # diverging: give up rather than grow without bound
                 break
         last_damage = damage
         if len(f32) == 0:
             break
-        extra: list[tuple[np.ndarray, np.ndarray]] = []
-        rounding_damage = (
-            verdict.degenerate_faces or verdict.duplicate_faces or verdict.intersecting_pairs
-            or verdict.boundary_edges or verdict.misoriented_edges
-        )
-        if rounding_damage:
-            # Rounding made slivers flip or collapse: collapse the shortest edge of each
-            # damaged face (moves nothing by more than that edge), then resolve again.
-            v32, f32 = _collapse_damaged(v32, f32)
+        tally.passes += 1
+        # Mend locally while that shrinks the damage; where rounding keeps re-creating it
+        # (crossing thin slabs), take the whole arrangement and outer hull again instead.
+        local = is_cycle(f32) and not grew
+        if (round_ >= COLLAPSE_FROM or not local) and (
+            verdict.intersecting_pairs or verdict.degenerate_faces
+        ):
+            # Growing reach (still far below a nozzle) when damage keeps coming back.
+            reach = 2.0 ** (-18 + min(max(round_ - COLLAPSE_FROM, 0), 6))
+            v32, f32 = _collapse_damaged(v32, f32, reach)
             tally.collapsed += 1
-        elif verdict.nonmanifold_edges:
+            pairs = None
+        if verdict.duplicate_faces or round_ >= 1:
+            v32, f32 = _drop_collapsed(v32, f32)
+            pairs = None
+        extra: list[tuple[np.ndarray, np.ndarray]] = []
+        if verdict.nonmanifold_edges and not (
+            verdict.intersecting_pairs or verdict.degenerate_faces
+        ):
             # Parts that touch along an edge: thicken the edge so they fuse.
             edges, cnt = _edge_use(f32)
             sing = edges[cnt > 2]
             tally.singular_edges += len(sing)
             extra.append(cylinders(v32[sing], eps * SINGULAR_EDGE_DIAMETER))
+            pairs = None
+        if local and is_cycle(f32):
+            mv, mf = _concat([(v32, f32), *extra])
+            md = mend_intersections(mv, mf, pairs)
+            v, f = md.vertices, md.faces
+            continue
         c = clean_soup(*_concat([(v32, f32), *extra]), solid=True)
         v, f, _, _ = _outer_hull(c.vertices, c.faces, eps, tally, solid=True)
     assert verdict is not None
@@ -465,8 +517,7 @@ def repair_mesh(
         clock.lap("union", 0.4)
         verdict = None
         if fast is not None:
-            fv, ff = weld_exact(round_to_float32(fast[0]), fast[1])
-            verdict = check_printable(fv, ff)
+            fv, ff, verdict = _finish(fast[0], fast[1], eps, tally)
             clock.lap("finish", 0.7)
         if verdict is not None and verdict.ok:
             path = "union"

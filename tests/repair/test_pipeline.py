@@ -245,8 +245,9 @@ def test_klein_bottle_becomes_its_outer_hull():
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(reason="known gap: float32 rounding of the manifold3d union of many crossing "
-                   "slabs diverges in the resolve-again loop", strict=False)  # fmt: skip
+@pytest.mark.xfail(reason="known gap: float32 rounding of the union of many crossing slabs "
+                   "re-creates crossings faster than they are mended; takes minutes, so not run",
+                   run=False)  # fmt: skip
 def test_random_triangles_become_a_printable_solid():
     rng = np.random.default_rng(7)
     tri = rng.uniform(0, 20, size=(40, 3, 3))

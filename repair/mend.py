@@ -1,0 +1,394 @@
+"""Local mending of a closed surface whose only defects are a few self-intersections.
+
+After a boolean union (manifold3d) or an exact arrangement (CGAL) the result is rounded to
+float32, what a binary STL stores. Rounding moves every new vertex by up to half a float32
+ulp, and slivers near nearly-coplanar faces then cross their neighbours. Redoing the whole
+arrangement and outer hull for a handful of such pairs costs seconds on large meshes and
+can chase its own tail; this module resolves them where they are:
+
+1. the faces involved in an intersecting pair (exact CGAL predicate) are re-arranged
+   exactly among themselves (libigl ``remesh_self_intersections`` on that subset; the
+   rest of the surface meets nothing, so the union is a polyhedron);
+2. coincident pieces cancel by orientation (a solid's faces touching face to face);
+3. each new piece is kept when exactly one of its sides lies outside the solid --
+   generalised winding number 0 -- and oriented to face it; pieces inside the solid
+   (winding >= 1 on both sides) are dropped. Faces that were not involved keep their
+   place and orientation: nothing crossed them, so nothing changed for them.
+
+Units are mm; vertices float64 (n, 3), faces int64 (m, 3). Vectorised; the CGAL work is
+proportional to the damaged faces only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from repair.check import intersecting_face_pairs, weld_exact
+from repair.clean import degenerate_mask, drop_unreferenced
+
+__all__ = [
+    "Mended",
+    "classify_patches",
+    "is_cycle",
+    "manifold_patches",
+    "net_faces",
+    "mend_intersections",
+    "round_avoiding_crossings",
+    "side_windings",
+]
+
+
+@dataclass(frozen=True)
+class Mended:
+    """Result of :func:`mend_intersections`: the surface and what was done."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    pairs: int
+    faces_rearranged: int
+    pieces_dropped: int
+
+
+#: Ray directions tried in turn when a ray grazes an edge or a vertex (irrational-ish).
+_DIRECTIONS = np.array(
+    [[0.8723, 0.3941, 0.2895], [-0.3307, 0.8412, -0.4277], [0.2113, -0.5371, 0.8167],
+     [-0.6929, -0.2652, 0.6705], [0.5503, -0.7708, -0.3211]]
+)  # fmt: skip
+
+
+def _ray_windings(
+    v: np.ndarray, f: np.ndarray, q: np.ndarray, own: np.ndarray, weight: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Winding number just after leaving each point ``q[i]`` (on face ``own[i]``) along a
+    ray, by signed crossings with every other face; and whether the ray left through the
+    front of its face. Rays grazing an edge are retried in another direction."""
+    out = np.zeros(len(q), dtype=np.int64)
+    front = np.zeros(len(q), dtype=bool)
+    todo = np.arange(len(q))
+    p = v[f]
+    scale = float(np.abs(v).max()) or 1.0
+    own_n = np.cross(p[own, 1] - p[own, 0], p[own, 2] - p[own, 0])
+    for d in _DIRECTIONS:
+        d = d / np.linalg.norm(d)
+        u = np.cross(d, [0.0, 0.0, 1.0] if abs(d[2]) < 0.9 else [1.0, 0.0, 0.0])
+        u /= np.linalg.norm(u)
+        w = np.cross(d, u)
+        px, py, pz = p @ u, p @ w, p @ d  # (m, 3) each
+        lo_x, hi_x = px.min(axis=1), px.max(axis=1)
+        lo_y, hi_y = py.min(axis=1), py.max(axis=1)
+        area2 = (px[:, 1] - px[:, 0]) * (py[:, 2] - py[:, 0]) - (px[:, 2] - px[:, 0]) * (
+            py[:, 1] - py[:, 0]
+        )
+        left = []
+        qu, qw, qd = q @ u, q @ w, q @ d
+        near = np.flatnonzero(
+            (lo_x <= qu[todo].max()) & (hi_x >= qu[todo].min())
+            & (lo_y <= qw[todo].max()) & (hi_y >= qw[todo].min())
+        )  # fmt: skip
+        nlo_x, nhi_x, nlo_y, nhi_y = lo_x[near], hi_x[near], lo_y[near], hi_y[near]
+        for i in todo:
+            qx, qy, qz = qu[i], qw[i], qd[i]
+            c = near[(nlo_x <= qx) & (qx <= nhi_x) & (nlo_y <= qy) & (qy <= nhi_y)]
+            c = c[c != own[i]]
+            ax, ay = px[c] - qx, py[c] - qy
+            bx, by = ax[:, [1, 2, 0]], ay[:, [1, 2, 0]]
+            o = ax * by - ay * bx  # (k, 3) orientation of q against each edge
+            # Rounding error of o: a few ulps of the coordinates times the edge vectors.
+            tiny = np.abs(o) <= 1e-13 * scale * (
+                np.abs(ax) + np.abs(ay) + np.abs(bx) + np.abs(by)
+            )
+            mixed = ((o > 0) & ~tiny).any(axis=1) & ((o < 0) & ~tiny).any(axis=1)
+            on_edge = tiny.any(axis=1)
+            graze = on_edge & ~mixed
+            hit = ~on_edge & ~mixed
+            if np.any(graze):
+                left.append(i)
+                continue
+            if np.any(hit):
+                h = c[hit]
+                bary = np.abs(o[hit][:, [1, 2, 0]])
+                depth = (bary * pz[h]).sum(axis=1) / bary.sum(axis=1)
+                ahead = depth > qz
+                out[i] = int((np.sign(area2[h][ahead]) * weight[h][ahead]).sum())
+            front[i] = float(own_n[i] @ d) > 0
+        todo = np.asarray(left, dtype=np.int64)
+        if len(todo) == 0:
+            break
+    if len(todo):
+        import igl
+
+        # Last resort: the generalised winding number a hair in front of the face.
+        n = own_n[todo] / np.linalg.norm(own_n[todo], axis=1, keepdims=True)
+        probe = q[todo] + 1e-9 * scale * n
+        out[todo] = np.rint(igl.winding_number(v, f, probe)).astype(np.int64)
+        front[todo] = True
+    return out, front
+
+
+def side_windings(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    which: np.ndarray,
+    weight: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Winding numbers of the closed surface just in front of and just behind each face
+    in ``which`` (integers).
+
+    A ray leaves the face's centroid and the signed crossings with all *other* faces are
+    counted (the face itself left out), so nearly coincident layers -- thin wedges between
+    faces a rounding error apart -- cannot confuse a probe placed off the face.
+    ``weight`` (default 1) is each face's multiplicity (coincident copies merged).
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    which = np.asarray(which, dtype=np.int64)
+    wt = np.ones(len(f), dtype=np.int64) if weight is None else np.asarray(weight)
+    q = v[f[which]].mean(axis=1)
+    w, left_front = _ray_windings(v, f, q, which, wt)
+    front = np.where(left_front, w, w - wt[which])
+    return front, front + wt[which]
+
+
+def round_avoiding_crossings(
+    vertices: np.ndarray, faces: np.ndarray, max_tries: int = 8
+) -> tuple[np.ndarray, int]:
+    """Round vertices to float32 (what a binary STL stores) so that rounding itself makes
+    no two faces cross.
+
+    Each coordinate not exactly representable has two float32 neighbours; the nearest is
+    tried first. Where faces cross after rounding, every vertex of the crossing faces that
+    rounding moved takes the next of its (up to 8) corner choices, and the faces are tested
+    again -- a few rounds of exact tests on the damaged faces only. No vertex moves by more
+    than one float32 ulp. Returns ``(vertices float64, crossing pairs left)``.
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    r = v.astype(np.float32)
+    up = np.nextafter(r, np.float32(np.inf))
+    down = np.nextafter(r, np.float32(-np.inf))
+    other = np.where(v > r.astype(np.float64), up, down)
+    exact = r.astype(np.float64) == v
+    other[exact] = r[exact]
+    choice = np.zeros(len(v), dtype=np.int64)  # bit k set: coordinate k takes "other"
+    out = r.astype(np.float64)
+    moved = ~exact.all(axis=1)
+    pairs = np.zeros((0, 2), dtype=np.int64)
+    region = np.arange(len(f))  # faces to test: all at first, then near the damage
+    for _ in range(max_tries):
+        fr = f[region]
+        deg = degenerate_mask(out, fr)
+        ok = np.flatnonzero(~deg)
+        pairs = region[ok[intersecting_face_pairs(out, fr[ok])]]
+        hit = np.r_[pairs.reshape(-1), region[deg]]
+        bad_v = np.unique(f[hit].reshape(-1))
+        bad_v = bad_v[moved[bad_v]]
+        if len(bad_v) == 0:
+            break
+        choice[bad_v] += 1
+        bits = (choice[bad_v, None] >> np.arange(3)) & 1
+        out[bad_v] = np.where(bits == 1, other[bad_v], r[bad_v]).astype(np.float64)
+        region = _faces_near(out, f, np.unique(hit))
+    return out, int(len(pairs))
+
+
+def _faces_near(v: np.ndarray, f: np.ndarray, which: np.ndarray) -> np.ndarray:
+    """Faces whose bounding box meets the (slightly grown) box of any face in ``which``
+    (all faces when ``which`` is large: one global test is cheaper then)."""
+    if len(which) * len(f) > 20_000_000:
+        return np.arange(len(f))
+    p = v[f]
+    lo, hi = p.min(axis=1), p.max(axis=1)
+    pad = 1e-6 * (float(np.abs(v).max()) or 1.0)
+    near = np.zeros(len(f), dtype=bool)
+    for s in range(0, len(which), 64):
+        w = which[s : s + 64]
+        a = (lo[None, :, :] <= hi[w, None, :] + pad) & (hi[None, :, :] >= lo[w, None, :] - pad)
+        near |= a.all(axis=2).any(axis=0)
+    near[which] = True
+    return np.flatnonzero(near)
+
+
+def _edge_neighbours(faces: np.ndarray, which: np.ndarray) -> np.ndarray:
+    """Faces sharing an edge with any face in ``which`` (including those faces)."""
+    e = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    _, eid = np.unique(e, axis=0, return_inverse=True)
+    eid = eid.reshape(-1, 3)
+    hit = np.zeros(int(eid.max()) + 1, dtype=bool)
+    hit[eid[which].reshape(-1)] = True
+    return np.flatnonzero(hit[eid].any(axis=1))
+
+
+def is_cycle(faces: np.ndarray) -> bool:
+    """True when every undirected edge is traversed as often in one direction as in the
+    other: the faces bound a region (a closed surface, perhaps touching itself), so
+    winding numbers are well defined off it."""
+    f = np.asarray(faces, dtype=np.int64)
+    if len(f) == 0:
+        return True
+    a = f.reshape(-1)
+    b = f[:, [1, 2, 0]].reshape(-1)
+    a, b = a[a != b], b[a != b]  # a face with a repeated corner adds nothing
+    n = int(f.max()) + 1
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    key = lo * n + hi
+    sign = np.where(a < b, 1, -1)
+    uk, inv = np.unique(key, return_inverse=True)
+    return bool(np.all(np.bincount(inv.reshape(-1), weights=sign, minlength=len(uk)) == 0))
+
+
+def manifold_patches(faces: np.ndarray) -> np.ndarray:
+    """Label per face of its patch: faces joined across edges used by exactly two faces
+    traversed in opposite directions. Patch borders are the non-manifold edges where an
+    arrangement's intersection curves run (and edges of inconsistent orientation)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    m = len(faces)
+    if m == 0:
+        return np.zeros(0, dtype=np.int64)
+    he = np.stack([faces.reshape(-1), faces[:, [1, 2, 0]].reshape(-1)], axis=1)
+    _, eid = np.unique(np.sort(he, axis=1), axis=0, return_inverse=True)
+    eid = eid.reshape(-1)
+    cnt = np.bincount(eid)
+    order = np.argsort(eid, kind="stable")
+    se = eid[order]
+    first = np.flatnonzero(np.r_[True, se[1:] != se[:-1]])
+    first = first[cnt[se[first]] == 2]
+    h1, h2 = order[first], order[first + 1]
+    ok = he[h1, 0] == he[h2, 1]
+    a, b = h1[ok] // 3, h2[ok] // 3
+    g = coo_matrix((np.ones(len(a), dtype=np.int8), (a, b)), shape=(m, m))
+    return connected_components(g, directed=False)[1].astype(np.int64)
+
+
+def net_faces(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Merge coincident faces of a cycle: each vertex triple once, oriented by the sign
+    of its copies' orientation sum, with that sum's size as weight; triples whose copies
+    cancel go. Returns ``(indices into faces, weight)``; ``faces[indices]`` re-oriented by
+    as they are (one copy of the winning orientation is picked)."""
+    f = np.asarray(faces, dtype=np.int64)
+    if len(f) == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    s = np.sort(f, axis=1)
+    n = int(f.max()) + 1
+    if n < 2**21:
+        _, first, inv = np.unique((s[:, 0] * n + s[:, 1]) * n + s[:, 2], return_index=True,
+                                  return_inverse=True)  # fmt: skip
+    else:
+        _, first, inv = np.unique(s, axis=0, return_index=True, return_inverse=True)
+    inv = inv.reshape(-1)
+    a, b, c = f[:, 0], f[:, 1], f[:, 2]
+    even = ((a < b).astype(int) + (b < c) + (c < a)) == 2
+    sign = np.where(even == even[first][inv], 1, -1)
+    total = np.bincount(inv, weights=sign).astype(np.int64)
+    cand = np.flatnonzero((total[inv] != 0) & ((sign > 0) == (total[inv] > 0)))
+    _, one = np.unique(inv[cand], return_index=True)
+    idx = np.sort(cand[one])
+    return idx, np.abs(total[inv[idx]])
+
+
+def classify_patches(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    candidates: np.ndarray | None = None,
+    weight: np.ndarray | None = None,
+) -> tuple[np.ndarray, int]:
+    """Keep the boundary of the solid a closed polyhedral surface encloses (winding > 0).
+
+    ``faces`` must form a polyhedron (no two faces cross) whose faces, with their
+    orientation, make closed cycles. Every manifold patch (:func:`manifold_patches`) has
+    the same windings on its two sides throughout; one face per patch (its largest) is
+    evaluated. A patch is kept when exactly one side is inside, oriented to face the
+    outside; patches inside (or outside) on both sides are dropped. With ``candidates``
+    (a face mask) only patches containing a candidate are judged; the others are kept.
+
+    Returns ``(faces, faces_dropped)``.
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    if len(f) == 0:
+        return f, 0
+    lab = manifold_patches(f)
+    n = int(lab.max()) + 1
+    if n == 1:
+        return f, 0
+    p = v[f]
+    area = np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    order = np.lexsort((-area, lab))
+    rep = order[np.r_[True, lab[order][1:] != lab[order][:-1]]]
+    if candidates is not None:
+        judged = np.zeros(n, dtype=bool)
+        judged[lab[np.asarray(candidates, dtype=bool)]] = True
+        rep = rep[judged[lab[rep]]]
+    front, back = side_windings(v, f, rep, weight)
+    inside_f, inside_b = front > 0, back > 0
+    keep_patch = np.ones(n, dtype=bool)
+    flip_patch = np.zeros(n, dtype=bool)
+    keep_patch[lab[rep]] = inside_f ^ inside_b
+    flip_patch[lab[rep]] = inside_f & ~inside_b
+    keep = keep_patch[lab]
+    out = f.copy()
+    fl = flip_patch[lab]
+    out[fl] = out[fl][:, ::-1]
+    return out[keep], int(np.count_nonzero(~keep))
+
+
+def mend_intersections(
+    vertices: np.ndarray, faces: np.ndarray, pairs: np.ndarray | None = None
+) -> Mended:
+    """Resolve the self-intersections of a closed, oriented surface locally.
+
+    ``pairs`` (k, 2) are the intersecting face pairs if already known (else computed with
+    :func:`repair.check.intersecting_face_pairs`). Returns the mended surface: exact
+    intersection points in float64 (round and check again before writing), faces not
+    involved unchanged.
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    degm = degenerate_mask(v, f)
+    # Coincident copies are not crossings (their weights are merged below): test one copy
+    # of each triple, then re-arrange every copy of a crossing face alike.
+    s = np.sort(f, axis=1)
+    n = len(v)
+    key = (s[:, 0] * n + s[:, 1]) * n + s[:, 2] if n < 2**21 else None
+    if key is None:
+        _, key = np.unique(s, axis=0, return_inverse=True)
+        key = key.reshape(-1)
+    if pairs is None:
+        ok = np.flatnonzero(~degm)
+        _, first = np.unique(key[ok], return_index=True)
+        one = ok[first]
+        pairs = one[intersecting_face_pairs(v, f[one])]
+    if len(pairs) == 0 and not np.any(degm):
+        return Mended(v, f, 0, 0, 0)
+    import igl.copyleft.cgal as cgal
+
+    bad = np.unique(np.asarray(pairs, dtype=np.int64).reshape(-1))
+    bad = np.flatnonzero(np.isin(key, key[bad]) & ~degm)
+    deg = np.flatnonzero(degm)
+    if len(deg):
+        # A zero-area face leaves a crack; its edge neighbours are re-arranged with the
+        # rest, which splits them at the vertex the crack ends on.
+        bad = np.union1d(bad, np.setdiff1d(_edge_neighbours(f, deg), deg))
+    rest = np.ones(len(f), dtype=bool)
+    rest[bad] = False
+    rest[deg] = False
+    vv, ff, _, _, im = cgal.remesh_self_intersections(
+        np.ascontiguousarray(v), np.ascontiguousarray(f[bad]), stitch_all=True,
+        cutoff=2**31 - 1,
+    )  # fmt: skip
+    ff = np.asarray(im, dtype=np.int64)[np.asarray(ff, dtype=np.int64)]
+    vv = np.asarray(vv, dtype=np.float64)
+    # stitch_all re-orders the vertices: concatenate and weld back by position.
+    allf = np.vstack([f[rest], ff + len(v)])
+    vv, allf = weld_exact(np.vstack([v, vv]), allf)
+    new = np.r_[np.zeros(len(allf) - len(ff), dtype=bool), np.ones(len(ff), dtype=bool)]
+    ok = ~degenerate_mask(vv, allf)
+    allf, new = allf[ok], new[ok]
+    keep, weight = net_faces(allf)
+    allf, new = allf[keep], new[keep]
+    allf, dropped = classify_patches(vv, allf, new, weight)
+    vv, allf = drop_unreferenced(vv, allf)
+    return Mended(vv, allf, int(len(pairs)), int(len(bad)), int(dropped))

@@ -1,0 +1,116 @@
+"""Local mending of closed surfaces (repair.mend): exact arrangement of the crossing faces
+only, winding-number choice of the pieces, float32 rounding that avoids new crossings."""
+
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+
+from repair.check import check_printable, intersecting_face_pairs, weld_exact
+from repair.clean import clean_soup
+from repair.mend import (
+    is_cycle,
+    mend_intersections,
+    net_faces,
+    round_avoiding_crossings,
+    side_windings,
+)
+
+
+def _box(lo, hi):
+    m = trimesh.creation.box(bounds=np.array([lo, hi], dtype=float))
+    return np.asarray(m.vertices, dtype=np.float64), np.asarray(m.faces, dtype=np.int64)
+
+
+def _concat(*parts):
+    vs, fs, off = [], [], 0
+    for v, f in parts:
+        vs.append(v)
+        fs.append(f + off)
+        off += len(v)
+    return np.vstack(vs), np.vstack(fs)
+
+
+def _volume(v, f):
+    p = v[f]
+    return float(np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum() / 6.0)
+
+
+def test_overlapping_cubes_become_their_exact_union():
+    v, f = _concat(_box((0, 0, 0), (10, 10, 10)), _box((5, 5, 5), (15, 15, 15)))
+    assert len(intersecting_face_pairs(v, f)) > 0
+    md = mend_intersections(v, f)
+    assert md.pairs > 0 and md.pieces_dropped > 0
+    assert is_cycle(md.faces)
+    assert _volume(md.vertices, md.faces) == np.float64(1000 + 1000 - 125)
+    out, left = round_avoiding_crossings(md.vertices, md.faces)
+    assert left == 0
+    verdict = check_printable(*weld_exact(out, md.faces))
+    assert verdict.ok, verdict.failures()
+
+
+def test_three_overlapping_cubes_at_odd_offsets_are_printable_after_rounding():
+    # Offsets that are not representable: intersection points must be rounded.
+    v, f = _concat(
+        _box((0, 0, 0), (10, 10, 10)),
+        _box((3.1, 2.7, 4.3), (13.3, 12.9, 14.1)),
+        _box((-2.2, 6.6, 1.9), (7.7, 16.1, 8.8)),
+    )
+    v, f = weld_exact(v.astype(np.float32).astype(np.float64), f)
+    for _ in range(6):
+        md = mend_intersections(v, f)
+        out, _ = round_avoiding_crossings(md.vertices, md.faces)
+        v, f = weld_exact(out, md.faces)
+        verdict = check_printable(v, f)
+        if verdict.ok:
+            break
+    assert verdict.ok, verdict.failures()
+    # The union is at least as big as the largest part and at most their sum.
+    assert 1000.0 < verdict.volume < 3 * 1000.0
+    assert abs(verdict.volume - _volume(v, f)) < 1e-9 * verdict.volume
+
+
+def test_nested_cube_is_dropped_as_internal():
+    v, f = _concat(_box((0, 0, 0), (10, 10, 10)), _box((2, 2, 2), (4, 4, 4)))
+    front, back = side_windings(v, f, np.arange(len(f)))
+    outer, inner = slice(0, 12), slice(12, 24)
+    assert np.all(front[outer] == 0) and np.all(back[outer] == 1)
+    assert np.all(front[inner] == 1) and np.all(back[inner] == 2)
+
+
+def test_net_faces_merges_copies_and_cancels_opposites():
+    f = np.array([[0, 1, 2], [1, 2, 0], [3, 4, 5], [5, 4, 3], [6, 7, 8]])
+    idx, w = net_faces(f)
+    assert sorted(map(tuple, np.sort(f[idx], axis=1))) == [(0, 1, 2), (6, 7, 8)]
+    assert dict(zip(map(int, idx), map(int, w), strict=True)) == {0: 2, 4: 1}
+
+
+def test_is_cycle():
+    v, f = _box((0, 0, 0), (1, 1, 1))
+    assert is_cycle(f)
+    assert not is_cycle(f[1:])
+    two = _concat((v, f), (v, f))[1]
+    assert is_cycle(two)
+
+
+def test_rounding_keeps_representable_vertices_and_moves_others_one_ulp_at_most():
+    rng = np.random.default_rng(3)
+    v = rng.normal(size=(50, 3)) * 10.0
+    v[:25] = v[:25].astype(np.float32)
+    f = np.array([[0, 1, 2]])
+    out, left = round_avoiding_crossings(v, f)
+    assert left == 0
+    assert np.array_equal(out[:25], v[:25])
+    assert np.array_equal(out.astype(np.float32).astype(np.float64), out)
+    ulp = np.spacing(np.abs(v).astype(np.float32)).astype(np.float64)
+    assert np.all(np.abs(out - v) <= ulp)
+
+
+def test_pole_triangles_collapsed_onto_an_edge_are_not_wires():
+    v, f = _box((0, 0, 0), (1, 1, 1))
+    a, b = f[0, 0], f[0, 1]
+    v2 = np.vstack([v, v[b]])  # a copy of vertex b: the extra face collapses onto edge ab
+    f2 = np.vstack([f, [[a, b, len(v)]]])
+    c = clean_soup(v2, f2)
+    assert c.degenerate_removed == 1
+    assert len(c.segments) == 0
