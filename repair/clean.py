@@ -86,6 +86,22 @@ def drop_unreferenced(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarr
     return vertices[used], inv.reshape(-1, 3).astype(np.int64)
 
 
+def _not_on_edges(degenerate: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """The degenerate faces whose segment is not an edge of ``faces`` (a collapsed
+    triangle at the pole of a sphere spans an edge the surface already has: no wire)."""
+    if len(degenerate) == 0 or len(faces) == 0:
+        return degenerate
+    # The segment of a collinear triangle joins its two outer corners; both of its other
+    # sides lie on it too. It is a surface edge when all its distinct sides are.
+    n = int(max(degenerate.max(), faces.max())) + 1
+    e = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    surface = np.unique(e[:, 0] * n + e[:, 1])
+    d = np.sort(degenerate[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    key = d[:, 0] * n + d[:, 1]
+    on = np.isin(key, surface) | (d[:, 0] == d[:, 1])
+    return degenerate[~on.reshape(-1, 3).all(axis=1)]
+
+
 def _segments_of(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """The segment spanned by each degenerate face: its two farthest corners.
 
@@ -135,7 +151,7 @@ def clean_soup(vertices: np.ndarray, faces: np.ndarray, *, solid: bool = False) 
     """
     v, f = weld_exact(np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64))
     deg = degenerate_mask(v, f)
-    segments = _segments_of(v, f[deg])
+    segments = _segments_of(v, _not_on_edges(f[deg], f[~deg]))
     f = f[~deg]
     keep = cancel_opposite_faces(f) if solid else unique_faces(f)
     dup = len(f) - len(keep)

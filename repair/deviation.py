@@ -39,6 +39,32 @@ def _point_segment_d2(pts: np.ndarray, seg: np.ndarray) -> np.ndarray:
     return best
 
 
+def _new_faces(ov: np.ndarray, of: np.ndarray, iv: np.ndarray, inf: np.ndarray) -> np.ndarray:
+    """The output faces that are not input faces. An output face on exactly the corners of
+    an input face is that triangle (distance 0 everywhere), so it needs no samples."""
+    if len(inf) == 0 or len(iv) == 0:
+        return of
+    key = np.dtype((np.void, 24))
+    ik = np.ascontiguousarray(iv + 0.0).view(key).ravel()
+    ok = np.ascontiguousarray(ov + 0.0).view(key).ravel()
+    order = np.argsort(ik)
+    pos = np.clip(np.searchsorted(ik[order], ok), 0, len(ik) - 1)
+    found = ik[order][pos] == ok
+    ids = np.where(found, order[pos], -1)  # input vertex id of each output vertex
+    fid = ids[of]
+    known = (fid >= 0).all(axis=1)
+    n = len(iv)
+    a = np.sort(fid[known], axis=1)
+    b = np.sort(inf, axis=1)
+    kin = (b[:, 0] * n + b[:, 1]) * n + b[:, 2] if n < 2**21 else None
+    if kin is None:
+        return of
+    kout = (a[:, 0] * n + a[:, 1]) * n + a[:, 2]
+    same = np.zeros(len(of), dtype=bool)
+    same[np.flatnonzero(known)] = np.isin(kout, kin)
+    return of[~same]
+
+
 def max_deviation(
     out_vertices: np.ndarray,
     out_faces: np.ndarray,
@@ -54,6 +80,10 @@ def max_deviation(
     """
     ov = np.asarray(out_vertices, dtype=np.float64)
     of = np.asarray(out_faces, dtype=np.int64)
+    if len(of) == 0:
+        return 0.0
+    of = _new_faces(ov, of, np.asarray(in_vertices, dtype=np.float64),
+                    np.asarray(in_faces, dtype=np.int64))  # fmt: skip
     if len(of) == 0:
         return 0.0
     pts = _surface_samples(ov, of, max_points)

@@ -173,7 +173,8 @@ def face_prisms(
     order = np.argsort(eid, kind="stable")
     same = np.flatnonzero(eid[order][1:] == eid[order][:-1])
     h1, h2 = order[same], order[same + 1]
-    bend = np.einsum("ij,ij->i", fn[h1 // 3], fn[h2 // 3]) < 1.0 - 1e-12
+    # A sheet has no inside: faces folded flat onto each other are not a crease either.
+    bend = np.abs(np.einsum("ij,ij->i", fn[h1 // 3], fn[h2 // 3])) < 1.0 - 1e-12
     cv, cf = cylinders(v[he[h1[bend]]], epsilon)
     return np.vstack([pv, cv]), np.vstack([pf, cf + len(pv)]).astype(np.int64)
 
