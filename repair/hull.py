@@ -20,7 +20,13 @@ import numpy as np
 from repair.check import weld_exact
 from repair.clean import cancel_opposite_faces, degenerate_mask, drop_unreferenced, unique_faces
 
-__all__ = ["HullSplit", "outer_hull_split", "resolve"]
+__all__ = [
+    "HullSplit",
+    "is_unorientable",
+    "outer_hull_split",
+    "resolve",
+    "unorientable_outer_hull",
+]
 
 
 def _remesh(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
@@ -117,6 +123,56 @@ def _merge_cells_at_boundaries(cells: np.ndarray, faces: np.ndarray, n_cells: in
     # Relabel so that whatever merged with cell 0 is 0.
     label = np.where(label == label[0], 0, label + 1)
     return label[cells]
+
+
+def _unorientable(faces: np.ndarray, cut: np.ndarray) -> bool:
+    """True when some edge used by exactly two faces stays traversed twice the same way
+    after :func:`repair.thicken.orient_patches` (a Klein bottle, a Moebius strip)."""
+    if not np.any(cut):
+        return False
+    he = np.stack([faces.reshape(-1), faces[:, [1, 2, 0]].reshape(-1)], axis=1)
+    _, inv, cnt = np.unique(np.sort(he, axis=1), axis=0, return_inverse=True,
+                            return_counts=True)  # fmt: skip
+    two = cnt[inv.reshape(-1)] == 2
+    return bool(np.any(cut & two))
+
+
+def is_unorientable(faces: np.ndarray) -> bool:
+    """True when the faces cannot all be oriented consistently across their two-face
+    edges (a Klein bottle, a Moebius strip)."""
+    from repair.thicken import orient_patches
+
+    f, cut = orient_patches(np.asarray(faces, dtype=np.int64))
+    return _unorientable(f, cut)
+
+
+def unorientable_outer_hull(
+    vertices: np.ndarray, faces: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, HullSplit]:
+    """Outer hull of an unorientable surface by libigl's ``outer_hull`` (Attene's
+    propagation over radially sorted fans, with its own exact arrangement), where cell
+    extraction needs orientable patches. Returns ``(vertices, faces, birth, split)``:
+    the hull's faces (birth: input face of each) and their split into solid faces and
+    sheets (faces kept in both orientations)."""
+    import igl.copyleft.cgal as cgal
+
+    hv, hf, birth, _ = cgal.outer_hull(
+        np.ascontiguousarray(vertices, dtype=np.float64),
+        np.ascontiguousarray(faces, dtype=np.int64),
+    )
+    hv = np.asarray(hv, dtype=np.float64)
+    hf = np.asarray(hf, dtype=np.int64)
+    birth = np.asarray(birth, dtype=np.int64)
+    srt = np.sort(hf, axis=1)
+    _, inv, cnt = np.unique(srt, axis=0, return_inverse=True, return_counts=True)
+    inv = inv.reshape(-1)
+    both = cnt[inv] > 1
+    _, first = np.unique(inv[both], return_index=True)
+    sheet_rows = np.flatnonzero(both)[first]
+    solid_rows = np.flatnonzero(~both)
+    internal = int(len(faces) - len(np.unique(birth)))
+    split = HullSplit(hf[solid_rows], hf[sheet_rows], solid_rows, sheet_rows, internal, -1)
+    return hv, hf, birth, split
 
 
 def outer_hull_split(vertices: np.ndarray, faces: np.ndarray) -> HullSplit:

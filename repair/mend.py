@@ -120,9 +120,11 @@ def _ray_windings(
         import igl
 
         # Last resort: the generalised winding number a hair in front of the face.
-        n = own_n[todo] / np.linalg.norm(own_n[todo], axis=1, keepdims=True)
+        ln = np.linalg.norm(own_n[todo], axis=1, keepdims=True)
+        n = np.divide(own_n[todo], ln, out=np.zeros_like(own_n[todo]), where=ln > 0)
         probe = q[todo] + 1e-9 * scale * n
-        out[todo] = np.rint(igl.winding_number(v, f, probe)).astype(np.int64)
+        w = np.asarray(igl.fast_winding_number(v, f, probe), dtype=np.float64)
+        out[todo] = np.rint(np.nan_to_num(w)).astype(np.int64)
         front[todo] = True
     return out, front
 

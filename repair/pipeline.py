@@ -48,7 +48,7 @@ from repair.check import (
 from repair.clean import clean_soup, degenerate_mask, drop_unreferenced
 from repair.deviation import max_deviation
 from repair.holes import HolesClosed, close_small_holes
-from repair.hull import outer_hull_split, resolve
+from repair.hull import is_unorientable, outer_hull_split, resolve, unorientable_outer_hull
 from repair.mend import is_cycle, mend_intersections, round_avoiding_crossings
 from repair.thicken import sheet_slabs
 from repair.wires import cylinders, visible_segments
@@ -281,10 +281,14 @@ def _outer_hull(
     first_poly = (np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64))
     for round_ in range(MAX_THICKEN_ROUNDS + 1):
         tally.passes += 1
-        rv, rf, birth, pairs = resolve(v, f, solid=solid or round_ > 0)
+        if round_ == 0 and not solid and is_unorientable(f):
+            rv, rf, birth, split = unorientable_outer_hull(v, f)
+            pairs = len(intersecting_face_pairs(v, f))
+        else:
+            rv, rf, birth, pairs = resolve(v, f, solid=solid or round_ > 0)
+            split = outer_hull_split(rv, rf)
         if tally.intersecting_pairs < 0:
             tally.intersecting_pairs = pairs
-        split = outer_hull_split(rv, rf)
         tally.internal_faces += split.internal if round_ == 0 else 0
         if round_ == 0:
             first_poly = (rv, rf)
