@@ -86,7 +86,9 @@ def max_deviation(
                     np.asarray(in_faces, dtype=np.int64))  # fmt: skip
     if len(of) == 0:
         return 0.0
-    pts = _surface_samples(ov, of, max_points)
+    # Only the vertices of new faces: the others are input vertices (distance 0).
+    used, local = np.unique(of, return_inverse=True)
+    pts = _surface_samples(ov[used], local.reshape(-1, 3), max_points)
     d2 = np.full(len(pts), np.inf)
     if len(in_faces):
         import igl
