@@ -65,6 +65,51 @@ def _new_faces(ov: np.ndarray, of: np.ndarray, iv: np.ndarray, inf: np.ndarray) 
     return of[~same]
 
 
+def _point_mesh_d2(pts: np.ndarray, v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """Squared distance from each point to the triangles (libigl AABB tree). When the
+    points are few and local, the tree is built only over the triangles near them.
+
+    Each triangle is binned by its centroid into a grid of cells ``h`` at least twice its
+    largest box extent. A triangle within ``h`` of a point then has its centroid within
+    two cells of the point's cell, so a point whose distance to the triangles of its
+    5x5x5 cells is at most ``h`` has found its true nearest one; points farther out are
+    measured against the whole mesh.
+    """
+    import igl
+
+    def d2_to(faces: np.ndarray, q: np.ndarray) -> np.ndarray:
+        return igl.point_mesh_squared_distance(
+            np.ascontiguousarray(q), np.ascontiguousarray(v), np.ascontiguousarray(faces)
+        )[0]
+
+    if len(f) < 50_000 or len(pts) == 0 or len(pts) > len(f):
+        return d2_to(f, pts)
+    p = v[f]
+    span = float(np.ptp(v, axis=0).max())
+    h = max(2.0 * float(np.ptp(p, axis=1).max()), span / 256.0, 1e-12)
+    if span / h < 8:
+        return d2_to(f, pts)
+    origin = v.min(axis=0)
+    n = int(span / h) + 8
+
+    def key(c: np.ndarray) -> np.ndarray:
+        c = np.clip(c + 3, 0, n - 1)
+        return (c[..., 0] * n + c[..., 1]) * n + c[..., 2]
+
+    fc = np.floor((p.mean(axis=1) - origin) / h).astype(np.int64)
+    pc = np.unique(np.floor((pts - origin) / h).astype(np.int64), axis=0)
+    off = np.stack(np.meshgrid(*([np.arange(-2, 3)] * 3), indexing="ij"), -1).reshape(-1, 3)
+    marked = np.unique(key(pc[:, None, :] + off[None]))
+    near = np.isin(key(fc), marked)
+    if near.mean() > 0.5:
+        return d2_to(f, pts)
+    d2 = d2_to(f[near], pts) if np.any(near) else np.full(len(pts), np.inf)
+    far = d2 > h * h
+    if np.any(far):
+        d2[far] = d2_to(f, pts[far])
+    return d2
+
+
 def max_deviation(
     out_vertices: np.ndarray,
     out_faces: np.ndarray,
@@ -91,13 +136,8 @@ def max_deviation(
     pts = _surface_samples(ov[used], local.reshape(-1, 3), max_points)
     d2 = np.full(len(pts), np.inf)
     if len(in_faces):
-        import igl
-
-        d2 = igl.point_mesh_squared_distance(
-            pts,
-            np.ascontiguousarray(in_vertices, dtype=np.float64),
-            np.ascontiguousarray(in_faces, dtype=np.int64),
-        )[0]
+        d2 = _point_mesh_d2(pts, np.asarray(in_vertices, dtype=np.float64),
+                            np.asarray(in_faces, dtype=np.int64))  # fmt: skip
     if in_segments is not None and len(in_segments):
         d2 = np.minimum(d2, _point_segment_d2(pts, np.asarray(in_segments, dtype=np.float64)))
     return float(np.sqrt(d2.max()))

@@ -114,3 +114,4 @@ def test_pole_triangles_collapsed_onto_an_edge_are_not_wires():
     c = clean_soup(v2, f2)
     assert c.degenerate_removed == 1
     assert len(c.segments) == 0
+
