@@ -19,6 +19,8 @@ __all__ = [
     "clean_soup",
     "degenerate_mask",
     "drop_unreferenced",
+    "face_keys",
+    "net_faces",
     "unique_faces",
 ]
 
@@ -42,33 +44,54 @@ def unique_faces(faces: np.ndarray) -> np.ndarray:
     return np.sort(first)
 
 
+def face_keys(faces: np.ndarray) -> np.ndarray:
+    """One int64 key per face, equal for faces on the same vertex set (any order)."""
+    f = np.asarray(faces, dtype=np.int64)
+    if len(f) == 0:
+        return np.zeros(0, dtype=np.int64)
+    s = np.sort(f, axis=1)
+    n = int(f.max()) + 1
+    if n < 2**21:
+        return (s[:, 0] * n + s[:, 1]) * n + s[:, 2]
+    return np.unique(s, axis=0, return_inverse=True)[1].reshape(-1).astype(np.int64)
+
+
+def net_faces(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Merge coincident faces by signed multiplicity.
+
+    Faces on the same vertex set count +1 or -1 by orientation (relative to the first);
+    a set whose copies cancel goes, otherwise one copy oriented like the sum stays, with
+    the sum's size as its weight. Returns ``(sorted indices into faces, weight)``. A
+    closed cycle of faces stays one when each kept face counts ``weight`` times.
+    """
+    f = np.asarray(faces, dtype=np.int64)
+    if len(f) == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    _, first, inv = np.unique(face_keys(f), return_index=True, return_inverse=True)
+    inv = inv.reshape(-1)
+    # Orientation parity: a face and its sorted row are related by an even or odd
+    # permutation.
+    par = _even_permutation(f)
+    sign = np.where(par == par[first][inv], 1, -1)
+    total = np.bincount(inv, weights=sign).astype(np.int64)
+    # Among each surviving group keep one face whose sign matches the sum.
+    cand = np.flatnonzero((total[inv] != 0) & ((sign > 0) == (total[inv] > 0)))
+    _, one = np.unique(inv[cand], return_index=True)
+    idx = np.sort(cand[one])
+    return idx, np.abs(total[inv[idx]])
+
+
 def cancel_opposite_faces(faces: np.ndarray) -> np.ndarray:
     """Sorted indices of the faces left when coincident faces of a *solid* cancel.
 
     Faces on the same vertex set count +1 or -1 by orientation (relative to the first);
     opposite pairs cancel (two solids touching, or a wedge collapsed flat) and one face is
-    kept, with the sign of the sum, when it is non-zero. Unlike :func:`unique_faces`, this
-    keeps a closed oriented surface closed.
+    kept, with the sign of the sum, when it is non-zero (:func:`net_faces` without the
+    weights). Unlike :func:`unique_faces`, this keeps a closed oriented surface closed.
     """
     if len(faces) < 2:
         return np.arange(len(faces))
-    s = np.sort(faces, axis=1)
-    _, first, inv = np.unique(s, axis=0, return_index=True, return_inverse=True)
-    inv = inv.reshape(-1)
-    # Orientation parity: a face and its sorted row are related by an even or odd
-    # permutation.
-    par = _even_permutation(faces)
-    sign = np.where(par == par[first][inv], 1, -1)
-    total = np.bincount(inv, weights=sign)
-    groups = np.bincount(inv)
-    keep_group = total[inv] != 0
-    pos = total[inv] > 0
-    # Among each surviving group keep one face whose sign matches the sum.
-    cand = np.flatnonzero(keep_group & ((sign > 0) == pos))
-    _, one = np.unique(inv[cand], return_index=True)
-    out = cand[one]
-    del groups
-    return np.sort(out)
+    return net_faces(faces)[0]
 
 
 def _even_permutation(faces: np.ndarray) -> np.ndarray:

@@ -125,25 +125,17 @@ def _merge_cells_at_boundaries(cells: np.ndarray, faces: np.ndarray, n_cells: in
     return label[cells]
 
 
-def _unorientable(faces: np.ndarray, cut: np.ndarray) -> bool:
+def is_unorientable(faces: np.ndarray) -> bool:
     """True when some edge used by exactly two faces stays traversed twice the same way
     after :func:`repair.thicken.orient_patches` (a Klein bottle, a Moebius strip)."""
-    if not np.any(cut):
-        return False
-    he = np.stack([faces.reshape(-1), faces[:, [1, 2, 0]].reshape(-1)], axis=1)
-    _, inv, cnt = np.unique(np.sort(he, axis=1), axis=0, return_inverse=True,
-                            return_counts=True)  # fmt: skip
-    two = cnt[inv.reshape(-1)] == 2
-    return bool(np.any(cut & two))
-
-
-def is_unorientable(faces: np.ndarray) -> bool:
-    """True when the faces cannot all be oriented consistently across their two-face
-    edges (a Klein bottle, a Moebius strip)."""
-    from repair.thicken import orient_patches
+    from repair.thicken import _edge_pairs, _half_edges, orient_patches
 
     f, cut = orient_patches(np.asarray(faces, dtype=np.int64))
-    return _unorientable(f, cut)
+    if not np.any(cut):
+        return False
+    _, eid = _half_edges(f)
+    use = _edge_pairs(eid)[2]
+    return bool(np.any(cut & (use == 2)))
 
 
 def unorientable_outer_hull(

@@ -26,14 +26,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from repair.check import intersecting_face_pairs, weld_exact
-from repair.clean import degenerate_mask, drop_unreferenced
+from repair.clean import degenerate_mask, drop_unreferenced, face_keys, net_faces
 
 __all__ = [
     "Mended",
     "classify_patches",
     "is_cycle",
     "manifold_patches",
-    "net_faces",
     "mend_intersections",
     "round_avoiding_crossings",
     "side_windings",
@@ -244,51 +243,15 @@ def manifold_patches(faces: np.ndarray) -> np.ndarray:
     """Label per face of its patch: faces joined across edges used by exactly two faces
     traversed in opposite directions. Patch borders are the non-manifold edges where an
     arrangement's intersection curves run (and edges of inconsistent orientation)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
+    from repair.thicken import _components, _edge_pairs, _half_edges
 
-    m = len(faces)
-    if m == 0:
-        return np.zeros(0, dtype=np.int64)
-    he = np.stack([faces.reshape(-1), faces[:, [1, 2, 0]].reshape(-1)], axis=1)
-    _, eid = np.unique(np.sort(he, axis=1), axis=0, return_inverse=True)
-    eid = eid.reshape(-1)
-    cnt = np.bincount(eid)
-    order = np.argsort(eid, kind="stable")
-    se = eid[order]
-    first = np.flatnonzero(np.r_[True, se[1:] != se[:-1]])
-    first = first[cnt[se[first]] == 2]
-    h1, h2 = order[first], order[first + 1]
-    ok = he[h1, 0] == he[h2, 1]
-    a, b = h1[ok] // 3, h2[ok] // 3
-    g = coo_matrix((np.ones(len(a), dtype=np.int8), (a, b)), shape=(m, m))
-    return connected_components(g, directed=False)[1].astype(np.int64)
-
-
-def net_faces(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Merge coincident faces of a cycle: each vertex triple once, oriented by the sign
-    of its copies' orientation sum, with that sum's size as weight; triples whose copies
-    cancel go. Returns ``(indices into faces, weight)``; ``faces[indices]`` re-oriented by
-    as they are (one copy of the winning orientation is picked)."""
     f = np.asarray(faces, dtype=np.int64)
     if len(f) == 0:
-        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    s = np.sort(f, axis=1)
-    n = int(f.max()) + 1
-    if n < 2**21:
-        _, first, inv = np.unique((s[:, 0] * n + s[:, 1]) * n + s[:, 2], return_index=True,
-                                  return_inverse=True)  # fmt: skip
-    else:
-        _, first, inv = np.unique(s, axis=0, return_index=True, return_inverse=True)
-    inv = inv.reshape(-1)
-    a, b, c = f[:, 0], f[:, 1], f[:, 2]
-    even = ((a < b).astype(int) + (b < c) + (c < a)) == 2
-    sign = np.where(even == even[first][inv], 1, -1)
-    total = np.bincount(inv, weights=sign).astype(np.int64)
-    cand = np.flatnonzero((total[inv] != 0) & ((sign > 0) == (total[inv] > 0)))
-    _, one = np.unique(inv[cand], return_index=True)
-    idx = np.sort(cand[one])
-    return idx, np.abs(total[inv[idx]])
+        return np.zeros(0, dtype=np.int64)
+    he, eid = _half_edges(f)
+    h1, h2, _ = _edge_pairs(eid)
+    ok = he[h1, 0] == he[h2, 1]
+    return _components(len(f), h1[ok] // 3, h2[ok] // 3).astype(np.int64)
 
 
 def classify_patches(
@@ -352,12 +315,7 @@ def mend_intersections(
     degm = degenerate_mask(v, f)
     # Coincident copies are not crossings (their weights are merged below): test one copy
     # of each triple, then re-arrange every copy of a crossing face alike.
-    s = np.sort(f, axis=1)
-    n = len(v)
-    key = (s[:, 0] * n + s[:, 1]) * n + s[:, 2] if n < 2**21 else None
-    if key is None:
-        _, key = np.unique(s, axis=0, return_inverse=True)
-        key = key.reshape(-1)
+    key = face_keys(f)
     if pairs is None:
         ok = np.flatnonzero(~degm)
         _, first = np.unique(key[ok], return_index=True)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
+from mesh_helpers import concat
 
 from repair.check import (
     check_printable,
@@ -20,15 +21,6 @@ def box(lo=(0.0, 0.0, 0.0), hi=(1.0, 1.0, 1.0)) -> tuple[np.ndarray, np.ndarray]
     hi = np.asarray(hi, float)
     m = trimesh.creation.box(bounds=np.array([lo, hi]))
     return np.asarray(m.vertices, float), np.asarray(m.faces, np.int64)
-
-
-def join(*meshes):
-    vs, fs, n = [], [], 0
-    for v, f in meshes:
-        vs.append(v)
-        fs.append(f + n)
-        n += len(v)
-    return np.vstack(vs), np.vstack(fs)
 
 
 def test_closed_cube_passes():
@@ -82,7 +74,7 @@ def test_all_faces_flipped_has_negative_volume():
 
 
 def test_interpenetrating_cubes_self_intersect():
-    v, f = join(box(), box((0.5, 0.5, 0.5), (1.5, 1.5, 1.5)))
+    v, f = concat(box(), box((0.5, 0.5, 0.5), (1.5, 1.5, 1.5)))
     p = check_printable(v, f)
     # Each shell is closed and oriented on its own: only the intersection test catches it.
     assert p.closed and p.edge_manifold and p.oriented and p.positive_volume
@@ -93,13 +85,13 @@ def test_interpenetrating_cubes_self_intersect():
 
 def test_disjoint_and_nested_shells():
     # Two separate cubes: printable, two components.
-    v, f = join(box(), box((3, 0, 0), (4, 1, 1)))
+    v, f = concat(box(), box((3, 0, 0), (4, 1, 1)))
     p = check_printable(v, f)
     assert p.ok and p.components == 2 and p.volume == pytest.approx(2.0)
     assert p.shells_outward is True and p.misnested_shells == 0
     # A hollow box (inner shell inverted) is a legitimate solid with a cavity.
     vi, fi = box((1, 1, 1), (2, 2, 2))
-    v, f = join(box((0, 0, 0), (3, 3, 3)), (vi, fi[:, ::-1]))
+    v, f = concat(box((0, 0, 0), (3, 3, 3)), (vi, fi[:, ::-1]))
     p = check_printable(v, f)
     assert p.ok, p.failures()
     assert p.volume == pytest.approx(26.0)
@@ -109,17 +101,17 @@ def test_shells_must_face_outward_and_not_nest():
     big = box((0, 0, 0), (10, 10, 10))
     vs, fs = box((20, 0, 0), (21, 1, 1))
     # A separate inverted shell: total volume still positive, but it is not a solid.
-    p = check_printable(*join(big, (vs, fs[:, ::-1])))
+    p = check_printable(*concat(big, (vs, fs[:, ::-1])))
     assert p.volume == pytest.approx(999.0) and p.positive_volume
     assert p.shells_outward is False and p.misnested_shells == 1 and not p.ok
     assert any("inverted or nested" in s for s in p.failures())
     # An outward shell nested inside a solid (double material): also refused.
     vi, fi = box((2, 2, 2), (3, 3, 3))
-    p = check_printable(*join(big, (vi, fi)))
+    p = check_printable(*concat(big, (vi, fi)))
     assert p.misnested_shells == 1 and not p.ok
     # A solid island inside a cavity inside a solid is fine (winding 0 / 1 / 0).
     vc, fc = box((1, 1, 1), (9, 9, 9))
-    p = check_printable(*join(big, (vc, fc[:, ::-1]), (vi, fi)))
+    p = check_printable(*concat(big, (vc, fc[:, ::-1]), (vi, fi)))
     assert p.ok, p.failures()
     assert p.components == 3 and p.misnested_shells == 0
     # Not assessed when the surface is open: the winding number means nothing there.
@@ -130,7 +122,7 @@ def test_shells_must_face_outward_and_not_nest():
 
 def test_touching_unwelded_cubes_count_as_intersecting():
     # Face-to-face contact between separate shells is a self-contact, not a solid.
-    v, f = join(box(), box((1, 0.25, 0.25), (2, 0.75, 0.75)))
+    v, f = concat(box(), box((1, 0.25, 0.25), (2, 0.75, 0.75)))
     p = check_printable(v, f)
     assert not p.no_self_intersections
 
@@ -202,7 +194,7 @@ def test_duplicate_faces_fail():
 def test_float32_rounding_can_create_an_intersection():
     # A second box 1e-9 mm away from the first: separate in doubles, but float32 has a
     # spacing of ~1.2e-7 at 1.0, so the written file has the boxes touching.
-    v, f = join(box(), box((1 + 1e-9, 0.25, 0.25), (2, 0.75, 0.75)))
+    v, f = concat(box(), box((1 + 1e-9, 0.25, 0.25), (2, 0.75, 0.75)))
     exact = check_printable(v, f)
     assert exact.ok, exact.failures()
     written = check_printable(v, f, as_float32=True)

@@ -4,45 +4,25 @@ only, winding-number choice of the pieces, float32 rounding that avoids new cros
 from __future__ import annotations
 
 import numpy as np
-import trimesh
+from mesh_helpers import box, concat, signed_volume
 
 from repair.check import check_printable, intersecting_face_pairs, weld_exact
-from repair.clean import clean_soup
+from repair.clean import clean_soup, net_faces
 from repair.mend import (
     is_cycle,
     mend_intersections,
-    net_faces,
     round_avoiding_crossings,
     side_windings,
 )
 
 
-def _box(lo, hi):
-    m = trimesh.creation.box(bounds=np.array([lo, hi], dtype=float))
-    return np.asarray(m.vertices, dtype=np.float64), np.asarray(m.faces, dtype=np.int64)
-
-
-def _concat(*parts):
-    vs, fs, off = [], [], 0
-    for v, f in parts:
-        vs.append(v)
-        fs.append(f + off)
-        off += len(v)
-    return np.vstack(vs), np.vstack(fs)
-
-
-def _volume(v, f):
-    p = v[f]
-    return float(np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum() / 6.0)
-
-
 def test_overlapping_cubes_become_their_exact_union():
-    v, f = _concat(_box((0, 0, 0), (10, 10, 10)), _box((5, 5, 5), (15, 15, 15)))
+    v, f = concat(box((0, 0, 0), (10, 10, 10)), box((5, 5, 5), (15, 15, 15)))
     assert len(intersecting_face_pairs(v, f)) > 0
     md = mend_intersections(v, f)
     assert md.pairs > 0 and md.pieces_dropped > 0
     assert is_cycle(md.faces)
-    assert _volume(md.vertices, md.faces) == np.float64(1000 + 1000 - 125)
+    assert signed_volume(md.vertices, md.faces) == np.float64(1000 + 1000 - 125)
     out, left = round_avoiding_crossings(md.vertices, md.faces)
     assert left == 0
     verdict = check_printable(*weld_exact(out, md.faces))
@@ -51,10 +31,10 @@ def test_overlapping_cubes_become_their_exact_union():
 
 def test_three_overlapping_cubes_at_odd_offsets_are_printable_after_rounding():
     # Offsets that are not representable: intersection points must be rounded.
-    v, f = _concat(
-        _box((0, 0, 0), (10, 10, 10)),
-        _box((3.1, 2.7, 4.3), (13.3, 12.9, 14.1)),
-        _box((-2.2, 6.6, 1.9), (7.7, 16.1, 8.8)),
+    v, f = concat(
+        box((0, 0, 0), (10, 10, 10)),
+        box((3.1, 2.7, 4.3), (13.3, 12.9, 14.1)),
+        box((-2.2, 6.6, 1.9), (7.7, 16.1, 8.8)),
     )
     v, f = weld_exact(v.astype(np.float32).astype(np.float64), f)
     for _ in range(6):
@@ -67,11 +47,11 @@ def test_three_overlapping_cubes_at_odd_offsets_are_printable_after_rounding():
     assert verdict.ok, verdict.failures()
     # The union is at least as big as the largest part and at most their sum.
     assert 1000.0 < verdict.volume < 3 * 1000.0
-    assert abs(verdict.volume - _volume(v, f)) < 1e-9 * verdict.volume
+    assert abs(verdict.volume - signed_volume(v, f)) < 1e-9 * verdict.volume
 
 
 def test_nested_cube_is_dropped_as_internal():
-    v, f = _concat(_box((0, 0, 0), (10, 10, 10)), _box((2, 2, 2), (4, 4, 4)))
+    v, f = concat(box((0, 0, 0), (10, 10, 10)), box((2, 2, 2), (4, 4, 4)))
     front, back = side_windings(v, f, np.arange(len(f)))
     outer, inner = slice(0, 12), slice(12, 24)
     assert np.all(front[outer] == 0) and np.all(back[outer] == 1)
@@ -86,10 +66,10 @@ def test_net_faces_merges_copies_and_cancels_opposites():
 
 
 def test_is_cycle():
-    v, f = _box((0, 0, 0), (1, 1, 1))
+    v, f = box((0, 0, 0), (1, 1, 1))
     assert is_cycle(f)
     assert not is_cycle(f[1:])
-    two = _concat((v, f), (v, f))[1]
+    two = concat((v, f), (v, f))[1]
     assert is_cycle(two)
 
 
@@ -107,7 +87,7 @@ def test_rounding_keeps_representable_vertices_and_moves_others_one_ulp_at_most(
 
 
 def test_pole_triangles_collapsed_onto_an_edge_are_not_wires():
-    v, f = _box((0, 0, 0), (1, 1, 1))
+    v, f = box((0, 0, 0), (1, 1, 1))
     a, b = f[0, 0], f[0, 1]
     v2 = np.vstack([v, v[b]])  # a copy of vertex b: the extra face collapses onto edge ab
     f2 = np.vstack([f, [[a, b, len(v)]]])
