@@ -433,9 +433,13 @@ def _finish(
             pairs = None
         if local and is_cycle(f32):
             mv, mf = _concat([(v32, f32), *extra])
-            md = mend_intersections(mv, mf, pairs)
-            v, f = md.vertices, md.faces
-            continue
+            try:
+                md = mend_intersections(mv, mf, pairs)
+            except (RuntimeError, ValueError, IndexError):
+                md = None  # libigl refused the subset: take the whole outer hull below
+            if md is not None:
+                v, f = md.vertices, md.faces
+                continue
         c = clean_soup(*_concat([(v32, f32), *extra]), solid=True)
         v, f, _, _ = _outer_hull(c.vertices, c.faces, eps, tally, solid=True)
     assert verdict is not None

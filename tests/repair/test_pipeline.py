@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -292,3 +293,27 @@ def test_cli_fails_with_one_line_for_nothing_printable(tmp_path):
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("preflight: ")
     assert not (tmp_path / "o.stl").exists()
+
+
+CORPUS = Path(__file__).resolve().parents[2] / ".." / "shared" / "corpus"
+
+
+@pytest.mark.skipif(not (CORPUS / "DragonAceNL_1004825.stl").is_file(), reason="no corpus")
+def test_a_failing_local_mend_falls_back_to_the_whole_outer_hull(monkeypatch):
+    """Ten overlapping Thingiverse shells: their union's float32 rounding needs mending.
+    If the local mend is refused (libigl raises), the whole outer hull is taken instead."""
+    import repair.pipeline as pipeline
+    from repair.io import load_mesh
+
+    calls = []
+
+    def refuse(*args, **kwargs):
+        calls.append(1)
+        raise RuntimeError("CGAL refused the subset")
+
+    monkeypatch.setattr(pipeline, "mend_intersections", refuse)
+    m = load_mesh(CORPUS / "DragonAceNL_1004825.stl")
+    res = repair_mesh(m.vertices, m.faces, EPS)
+    assert calls, "the mend was not reached: the case no longer tests the fallback"
+    assert_printable(res)
+    assert res.report["volume"] > 0
