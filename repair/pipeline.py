@@ -48,9 +48,15 @@ from repair.check import (
 from repair.clean import clean_soup, degenerate_mask, drop_unreferenced
 from repair.deviation import max_deviation
 from repair.holes import HolesClosed, close_small_holes
-from repair.hull import is_unorientable, outer_hull_split, resolve, unorientable_outer_hull
+from repair.hull import (
+    HullSplit,
+    is_unorientable,
+    outer_hull_split,
+    resolve,
+    unorientable_outer_hull,
+)
 from repair.mend import is_cycle, mend_intersections, round_avoiding_crossings
-from repair.thicken import sheet_slabs
+from repair.thicken import region_prisms, sheet_slabs
 from repair.wires import cylinders, visible_segments
 
 __all__ = ["RepairError", "RepairResult", "repair_file", "repair_mesh"]
@@ -225,10 +231,12 @@ def _manifold_union(
 
     solids = []
     try:
-        for v, f in parts:
+        for i, (v, f) in enumerate(parts):
             if len(f) == 0:
                 continue
-            pieces = _manifolds_of(*drop_unreferenced(*weld_exact(v, f)))
+            # The solid hull is welded; slabs, prisms and cylinders are each indexed
+            # closed solids -- welding would fuse coincident corners of different ones.
+            pieces = _manifolds_of(*drop_unreferenced(*(weld_exact(v, f) if i == 0 else (v, f))))
             if pieces is None:
                 return None
             solids.extend(pieces)
@@ -297,7 +305,7 @@ def _outer_hull(
         if len(split.sheet_faces) and round_ < MAX_THICKEN_ROUNDS:
             tally.sheet_area += _area(rv, split.sheet_faces)
             tally.sheet_triangles += len(split.sheet_faces)
-            extra.append(sheet_slabs(rv, split.sheet_faces, eps))
+            extra.extend(_sheet_to_thicken(v, f, rv, birth, split, eps))
         if segments is not None and len(segments) and round_ == 0:
             hull_f = np.vstack([split.solid_faces, split.sheet_faces])
             vis = visible_segments(segments, rv, hull_f, split.solid_faces)
@@ -316,6 +324,30 @@ def _outer_hull(
         v, f = c.vertices, c.faces
     sv, sf = drop_unreferenced(v, f)
     return sv, sf, first_poly, first_hull_birth
+
+
+def _sheet_to_thicken(
+    v: np.ndarray, f: np.ndarray, rv: np.ndarray, birth: np.ndarray, split: HullSplit,
+    eps: float,
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Closed solids that thicken the sheet, from as few and as whole triangles as
+    possible. An input face all of whose outer-hull pieces are sheet is thickened whole,
+    with its input neighbours (its pieces inside the solid vanish in the union anyway):
+    slabs of whole triangles cross one another transversally instead of abutting along
+    the arrangement's cut lines, which float32 rounding could not keep apart. A face
+    that is partly solid hull gets one prism over the union of its sheet pieces, grown
+    by a hair (``eps / 100``) so that it fuses with the solid it sticks out of."""
+    sb = birth[split.sheet_index]
+    mixed = np.isin(sb, birth[split.solid_index])
+    whole = np.unique(sb[~mixed])
+    out = [sheet_slabs(*drop_unreferenced(v, f[whole]), eps)] if len(whole) else []
+    if np.any(mixed):
+        owner = sb[mixed]
+        p = v[f[owner]]
+        n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+        n /= np.linalg.norm(n, axis=1, keepdims=True)  # clean_soup left no degenerate face
+        out.append(region_prisms(rv, split.sheet_faces[mixed], owner, n, eps, 0.01 * eps))
+    return out
 
 
 def _damaged_faces(v: np.ndarray, f: np.ndarray) -> np.ndarray:

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["MITER_LIMIT", "face_prisms", "orient_patches", "sheet_slabs"]
+__all__ = ["MITER_LIMIT", "face_prisms", "orient_patches", "region_prisms", "sheet_slabs"]
 
 #: Largest vertex offset, as a multiple of eps/2 (bounds Attene's deviation D by 0.55 eps).
 MITER_LIMIT = 1.1
@@ -280,3 +280,66 @@ def _replace_bad_slabs(
     gv, gf = sheet_slabs(v, f[~bad], epsilon, _depth=depth + 1)
     pv, pf = face_prisms(v, f[bad], epsilon)
     return np.vstack([gv, pv]), np.vstack([gf, pf + len(gv)]).astype(np.int64)
+
+
+def region_prisms(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    groups: np.ndarray,
+    normals: np.ndarray,
+    epsilon: float,
+    grow: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """One prism of thickness ``epsilon`` (mm) per planar region: the faces of each group
+    (e.g. the sheet pieces of one input triangle, cut up by the arrangement) lie in one
+    plane with unit normal ``normals[i]`` (per face; equal within a group). Their 2-D
+    union, grown by ``grow`` mm, is extruded to +-eps/2 about the plane (manifold3d
+    ``CrossSection``): a few well-shaped solids in place of slabs of every sliver piece,
+    which no float32 union can keep apart. Returns ``(vertices, faces)`` of closed prisms
+    that overlap one another, not themselves; empty input gives empty arrays."""
+    import manifold3d as m3d
+
+    f = np.asarray(faces, dtype=np.int64)
+    out_v: list[np.ndarray] = []
+    out_f: list[np.ndarray] = []
+    off = 0
+    if len(f) == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
+    v = np.asarray(vertices, dtype=np.float64)
+    g = np.asarray(groups)
+    order = np.argsort(g, kind="stable")
+    starts = np.r_[0, np.flatnonzero(np.diff(g[order])) + 1, len(g)]
+    for s, e in zip(starts[:-1], starts[1:], strict=True):
+        idx = order[s:e]
+        n = np.asarray(normals[idx[0]], dtype=np.float64)
+        p = v[f[idx]]  # (k, 3, 3)
+        origin = p.reshape(-1, 3).mean(axis=0)
+        u = p[0, 1] - p[0, 0]
+        u = u - n * np.dot(u, n)
+        if np.linalg.norm(u) == 0:
+            u = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+        u /= np.linalg.norm(u)
+        w = np.cross(n, u)
+        q = p - origin
+        tri2 = np.stack([q @ u, q @ w], axis=2)  # (k, 3, 2)
+        a, b = tri2[:, 1] - tri2[:, 0], tri2[:, 2] - tri2[:, 0]
+        area = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+        tri2[area < 0] = tri2[area < 0][:, ::-1]
+        tri2 = tri2[area != 0]
+        if len(tri2) == 0:
+            continue
+        cs = m3d.CrossSection(list(tri2), m3d.FillRule.Positive)
+        if grow > 0:
+            cs = cs.offset(grow, m3d.JoinType.Miter)
+        if cs.is_empty():
+            continue
+        frame = np.column_stack([u, w, n, origin - 0.5 * epsilon * n])
+        mesh = m3d.Manifold.extrude(cs, epsilon).transform(frame).to_mesh64()
+        pv = np.asarray(mesh.vert_properties, dtype=np.float64)[:, :3]
+        pf = np.asarray(mesh.tri_verts, dtype=np.int64)
+        out_v.append(pv)
+        out_f.append(pf + off)
+        off += len(pv)
+    if not out_f:
+        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
+    return np.vstack(out_v), np.vstack(out_f)

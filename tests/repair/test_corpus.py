@@ -28,8 +28,6 @@ NOTHING_PRINTABLE = {"Ghostkeeper_zero_size_cube.stl"}
 #: crossings faster than the mend removes them. Not run, to keep CI short.
 KNOWN_GAPS = {
     "mikedh_cycloidal.ply": "100 overlapping shells with sheets: rounding damage stays",
-    "mikedh_soup.stl": "crossing slabs of a 1 mm soup at eps 0.4: rounding damage stays",
-    "mikedh_teapot.stl": "open tubes' slabs: float32 rounding keeps re-creating ~1000 crossings",
 }
 
 
