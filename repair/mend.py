@@ -35,6 +35,7 @@ __all__ = [
     "manifold_patches",
     "mend_intersections",
     "round_avoiding_crossings",
+    "separate_singular_edges",
     "side_windings",
 ]
 
@@ -352,3 +353,76 @@ def mend_intersections(
     allf, dropped = classify_patches(vv, allf, new, weight)
     vv, allf = drop_unreferenced(vv, allf)
     return Mended(vv, allf, int(len(pairs)), int(len(bad)), int(dropped))
+
+
+def separate_singular_edges(
+    vertices: np.ndarray, faces: np.ndarray, step: float
+) -> tuple[np.ndarray, np.ndarray, int] | None:
+    """Where a closed, consistently oriented surface touches itself along an edge (2k
+    faces on it: k wedges of solid meeting there), give each wedge its own copy of the
+    edge's vertices, moved ``step`` mm into its own wedge -- a few float32 ulps, far below
+    what a printer resolves, so the parts still print as one, but the written surface is
+    edge-manifold. Faces keep their vertices elsewhere; nothing else moves.
+
+    Returns ``(vertices, faces, edges separated)``, or None where the faces around an
+    edge do not alternate in orientation (not wedges of one closed solid)."""
+    from repair.thicken import _split_vertices
+
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    he = np.stack([f.reshape(-1), f[:, [1, 2, 0]].reshape(-1)], axis=1)
+    _, eid, cnt = np.unique(np.sort(he, axis=1), axis=0, return_inverse=True,
+                            return_counts=True)  # fmt: skip
+    eid = eid.reshape(-1)
+    singular = np.flatnonzero(cnt > 2)
+    if len(singular) == 0:
+        return v, f, 0
+    if np.any(cnt[singular] % 2):
+        return None
+    eid = eid.copy()
+    next_id = int(eid.max()) + 1
+    third = f.reshape(-1)[(np.arange(3 * len(f)) // 3) * 3 + (np.arange(3 * len(f)) + 2) % 3]
+    on = np.flatnonzero(np.isin(eid, singular))
+    on = on[np.argsort(eid[on], kind="stable")]
+    bounds = np.r_[0, np.flatnonzero(np.diff(eid[on])) + 1, len(on)]
+    for s, e in zip(bounds[:-1], bounds[1:], strict=True):  # one pass per singular edge
+        hs = on[s:e]
+        a, b = he[hs[0]]
+        axis = v[b] - v[a]
+        axis /= np.linalg.norm(axis)
+        x = v[third[hs[0]]] - v[a]
+        x -= axis * np.dot(x, axis)
+        x /= np.linalg.norm(x)
+        y = np.cross(axis, x)
+        d = v[third[hs]] - v[a]
+        ang = np.arctan2(d @ y, d @ x)
+        # A face running a->b has its outward normal towards increasing angle, so solid
+        # lies from a face running b->a round to the next face (which must run a->b).
+        forward = he[hs, 0] == a
+        order = np.argsort(ang, kind="stable")
+        fw = forward[order]
+        if np.all(fw[::2]) and not np.any(fw[1::2]):
+            order = np.roll(order, -1)  # start at a b->a face
+            fw = forward[order]
+        if np.any(fw[::2]) or not np.all(fw[1::2]):
+            return None
+        pair = next_id + np.arange(len(hs) // 2)
+        eid[hs[order[::2]]] = pair
+        eid[hs[order[1::2]]] = pair
+        next_id += len(hs) // 2
+    ids = _split_vertices(f, np.zeros(3 * len(f), dtype=bool), eid)
+    n = int(ids.max()) + 1
+    orig = np.zeros(n, dtype=np.int64)
+    orig[ids] = f.reshape(-1)
+    copies = np.bincount(orig, minlength=len(v))
+    # Move every copy of a split vertex into its own fan: against its faces' normals.
+    p = v[f]
+    fn = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    inward = np.zeros((n, 3))
+    for k in range(3):
+        np.add.at(inward, ids.reshape(-1, 3)[:, k], -fn)
+    ln = np.linalg.norm(inward, axis=1, keepdims=True)
+    move = (copies[orig] > 1) & (ln[:, 0] > 0)
+    nv = v[orig].copy()
+    nv[move] += step * inward[move] / ln[move]
+    return nv, ids.reshape(-1, 3), len(singular)

@@ -55,7 +55,12 @@ from repair.hull import (
     resolve,
     unorientable_outer_hull,
 )
-from repair.mend import is_cycle, mend_intersections, round_avoiding_crossings
+from repair.mend import (
+    is_cycle,
+    mend_intersections,
+    round_avoiding_crossings,
+    separate_singular_edges,
+)
 from repair.thicken import region_prisms, sheet_slabs
 from repair.wires import cylinders, visible_segments
 
@@ -267,6 +272,7 @@ class _Tally:
     sheet_triangles: int = 0
     wires: int = 0
     singular_edges: int = 0
+    separated: int = 0
     passes: int = 0
     collapsed: int = 0
 
@@ -422,6 +428,7 @@ def _finish(
     outer hull again.
     """
     verdict: Printability | None = None
+    tried_separation = False
     worse = 0
     last_damage = None
     for round_ in range(MAX_FINISH_ROUNDS):
@@ -454,9 +461,25 @@ def _finish(
             v32, f32 = _drop_collapsed(v32, f32)
             pairs = None
         extra: list[tuple[np.ndarray, np.ndarray]] = []
-        if verdict.nonmanifold_edges and not (
+        clean_touch = verdict.nonmanifold_edges and not (
             verdict.intersecting_pairs or verdict.degenerate_faces
-        ):
+        )
+        if clean_touch and not tried_separation and not verdict.boundary_edges:
+            # Parts that touch along an edge: first try giving each its own copy of the
+            # edge, a few ulps apart (exact elsewhere); kept if that leaves less damage
+            # once rounded (a copy may cross a face close by), else fused below.
+            tried_separation = True
+            step = float(np.abs(v32).max()) * 2.0**-17
+            sep = separate_singular_edges(v32, f32, step)
+            if sep is not None:
+                trial = check_printable_pairs(
+                    *weld_exact(round_avoiding_crossings(sep[0], sep[1])[0], sep[1])
+                )[0]
+                left = trial.intersecting_pairs + trial.degenerate_faces
+                if left + trial.nonmanifold_edges < verdict.nonmanifold_edges:
+                    v, f, tally.separated = sep
+                    continue
+        if clean_touch:
             # Parts that touch along an edge: thicken the edge so they fuse.
             edges, cnt = _edge_use(f32)
             sing = edges[cnt > 2]
@@ -619,6 +642,7 @@ def repair_mesh(
         "sheet_area_thickened": round(float(tally.sheet_area), 6),
         "wires_inflated": int(tally.wires),
         "singular_edges_thickened": int(tally.singular_edges),
+        "singular_edges_separated": int(tally.separated),
         "arrangement_passes": int(tally.passes),
     }
     report["holes_closed"] = holes.to_dict()

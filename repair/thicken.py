@@ -127,12 +127,16 @@ def _orient_by_tree(
     return out
 
 
-def _split_vertices(faces: np.ndarray, cut: np.ndarray) -> np.ndarray:
+def _split_vertices(
+    faces: np.ndarray, cut: np.ndarray, eid: np.ndarray | None = None
+) -> np.ndarray:
     """Give every manifold fan of corners its own vertex: corners (3f+k) of two faces are
-    merged across each uncut, consistently oriented edge. Returns the new vertex id per
-    corner (3m,) -- the slab's own faces are ``ids.reshape(-1, 3)``."""
+    merged across each uncut, consistently oriented edge (``eid``: an edge id per
+    half-edge, by default one per vertex pair). Returns the new vertex id per corner
+    (3m,) -- the slab's own faces are ``ids.reshape(-1, 3)``."""
     m = len(faces)
-    he, eid = _half_edges(faces)
+    he, own = _half_edges(faces)
+    eid = own if eid is None else eid
     h1, h2, _ = _edge_pairs(eid)
     ok = ~cut[h1] & ~cut[h2] & (he[h1, 0] == he[h2, 1])
     h1, h2 = h1[ok], h2[ok]

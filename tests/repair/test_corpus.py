@@ -23,25 +23,11 @@ FILES = (
 )
 #: Models with nothing printable in them (every triangle collapses to a point).
 NOTHING_PRINTABLE = {"Ghostkeeper_zero_size_cube.stl"}
-#: Known gaps (sheet-heavy open models): the union of their self-folding eps-slabs is not
-#: yet made self-intersection free on float32: rounding the arrangement re-creates
-#: crossings faster than the mend removes them. Not run, to keep CI short.
-KNOWN_GAPS = {
-    "mikedh_cycloidal.ply": "100 overlapping shells with sheets: rounding damage stays",
-}
 
 
 @pytest.mark.slow
 @pytest.mark.skipif(not CORPUS.is_dir(), reason="corpus not present")
-@pytest.mark.parametrize(
-    "name",
-    [
-        pytest.param(n, marks=pytest.mark.xfail(reason=KNOWN_GAPS[n], run=False))
-        if n in KNOWN_GAPS
-        else n
-        for n in FILES
-    ],
-)
+@pytest.mark.parametrize("name", FILES)
 def test_corpus_model_repairs_to_a_printable_solid(name, tmp_path):
     src = CORPUS / name
     out = tmp_path / "out.stl"

@@ -4,6 +4,7 @@ only, winding-number choice of the pieces, float32 rounding that avoids new cros
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from mesh_helpers import box, concat, signed_volume
 
 from repair.check import check_printable, intersecting_face_pairs, weld_exact
@@ -12,6 +13,7 @@ from repair.mend import (
     is_cycle,
     mend_intersections,
     round_avoiding_crossings,
+    separate_singular_edges,
     side_windings,
 )
 
@@ -95,3 +97,36 @@ def test_pole_triangles_collapsed_onto_an_edge_are_not_wires():
     assert c.degenerate_removed == 1
     assert len(c.segments) == 0
 
+
+
+def _cubes_touching_along_an_edge():
+    # Two unit cubes sharing only the edge x = y = 1, welded: that edge has four faces.
+    return weld_exact(*concat(box((0, 0, 0), (1, 1, 1)), box((1, 1, 0), (2, 2, 1))))
+
+
+def test_cubes_touching_along_an_edge_get_an_edge_each():
+    v, f = _cubes_touching_along_an_edge()
+    before = check_printable(v, f)
+    assert before.nonmanifold_edges == 1
+    step = 1e-4
+    sv, sf, n = separate_singular_edges(v, f, step)
+    assert n == 1
+    pr = check_printable(sv, sf, as_float32=True)
+    assert pr.ok, pr.failures()
+    assert pr.components == 2
+    assert pr.volume == pytest.approx(2.0, abs=1e-3)
+    # Only the copies of the shared edge's two vertices moved, each by `step` into its
+    # own cube; every other corner is exactly where it was.
+    moved = np.linalg.norm(sv - np.round(sv), axis=1) > 0
+    assert moved.sum() == 4
+    assert np.allclose(np.linalg.norm(sv[moved] - np.round(sv[moved]), axis=1), step)
+    m = sv[moved]
+    assert np.count_nonzero((m[:, 0] < 1) & (m[:, 1] < 1)) == 2  # into the first cube
+    assert np.count_nonzero((m[:, 0] > 1) & (m[:, 1] > 1)) == 2  # into the second
+
+def test_faces_around_an_edge_that_do_not_alternate_are_left_alone():
+    v, f = _cubes_touching_along_an_edge()
+    # Flip one cube: around the shared edge, orientations no longer alternate.
+    f = f.copy()
+    f[:12] = f[:12, ::-1]
+    assert separate_singular_edges(v, f, 1e-4) is None
