@@ -30,6 +30,8 @@ from typing import Any
 
 import numpy as np
 
+from repair.rows import unique_rows
+
 __all__ = [
     "Printability",
     "check_printable",
@@ -347,7 +349,7 @@ def intersecting_face_pairs(vertices: np.ndarray, faces: np.ndarray) -> np.ndarr
     if len(pairs) == 0:
         return np.zeros((0, 2), dtype=np.int64)
     pairs = np.sort(np.asarray(pairs, dtype=np.int64), axis=1)
-    return np.unique(pairs, axis=0)
+    return unique_rows(pairs)
 
 
 def _winding_numbers(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray) -> np.ndarray:

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from repair.check import degenerate_face_mask, weld_exact
+from repair.rows import unique_rows
 
 __all__ = [
     "Cleaned",
@@ -40,7 +41,7 @@ def unique_faces(faces: np.ndarray) -> np.ndarray:
     if len(faces) < 2:
         return np.arange(len(faces))
     s = np.sort(faces, axis=1)
-    _, first = np.unique(s, axis=0, return_index=True)
+    _, first = unique_rows(s, return_index=True)
     return np.sort(first)
 
 
@@ -53,7 +54,7 @@ def face_keys(faces: np.ndarray) -> np.ndarray:
     n = int(f.max()) + 1
     if n < 2**21:
         return (s[:, 0] * n + s[:, 1]) * n + s[:, 2]
-    return np.unique(s, axis=0, return_inverse=True)[1].reshape(-1).astype(np.int64)
+    return unique_rows(s, return_inverse=True)[1].reshape(-1).astype(np.int64)
 
 
 def net_faces(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -147,7 +148,7 @@ def _segments_of(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     flip = (a[:, 0] > b[:, 0]) | ((a[:, 0] == b[:, 0]) & (
         (a[:, 1] > b[:, 1]) | ((a[:, 1] == b[:, 1]) & (a[:, 2] > b[:, 2]))))
     seg[flip] = seg[flip][:, ::-1]
-    _, first = np.unique(seg.reshape(-1, 6), axis=0, return_index=True)
+    _, first = unique_rows(seg.reshape(-1, 6), return_index=True)
     return seg[np.sort(first)]
 
 

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from repair.rows import unique_rows
+
 __all__ = ["max_deviation"]
 
 
@@ -97,7 +99,7 @@ def _point_mesh_d2(pts: np.ndarray, v: np.ndarray, f: np.ndarray) -> np.ndarray:
         return (c[..., 0] * n + c[..., 1]) * n + c[..., 2]
 
     fc = np.floor((p.mean(axis=1) - origin) / h).astype(np.int64)
-    pc = np.unique(np.floor((pts - origin) / h).astype(np.int64), axis=0)
+    pc = unique_rows(np.floor((pts - origin) / h).astype(np.int64))
     off = np.stack(np.meshgrid(*([np.arange(-2, 3)] * 3), indexing="ij"), -1).reshape(-1, 3)
     marked = np.unique(key(pc[:, None, :] + off[None]))
     near = np.isin(key(fc), marked)

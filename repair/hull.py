@@ -19,6 +19,7 @@ import numpy as np
 
 from repair.check import weld_exact
 from repair.clean import cancel_opposite_faces, degenerate_mask, drop_unreferenced, unique_faces
+from repair.rows import unique_rows
 
 __all__ = [
     "HullSplit",
@@ -102,7 +103,7 @@ class HullSplit:
 def _boundary_faces(faces: np.ndarray) -> np.ndarray:
     """Indices of faces with at least one edge used by no other face."""
     e = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    _, inv, cnt = np.unique(e, axis=0, return_inverse=True, return_counts=True)
+    _, inv, cnt = unique_rows(e, return_inverse=True, return_counts=True)
     lone = cnt[inv.reshape(-1)] == 1
     return np.unique(np.flatnonzero(lone) // 3)
 
@@ -156,7 +157,7 @@ def unorientable_outer_hull(
     hf = np.asarray(hf, dtype=np.int64)
     birth = np.asarray(birth, dtype=np.int64)
     srt = np.sort(hf, axis=1)
-    _, inv, cnt = np.unique(srt, axis=0, return_inverse=True, return_counts=True)
+    _, inv, cnt = unique_rows(srt, return_inverse=True, return_counts=True)
     inv = inv.reshape(-1)
     both = cnt[inv] > 1
     _, first = np.unique(inv[both], return_index=True)

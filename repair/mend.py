@@ -27,6 +27,7 @@ import numpy as np
 
 from repair.check import intersecting_face_pairs, weld_exact
 from repair.clean import degenerate_mask, drop_unreferenced, face_keys, net_faces
+from repair.rows import unique_rows
 
 __all__ = [
     "Mended",
@@ -215,7 +216,7 @@ def _faces_near(v: np.ndarray, f: np.ndarray, which: np.ndarray) -> np.ndarray:
 def _edge_neighbours(faces: np.ndarray, which: np.ndarray) -> np.ndarray:
     """Faces sharing an edge with any face in ``which`` (including those faces)."""
     e = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    _, eid = np.unique(e, axis=0, return_inverse=True)
+    _, eid = unique_rows(e, return_inverse=True)
     eid = eid.reshape(-1, 3)
     hit = np.zeros(int(eid.max()) + 1, dtype=bool)
     hit[eid[which].reshape(-1)] = True
@@ -371,7 +372,7 @@ def separate_singular_edges(
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
     he = np.stack([f.reshape(-1), f[:, [1, 2, 0]].reshape(-1)], axis=1)
-    _, eid, cnt = np.unique(np.sort(he, axis=1), axis=0, return_inverse=True,
+    _, eid, cnt = unique_rows(np.sort(he, axis=1), return_inverse=True,
                             return_counts=True)  # fmt: skip
     eid = eid.reshape(-1)
     singular = np.flatnonzero(cnt > 2)

@@ -61,6 +61,7 @@ from repair.mend import (
     round_avoiding_crossings,
     separate_singular_edges,
 )
+from repair.rows import unique_rows
 from repair.thicken import region_prisms, sheet_slabs
 from repair.wires import cylinders, visible_segments
 
@@ -118,7 +119,7 @@ def _edge_components(faces: np.ndarray) -> np.ndarray:
     from scipy.sparse.csgraph import connected_components
 
     e = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    _, eid = np.unique(e, axis=0, return_inverse=True)
+    _, eid = unique_rows(e, return_inverse=True)
     eid = eid.reshape(-1)
     order = np.argsort(eid, kind="stable")
     same = np.flatnonzero(eid[order][1:] == eid[order][:-1])
@@ -130,7 +131,7 @@ def _edge_components(faces: np.ndarray) -> np.ndarray:
 def _edge_use(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Undirected edges (k, 2) and how many faces use each."""
     e = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    return np.unique(e, axis=0, return_counts=True)
+    return unique_rows(e, return_counts=True)
 
 
 def _volumes(v: np.ndarray, f: np.ndarray, labels: np.ndarray, n: int) -> np.ndarray:
@@ -196,7 +197,7 @@ def _union_fast_path(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarr
     if np.any(cnt != 2):
         return None
     he = np.stack([f.reshape(-1), f[:, [1, 2, 0]].reshape(-1)], axis=1)
-    if len(np.unique(he, axis=0)) != len(he):  # some edge traversed twice the same way
+    if len(unique_rows(he)) != len(he):  # some edge traversed twice the same way
         return None
     labels = _edge_components(f)
     n = int(labels.max()) + 1
@@ -361,12 +362,12 @@ def _damaged_faces(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     open, non-manifold or traversed twice the same way."""
     bad = degenerate_mask(v, f)
     s = np.sort(f, axis=1)
-    _, inv, cnt = np.unique(s, axis=0, return_inverse=True, return_counts=True)
+    _, inv, cnt = unique_rows(s, return_inverse=True, return_counts=True)
     bad |= cnt[inv.reshape(-1)] > 1
     he = np.stack([f.reshape(-1), f[:, [1, 2, 0]].reshape(-1)], axis=1)
-    _, einv, ecnt = np.unique(np.sort(he, axis=1), axis=0, return_inverse=True,
+    _, einv, ecnt = unique_rows(np.sort(he, axis=1), return_inverse=True,
                               return_counts=True)  # fmt: skip
-    _, hinv, hcnt = np.unique(he, axis=0, return_inverse=True, return_counts=True)
+    _, hinv, hcnt = unique_rows(he, return_inverse=True, return_counts=True)
     bad_he = (ecnt[einv.reshape(-1)] != 2) | (hcnt[hinv.reshape(-1)] > 1)
     bad |= bad_he.reshape(-1, 3).any(axis=1)
     ok = np.flatnonzero(~bad)

@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from repair.rows import unique_rows
+
 __all__ = ["MITER_LIMIT", "face_prisms", "orient_patches", "region_prisms", "sheet_slabs"]
 
 #: Largest vertex offset, as a multiple of eps/2 (bounds Attene's deviation D by 0.55 eps).
@@ -36,7 +38,7 @@ def _half_edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Directed half-edges (3m, 2) in face order (half-edge 3f+k runs from corner k to k+1),
     and an id per undirected edge."""
     he = np.stack([faces.reshape(-1), faces[:, [1, 2, 0]].reshape(-1)], axis=1)
-    _, eid = np.unique(np.sort(he, axis=1), axis=0, return_inverse=True)
+    _, eid = unique_rows(np.sort(he, axis=1), return_inverse=True)
     return he, eid.reshape(-1)
 
 
@@ -172,7 +174,7 @@ def face_prisms(
     pf = (local[None] + 6 * np.arange(m)[:, None, None]).reshape(-1, 3)
     # Creases: edges shared by two of the faces whose normals differ.
     he = np.stack([f.reshape(-1), f[:, [1, 2, 0]].reshape(-1)], axis=1)
-    _, eid = np.unique(np.sort(he, axis=1), axis=0, return_inverse=True)
+    _, eid = unique_rows(np.sort(he, axis=1), return_inverse=True)
     eid = eid.reshape(-1)
     order = np.argsort(eid, kind="stable")
     same = np.flatnonzero(eid[order][1:] == eid[order][:-1])
@@ -238,7 +240,7 @@ def sheet_slabs(
     out_v = np.vstack([top, bot])
     # Boundary half-edges of the slab's own faces: walls.
     he = np.stack([fs.reshape(-1), fs[:, [1, 2, 0]].reshape(-1)], axis=1)
-    _, eid, cnt = np.unique(np.sort(he, axis=1), axis=0, return_inverse=True, return_counts=True)
+    _, eid, cnt = unique_rows(np.sort(he, axis=1), return_inverse=True, return_counts=True)
     is_bnd = cnt[eid.reshape(-1)] == 1
     bnd = he[is_bnd]
     wall_face = np.flatnonzero(is_bnd) // 3

@@ -1,0 +1,31 @@
+"""repair.rows.unique_rows must agree with np.unique(axis=0) in every output."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from repair.rows import unique_rows
+
+
+@pytest.mark.parametrize("shape", [(1000, 2), (3000, 3), (1, 3), (0, 2)])
+@pytest.mark.parametrize("flags", [(False, False, False), (True, True, True), (False, True, True),
+                                   (True, False, False)])  # fmt: skip
+def test_unique_rows_matches_numpy(shape, flags):
+    a = np.random.default_rng(len(shape) + shape[0]).integers(-5, 40, size=shape)
+    want = np.unique(a, axis=0, return_index=flags[0], return_inverse=flags[1],
+                     return_counts=flags[2])  # fmt: skip
+    got = unique_rows(a, *flags)
+    want = want if isinstance(want, tuple) else (want,)
+    got = got if isinstance(got, tuple) else (got,)
+    assert len(got) == len(want)
+    for w, g in zip(want, got, strict=True):
+        assert np.array_equal(np.asarray(w).reshape(-1), np.asarray(g).reshape(-1))
+    assert got[0].shape == want[0].shape
+
+
+def test_unique_rows_of_huge_indices_falls_back_to_numpy():
+    a = np.array([[2**40, 2**40, 2**40], [0, 0, 0], [2**40, 2**40, 2**40]], dtype=np.int64)
+    rows, inv = unique_rows(a, return_inverse=True)
+    assert rows.tolist() == [[0, 0, 0], [2**40] * 3]
+    assert inv.tolist() == [1, 0, 1]
