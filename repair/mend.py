@@ -367,22 +367,19 @@ def separate_singular_edges(
 
     Returns ``(vertices, faces, edges separated)``, or None where the faces around an
     edge do not alternate in orientation (not wedges of one closed solid)."""
-    from repair.thicken import _split_vertices
+    from repair.thicken import _half_edges, _split_vertices
 
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
-    he = np.stack([f.reshape(-1), f[:, [1, 2, 0]].reshape(-1)], axis=1)
-    _, eid, cnt = unique_rows(np.sort(he, axis=1), return_inverse=True,
-                            return_counts=True)  # fmt: skip
-    eid = eid.reshape(-1)
+    he, eid = _half_edges(f)
+    cnt = np.bincount(eid)
     singular = np.flatnonzero(cnt > 2)
     if len(singular) == 0:
         return v, f, 0
     if np.any(cnt[singular] % 2):
         return None
-    eid = eid.copy()
     next_id = int(eid.max()) + 1
-    third = f.reshape(-1)[(np.arange(3 * len(f)) // 3) * 3 + (np.arange(3 * len(f)) + 2) % 3]
+    third = f[:, [2, 0, 1]].reshape(-1)  # the corner opposite half-edge 3f+k
     on = np.flatnonzero(np.isin(eid, singular))
     on = on[np.argsort(eid[on], kind="stable")]
     bounds = np.r_[0, np.flatnonzero(np.diff(eid[on])) + 1, len(on)]

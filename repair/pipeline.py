@@ -230,9 +230,10 @@ def _union_fast_path(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarr
 def _manifold_union(
     parts: list[tuple[np.ndarray, np.ndarray]],
 ) -> tuple[np.ndarray, np.ndarray] | None:
-    """Union of closed oriented pieces (the solid outer hull, sheet slabs, wire prisms)
-    by manifold3d's robust booleans; None if manifold3d rejects a piece. The result is
-    verified (and resolved exactly if need be) by the caller's float32 check."""
+    """Union of closed oriented pieces -- the solid outer hull first (welded here), then
+    sheet slabs, ledge prisms and wire cylinders (each already an indexed closed solid)
+    -- by manifold3d's robust booleans; None if manifold3d rejects a piece. The result
+    is verified (and resolved exactly if need be) by the caller's float32 check."""
     import manifold3d as m3d
 
     solids = []
@@ -424,9 +425,10 @@ def _finish(
     arrangement of the crossing faces, winding-number choice of the pieces); from the
     second round on, the shortest edge of each damaged face is first collapsed when it is
     at float32-rounding scale, so that rounding cannot keep re-creating the same slivers.
-    Edges shared by more than two faces (parts touching along an edge) are thickened
-    into thin prisms that fuse the parts. An open result takes the whole arrangement and
-    outer hull again.
+    Edges shared by more than two faces (parts touching along an edge) first get one
+    copy per part, a few ulps apart (:func:`repair.mend.separate_singular_edges`); where
+    that leaves more damage, they are thickened into thin prisms that fuse the parts. An
+    open result takes the whole arrangement and outer hull again.
     """
     verdict: Printability | None = None
     tried_separation = False

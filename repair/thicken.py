@@ -11,6 +11,10 @@ The offset at a vertex is ``eps/2`` scaled up where the incident faces bend (so 
 slab stays about ``eps`` thick across creases) but never beyond ``MITER_LIMIT * eps/2``,
 so every slab point is within ``MITER_LIMIT * eps / 2`` of the sheet.
 
+Where one input triangle is partly solid hull and partly sheet, ``region_prisms`` gives
+its sheet part one flat prism (the 2-D union of its arrangement pieces, extruded by
+manifold3d) instead of a slab per sliver piece.
+
 Units are mm; vertices float64 (n, 3), faces int64 (m, 3). Vectorised numpy + scipy.
 """
 
