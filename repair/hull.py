@@ -17,9 +17,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from repair.check import weld_exact
+from repair.check import _duplicate_faces, intersecting_face_pairs, weld_exact
 from repair.clean import cancel_opposite_faces, degenerate_mask, drop_unreferenced, unique_faces
 from repair.rows import unique_rows
+
+# Re-mesh only the intersecting faces when the mesh has at least this many faces and at
+# most this share of them intersect (else the whole mesh in one libigl call).
+LOCAL_REMESH_MIN_FACES = 2000
+LOCAL_REMESH_MAX_SHARE = 0.5
 
 __all__ = [
     "HullSplit",
@@ -31,17 +36,47 @@ __all__ = [
 
 
 def _remesh(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-    """One exact arrangement pass: (vertices, faces, birth face, intersecting pairs)."""
+    """One exact arrangement pass: (vertices, faces, birth face, intersecting pairs).
+
+    Only the faces that intersect another are re-meshed: a face that meets no other one
+    beyond a shared vertex or edge cannot be split (a split point on its edge would lie
+    on the face across that edge too, so that face would be in a pair). The new faces get
+    their own copies of the vertices, to be merged by an exact weld. Falls back
+    to the whole mesh when most faces are involved or faces repeat a vertex triple.
+    """
     import igl.copyleft.cgal as cgal
 
-    vv, ff, pairs, birth, im = cgal.remesh_self_intersections(
-        np.ascontiguousarray(v, dtype=np.float64),
-        np.ascontiguousarray(f, dtype=np.int64),
-        stitch_all=True,
-        cutoff=2**31 - 1,
+    v = np.ascontiguousarray(v, dtype=np.float64)
+    f = np.ascontiguousarray(f, dtype=np.int64)
+    hit = np.arange(len(f))
+    n_pairs = -1
+    if len(f) >= LOCAL_REMESH_MIN_FACES and _duplicate_faces(f) == 0:
+        pairs = intersecting_face_pairs(v, f)
+        n_pairs = len(pairs)
+        if n_pairs == 0:
+            return v, f, np.arange(len(f)), 0
+        hit = np.unique(pairs)
+        if len(hit) > LOCAL_REMESH_MAX_SHARE * len(f):
+            hit = np.arange(len(f))
+    vv, ff, pairs_found, birth, im = cgal.remesh_self_intersections(
+        v, np.ascontiguousarray(f[hit]), stitch_all=True, cutoff=2**31 - 1
     )
     ff = np.asarray(im, dtype=np.int64)[ff]
-    return vv, ff, np.asarray(birth, dtype=np.int64), int(len(pairs))
+    birth = hit[np.asarray(birth, dtype=np.int64)]
+    if n_pairs < 0:
+        n_pairs = len(pairs_found)
+    if len(hit) == len(f):
+        return vv, ff, birth, n_pairs
+    # libigl reorders the vertices: give the new ones their own indices after the
+    # input's; the caller's exact weld merges the coincident copies.
+    rest = np.ones(len(f), dtype=bool)
+    rest[hit] = False
+    keep = np.flatnonzero(rest)
+    out_v = np.vstack([v, np.asarray(vv, dtype=np.float64)])
+    out_f = np.vstack([f[keep], ff + len(v)])
+    out_b = np.r_[keep, birth]
+    order = np.argsort(out_b, kind="stable")  # input order, as a whole-mesh pass gives
+    return out_v, out_f[order], out_b[order], n_pairs
 
 
 def resolve(
