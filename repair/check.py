@@ -480,20 +480,40 @@ def _empty_verdict(as_float32: bool) -> Printability:
         )  # fmt: skip
 
 
-def _verdict(v: np.ndarray, f: np.ndarray, as_float32: bool) -> tuple[Printability, np.ndarray]:
+def verdict_given_pairs(
+    vertices: np.ndarray, faces: np.ndarray, pairs: np.ndarray
+) -> tuple[Printability, np.ndarray]:
+    """:func:`check_printable_pairs` (``as_float32=False``) on float32-valued vertices
+    whose intersecting face pairs are already known: ``pairs`` must be every pair that
+    :func:`intersecting_face_pairs` finds among the non-degenerate faces at exactly these
+    coordinates (e.g. from :func:`repair.mend.round_finding_crossings`). They are tested
+    again when the faces hold duplicates, whose handling differs."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    if len(f) == 0:
+        return _empty_verdict(True), np.zeros((0, 2), dtype=np.int64)
+    return _verdict(v, f, True, np.asarray(pairs, dtype=np.int64).reshape(-1, 2))
+
+
+def _verdict(
+    v: np.ndarray, f: np.ndarray, as_float32: bool, known_pairs: np.ndarray | None = None
+) -> tuple[Printability, np.ndarray]:
     m = len(f)
     boundary, nonmanifold, misoriented, components, labels = _edge_stats(f, len(v))
     degenerate, volume = _degeneracy_and_volume(v, f)
     n_degenerate = int(np.count_nonzero(degenerate))
     n_duplicate = _duplicate_faces(f)
 
-    # The exact intersection test needs proper triangles, each vertex triple once.
-    keep = np.flatnonzero(~degenerate)
-    fk = f[keep]
-    if n_duplicate:
-        keep = keep[_first_of_duplicates(fk)]
+    if known_pairs is not None and n_duplicate == 0:
+        pairs = known_pairs
+    else:
+        # The exact intersection test needs proper triangles, each vertex triple once.
+        keep = np.flatnonzero(~degenerate)
         fk = f[keep]
-    pairs = keep[intersecting_face_pairs(v, fk)]
+        if n_duplicate:
+            keep = keep[_first_of_duplicates(fk)]
+            fk = f[keep]
+        pairs = keep[intersecting_face_pairs(v, fk)]
 
     solid_so_far = (
         boundary == 0 and nonmanifold == 0 and misoriented == 0

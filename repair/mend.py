@@ -36,6 +36,7 @@ __all__ = [
     "manifold_patches",
     "mend_intersections",
     "round_avoiding_crossings",
+    "round_finding_crossings",
     "separate_singular_edges",
     "side_windings",
 ]
@@ -158,13 +159,29 @@ def round_avoiding_crossings(
     vertices: np.ndarray, faces: np.ndarray, max_tries: int = 8
 ) -> tuple[np.ndarray, int]:
     """Round vertices to float32 (what a binary STL stores) so that rounding itself makes
+    no two faces cross. Returns ``(vertices float64, crossing pairs left)``; see
+    :func:`round_finding_crossings`."""
+    out, pairs, _ = round_finding_crossings(vertices, faces, max_tries)
+    return out, int(len(pairs))
+
+
+def round_finding_crossings(
+    vertices: np.ndarray, faces: np.ndarray, max_tries: int = 8
+) -> tuple[np.ndarray, np.ndarray, bool]:
+    """Round vertices to float32 (what a binary STL stores) so that rounding itself makes
     no two faces cross.
 
     Each coordinate not exactly representable has two float32 neighbours; the nearest is
     tried first. Where faces cross after rounding, every vertex of the crossing faces that
-    rounding moved takes the next of its (up to 8) corner choices, and the faces are tested
-    again -- a few rounds of exact tests on the damaged faces only. No vertex moves by more
-    than one float32 ulp. Returns ``(vertices float64, crossing pairs left)``.
+    rounding moved takes the next of its (up to 8) corner choices, and the faces near the
+    moved ones are tested again -- a few rounds of exact tests on the damaged region only.
+    No vertex moves by more than one float32 ulp.
+
+    Returns ``(vertices float64, pairs, complete)``: ``pairs`` (k, 2) are the crossing
+    face pairs (i < j) among the non-degenerate faces at the returned coordinates; when
+    ``complete`` they are all of them, exactly as :func:`repair.check.intersecting_face_pairs`
+    finds them (a pair of untouched faces cannot change; every pair with a moved face is
+    re-tested), so a caller need not test the whole mesh again.
     """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
@@ -178,37 +195,98 @@ def round_avoiding_crossings(
     out = r.astype(np.float64)
     moved = ~exact.all(axis=1)
     pairs = np.zeros((0, 2), dtype=np.int64)
-    region = np.arange(len(f))  # faces to test: all at first, then near the damage
-    for _ in range(max_tries):
+    deg_faces = np.zeros(0, dtype=np.int64)
+    region = np.arange(len(f))  # faces to test: all at first, then near the moved ones
+    changed = np.ones(len(f), dtype=bool)
+    complete = False
+    for attempt in range(max_tries + 1):
         fr = f[region]
         deg = degenerate_mask(out, fr)
         ok = np.flatnonzero(~deg)
-        pairs = region[ok[intersecting_face_pairs(out, fr[ok])]]
-        hit = np.r_[pairs.reshape(-1), region[deg]]
+        found = region[ok[intersecting_face_pairs(out, fr[ok])]]
+        # Keep what involves no moved face; take the rest from this test.
+        pairs = np.vstack([pairs[~changed[pairs].any(axis=1)], found[changed[found].any(axis=1)]])
+        pairs = unique_rows(np.sort(pairs, axis=1)) if len(pairs) else pairs
+        rd = region[deg]
+        deg_faces = np.union1d(deg_faces[~changed[deg_faces]], rd[changed[rd]])
+        hit = np.r_[pairs.reshape(-1), deg_faces]
         bad_v = np.unique(f[hit].reshape(-1))
         bad_v = bad_v[moved[bad_v]]
-        if len(bad_v) == 0:
+        if len(bad_v) == 0 or attempt == max_tries:
+            complete = True  # the last choices are tested too: the pairs are all known
             break
         choice[bad_v] += 1
         bits = (choice[bad_v, None] >> np.arange(3)) & 1
         out[bad_v] = np.where(bits == 1, other[bad_v], r[bad_v]).astype(np.float64)
-        region = _faces_near(out, f, np.unique(hit))
-    return out, int(len(pairs))
+        touched = np.zeros(len(v), dtype=bool)
+        touched[bad_v] = True
+        changed = touched[f].any(axis=1)
+        region = _faces_near(out, f, np.flatnonzero(changed))
+    return out, pairs, complete
 
 
 def _faces_near(v: np.ndarray, f: np.ndarray, which: np.ndarray) -> np.ndarray:
-    """Faces whose bounding box meets the (slightly grown) box of any face in ``which``
-    (all faces when ``which`` is large: one global test is cheaper then)."""
-    if len(which) * len(f) > 20_000_000:
-        return np.arange(len(f))
+    """Faces whose bounding box meets the (slightly grown) box of any face in ``which``,
+    and perhaps a few more: a superset, which is all an exact test of the region needs.
+
+    Grid cells are as large as 99 % of the faces' boxes. The grown box of each face of
+    ``which`` that fits in a cell marks at most 2x2x2 cells, and a face that fits is near
+    when its box covers a marked cell. The few larger faces are tested box against box.
+    All faces when ``which`` is a fifth of them or more.
+    """
+    which = np.asarray(which, dtype=np.int64)
+    if len(which) == 0 or len(f) == 0:
+        return which
+    if len(which) > len(f) // 5:
+        return np.arange(len(f))  # most of the mesh: one global test is cheaper
     p = v[f]
     lo, hi = p.min(axis=1), p.max(axis=1)
     pad = 1e-6 * (float(np.abs(v).max()) or 1.0)
+    lo -= pad
+    hi += pad
+    origin = lo.min(axis=0)
+    span = float((hi.max(axis=0) - origin).max())
+    ext = (hi - lo).max(axis=1)
+    h = max(float(np.quantile(ext, 0.99)), span / 1024.0, 1e-300)
+    n = int(span / h) + 3
+
+    def cells(x: np.ndarray) -> np.ndarray:
+        return np.clip(np.floor((x - origin) / h), 0, n - 1).astype(np.int64)
+
+    def keys(a: np.ndarray, b: np.ndarray, corner: int) -> np.ndarray:
+        c = np.where((corner >> np.arange(3)) & 1, b, a)
+        return (c[:, 0] * n + c[:, 1]) * n + c[:, 2]
+
+    fa, fb = cells(lo), cells(hi)
+    fits = np.all(fb - fa <= 1, axis=1)
     near = np.zeros(len(f), dtype=bool)
-    for s in range(0, len(which), 64):
-        w = which[s : s + 64]
-        a = (lo[None, :, :] <= hi[w, None, :] + pad) & (hi[None, :, :] >= lo[w, None, :] - pad)
-        near |= a.all(axis=2).any(axis=0)
+    w = which[fits[which]]
+    if len(w):
+        marked = np.unique(np.concatenate([keys(fa[w], fb[w], k) for k in range(8)]))
+        for k in range(8):
+            kk = keys(fa, fb, k)
+            pos = np.clip(np.searchsorted(marked, kk), 0, len(marked) - 1)
+            near |= marked[pos] == kk
+        near &= fits
+
+    def meet(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Faces of ``a`` whose box meets the box of a face of ``b`` (a loop over ``a``)."""
+        out = np.zeros(len(a), dtype=bool)
+        for s in range(0, len(a), 64):
+            g = a[s : s + 64]
+            m = (lo[g, None, :] <= hi[None, b]) & (hi[g, None, :] >= lo[None, b])
+            out[s : s + 64] = m.all(axis=2).any(axis=1)
+        return out
+
+    big = np.flatnonzero(~fits)
+    if len(big) and len(which):
+        near[big] = meet(big, which)
+    big_w = which[~fits[which]]
+    if len(big_w):
+        for s in range(0, len(big_w), 64):
+            g = big_w[s : s + 64]
+            m = (lo[None, :, :] <= hi[g, None, :]) & (hi[None, :, :] >= lo[g, None, :])
+            near |= m.all(axis=2).any(axis=0)
     near[which] = True
     return np.flatnonzero(near)
 

@@ -43,6 +43,7 @@ from repair.check import (
     check_printable_pairs,
     intersecting_face_pairs,
     round_to_float32,
+    verdict_given_pairs,
     weld_exact,
 )
 from repair.clean import clean_soup, degenerate_mask, drop_unreferenced
@@ -58,7 +59,7 @@ from repair.hull import (
 from repair.mend import (
     is_cycle,
     mend_intersections,
-    round_avoiding_crossings,
+    round_finding_crossings,
     separate_singular_edges,
 )
 from repair.rows import unique_rows
@@ -358,9 +359,11 @@ def _sheet_to_thicken(
     return out
 
 
-def _damaged_faces(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+def _damaged_faces(v: np.ndarray, f: np.ndarray, pairs: np.ndarray | None = None) -> np.ndarray:
     """Faces that are degenerate, duplicated, intersect another, or sit on an edge that is
-    open, non-manifold or traversed twice the same way."""
+    open, non-manifold or traversed twice the same way. ``pairs``: the intersecting face
+    pairs of ``(v, f)`` if known (the test is pairwise: those among the faces not damaged
+    otherwise are the ones a test of those faces finds)."""
     bad = degenerate_mask(v, f)
     s = np.sort(f, axis=1)
     _, inv, cnt = unique_rows(s, return_inverse=True, return_counts=True)
@@ -371,20 +374,23 @@ def _damaged_faces(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     _, hinv, hcnt = unique_rows(he, return_inverse=True, return_counts=True)
     bad_he = (ecnt[einv.reshape(-1)] != 2) | (hcnt[hinv.reshape(-1)] > 1)
     bad |= bad_he.reshape(-1, 3).any(axis=1)
-    ok = np.flatnonzero(~bad)
-    pairs = intersecting_face_pairs(v, f[ok])
-    if len(pairs):
-        bad[ok[pairs.reshape(-1)]] = True
+    if pairs is None:
+        ok = np.flatnonzero(~bad)
+        pairs = ok[intersecting_face_pairs(v, f[ok])]
+    else:
+        pairs = pairs[~bad[pairs].any(axis=1)]
+    bad[pairs.reshape(-1)] = True
     return np.flatnonzero(bad)
 
 
 def _collapse_damaged(
-    v: np.ndarray, f: np.ndarray, reach: float = 2.0**-18
+    v: np.ndarray, f: np.ndarray, reach: float = 2.0**-18, pairs: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """Merge the endpoints of the shortest edge of every damaged face when that edge is
     within float32 rounding scale (union-find over all such edges at once); the merged
-    vertex keeps one endpoint's position, so nothing moves by more than ~4 ulps x chain."""
-    bad = _damaged_faces(v, f)
+    vertex keeps one endpoint's position, so nothing moves by more than ~4 ulps x chain.
+    Returns ``(v, f)`` themselves when no edge is that short."""
+    bad = _damaged_faces(v, f, pairs)
     if len(bad) == 0:
         return v, f
     p = v[f[bad]]
@@ -416,6 +422,21 @@ def _drop_collapsed(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return drop_unreferenced(v, f)
 
 
+def _rounded_verdict(
+    v: np.ndarray, f: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, Printability, np.ndarray]:
+    """Round to float32 avoiding crossings, weld, and check: ``(v32, f32, verdict,
+    pairs)``. The crossings found while rounding are reused when they are complete and
+    the weld merged nothing (same faces, same coordinates: the same test)."""
+    r, found, complete = round_finding_crossings(v, f)
+    v32, f32 = weld_exact(r, f)
+    if complete and len(v32) == len(r):
+        verdict, pairs = verdict_given_pairs(v32, f32, found)
+    else:
+        verdict, pairs = check_printable_pairs(v32, f32)
+    return v32, f32, verdict, pairs
+
+
 def _finish(
     v: np.ndarray, f: np.ndarray, eps: float, tally: _Tally
 ) -> tuple[np.ndarray, np.ndarray, Printability]:
@@ -435,8 +456,7 @@ def _finish(
     worse = 0
     last_damage = None
     for round_ in range(MAX_FINISH_ROUNDS):
-        v32, f32 = weld_exact(round_avoiding_crossings(v, f)[0], f)
-        verdict, pairs = check_printable_pairs(v32, f32)
+        v32, f32, verdict, pairs = _rounded_verdict(v, f)
         if verdict.ok:
             return v32, f32, verdict
         damage = verdict.intersecting_pairs + verdict.degenerate_faces + verdict.nonmanifold_edges
@@ -457,12 +477,16 @@ def _finish(
         ):
             # Growing reach (still far below a nozzle) when damage keeps coming back.
             reach = 2.0 ** (-18 + min(max(round_ - COLLAPSE_FROM, 0), 6))
-            v32, f32 = _collapse_damaged(v32, f32, reach)
+            collapsed = _collapse_damaged(v32, f32, reach, pairs)
             tally.collapsed += 1
-            pairs = None
+            if collapsed[1] is not f32:
+                pairs = None
+            v32, f32 = collapsed
         if verdict.duplicate_faces or round_ >= 1:
+            n_faces = len(f32)
             v32, f32 = _drop_collapsed(v32, f32)
-            pairs = None
+            if len(f32) != n_faces:
+                pairs = None
         extra: list[tuple[np.ndarray, np.ndarray]] = []
         clean_touch = verdict.nonmanifold_edges and not (
             verdict.intersecting_pairs or verdict.degenerate_faces
@@ -475,9 +499,7 @@ def _finish(
             step = float(np.abs(v32).max()) * 2.0**-17
             sep = separate_singular_edges(v32, f32, step)
             if sep is not None:
-                trial = check_printable_pairs(
-                    *weld_exact(round_avoiding_crossings(sep[0], sep[1])[0], sep[1])
-                )[0]
+                trial = _rounded_verdict(*sep[:2])[2]
                 left = trial.intersecting_pairs + trial.degenerate_faces
                 if left + trial.nonmanifold_edges < verdict.nonmanifold_edges:
                     v, f, tally.separated = sep

@@ -8,11 +8,13 @@ import pytest
 from mesh_helpers import box, concat, signed_volume
 
 from repair.check import check_printable, intersecting_face_pairs, weld_exact
-from repair.clean import clean_soup, net_faces
+from repair.clean import clean_soup, degenerate_mask, net_faces
 from repair.mend import (
+    _faces_near,
     is_cycle,
     mend_intersections,
     round_avoiding_crossings,
+    round_finding_crossings,
     separate_singular_edges,
     side_windings,
 )
@@ -86,6 +88,40 @@ def test_rounding_keeps_representable_vertices_and_moves_others_one_ulp_at_most(
     assert np.array_equal(out.astype(np.float32).astype(np.float64), out)
     ulp = np.spacing(np.abs(v).astype(np.float32)).astype(np.float64)
     assert np.all(np.abs(out - v) <= ulp)
+
+
+def _two_crossing_spheres():
+    import trimesh
+
+    a = trimesh.creation.icosphere(subdivisions=3, radius=10.0)
+    b = trimesh.creation.icosphere(subdivisions=2, radius=6.0)
+    v = np.vstack([a.vertices, b.vertices + (8.3, 1.7, -2.1)])
+    return v, np.vstack([a.faces, b.faces + len(a.vertices)]).astype(np.int64)
+
+
+def test_rounding_reports_exactly_the_crossings_a_whole_test_finds():
+    # Unmended crossings: rounding keeps trying other corners for their moved vertices
+    # and re-tests only near them; the pairs it reports must still be all of them.
+    v, f = _two_crossing_spheres()
+    out, pairs, complete = round_finding_crossings(v, f, max_tries=5)
+    assert complete and len(pairs) > 0
+    ok = np.flatnonzero(~degenerate_mask(out, f))
+    whole = ok[intersecting_face_pairs(out, f[ok])]
+    assert np.array_equal(pairs, whole)
+
+
+def test_faces_near_holds_every_face_whose_box_meets_one_of_them():
+    v, f = _two_crossing_spheres()
+    p = v[f]
+    lo, hi = p.min(axis=1), p.max(axis=1)
+    rng = np.random.default_rng(5)
+    for k in (1, 7, 60):
+        which = np.unique(rng.integers(0, len(f), k))
+        near = _faces_near(v, f, which)
+        meets = (lo[None] <= hi[which, None]) & (hi[None] >= lo[which, None])
+        truth = np.flatnonzero(meets.all(axis=2).any(axis=0))
+        assert np.isin(truth, near).all()
+        assert len(near) < len(f)  # a region, not the whole mesh
 
 
 def test_pole_triangles_collapsed_onto_an_edge_are_not_wires():
