@@ -9,6 +9,9 @@ crashes are per run. Tools: preflight's ``repair_mesh``, pymeshfix (``bench`` ex
 ``clean_from_arrays``, which keeps only the largest component) and trimesh's repair
 (``fix_normals`` + ``fill_holes``; fill_holes needs networkx).
 
+The memory column is the parent's peak RSS, plus ``+Nw``: the largest peak RSS of a
+forked intersection-test worker (see ``repair.check.intersecting_face_pairs``).
+
 Rows ``cli:...`` time the whole process ``preflight repair IN -o OUT.stl`` (start-up,
 load, repair, write) on a clean mesh written to a temporary binary STL (preflight only).
 
@@ -34,6 +37,15 @@ def _peak_rss_mb() -> float:
     import resource
 
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def _peak_worker_rss_mb() -> float:
+    """Largest peak RSS of a finished child (preflight's forked intersection-test workers;
+    their RSS counts the pages they share with the parent too, so parent + worker is an
+    upper bound of the memory in use at once with one worker)."""
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0
 
 
 def _torus(n_major: int, n_minor: int):
@@ -188,13 +200,14 @@ def _run_one(tool: str, spec: str, q) -> None:
             ov, of = m.vertices, m.faces
         dt = time.perf_counter() - t0
         peak = _peak_rss_mb()
+        workers = _peak_worker_rss_mb()
         from repair.check import check_printable
 
         ok = bool(len(of)) and check_printable(
             np.asarray(ov, float), np.asarray(of, np.int64), as_float32=True
         ).ok
         q.put({"tris": int(len(f)), "out": int(len(of)), "s": dt, "peak_mb": peak,
-               "delta_mb": peak - base, "ok": ok})  # fmt: skip
+               "delta_mb": peak - base, "worker_mb": workers, "ok": ok})  # fmt: skip
     except Exception as exc:  # noqa: BLE001 - report, do not die
         q.put({"error": f"{type(exc).__name__}: {str(exc).splitlines()[0][:60]}"})
 
@@ -230,7 +243,15 @@ def main() -> int:
                   "gen:sheet_sieve_200k", "cli:clean_500k", "cli:broken_200k"]  # fmt: skip
     specs = [s for s in specs if a.only in s]
     results: dict[str, dict[str, dict]] = {}
-    hdr = f"{'input':36} {'tris':>8} " + " ".join(f"{t:>38}" for t in TOOLS)
+    if any(sp.startswith("cli:") for sp in specs):
+        # An installed preflight has its bytecode compiled (pip does it at install time);
+        # a source checkout run with PYTHONDONTWRITEBYTECODE=1 would not, and the cli:
+        # rows would time Python's compiler instead of preflight's start-up.
+        import compileall
+
+        for pkg in ("daemon", "repair", "printer", "slicer"):
+            compileall.compile_dir(str(ROOT / pkg), quiet=1)
+    hdr = f"{'input':36} {'tris':>8} " + " ".join(f"{t:>44}" for t in TOOLS)
     print(hdr)
     for spec in specs:
         name = Path(spec).name if not spec.startswith("gen:") else spec
@@ -241,14 +262,16 @@ def main() -> int:
         for t in TOOLS:
             r = row[t]
             if r.get("skip"):
-                cells.append(f"{'-':>38}")
+                cells.append(f"{'-':>44}")
             elif "error" in r:
-                cells.append(f"{r['error'][:38]:>38}")
+                cells.append(f"{r['error'][:44]:>44}")
             else:
                 rate = r["tris"] / max(r["s"], 1e-9)
                 mem = f"{r['peak_mb']:5.0f}MB" if r["peak_mb"] is not None else "    -  "
+                if r.get("worker_mb"):
+                    mem += f"+{r['worker_mb']:.0f}w"
                 cells.append(f"{r['s']:6.2f}s {rate / 1e3:6.0f}k/s {r['out']:8d}t "
-                             f"{mem} {'OK ' if r['ok'] else 'BAD'}")  # fmt: skip
+                             f"{mem:>13} {'OK ' if r['ok'] else 'BAD'}")  # fmt: skip
         print(f"{name[:36]:36} {tris:8d} " + " ".join(cells), flush=True)
     print()
     for t in TOOLS:

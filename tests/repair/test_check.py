@@ -2,17 +2,22 @@
 
 from __future__ import annotations
 
+import os
+import signal
+
 import numpy as np
 import pytest
 import trimesh
 from mesh_helpers import concat
 
+import repair.check as check_mod
 from repair.check import (
     check_printable,
     degenerate_face_mask,
     round_to_float32,
     weld_exact,
 )
+from repair.rows import unique_rows
 
 
 def box(lo=(0.0, 0.0, 0.0), hi=(1.0, 1.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
@@ -229,3 +234,37 @@ def test_large_clean_mesh_passes():
     p = check_printable(m.vertices, m.faces, as_float32=True)
     assert p.ok, p.failures()
     assert p.components == 1
+
+
+def _crossing_spheres():
+    a = trimesh.creation.icosphere(subdivisions=4, radius=10.0)
+    b = trimesh.creation.icosphere(subdivisions=3, radius=6.0)
+    v = np.vstack([a.vertices, b.vertices + (8.3, 1.7, -2.1)])
+    return v, np.vstack([a.faces, b.faces + len(a.vertices)]).astype(np.int64)
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="slabs run in forked processes")
+def test_slabs_tested_side_by_side_find_the_pairs_one_test_finds():
+    v, f = _crossing_spheres()
+    one = unique_rows(np.sort(check_mod._pairs(v, f), axis=1))
+    assert len(one) > 100
+    for k in (2, 3, 4):
+        slabs = unique_rows(np.sort(check_mod._pairs_in_slabs(v, f, k), axis=1))
+        assert np.array_equal(slabs, one)
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="slabs run in forked processes")
+def test_a_slab_whose_worker_dies_is_tested_again_in_the_parent(monkeypatch):
+    v, f = _crossing_spheres()
+    one = unique_rows(np.sort(check_mod._pairs(v, f), axis=1))
+    parent = os.getpid()
+    real = check_mod._pairs
+
+    def dies_in_children(vv, ff):
+        if os.getpid() != parent:
+            os.kill(os.getpid(), signal.SIGKILL)  # the worker dies (no core file)
+        return real(vv, ff)
+
+    monkeypatch.setattr(check_mod, "_pairs", dies_in_children)
+    slabs = unique_rows(np.sort(check_mod._pairs_in_slabs(v, f, 3), axis=1))
+    assert np.array_equal(slabs, one)
