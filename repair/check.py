@@ -162,8 +162,13 @@ def weld_exact(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.
     else:
         cols = (b0, b1, b2)
     del b0, b1, b2
-    order = np.argsort(h)
-    hs = h[order]
+    # One plain sort of (hash high bits | index) instead of an argsort: several times
+    # faster; a collision of the shortened hash only costs the exact fallback below.
+    shift = np.uint64(max(int(len(v)).bit_length(), 1))
+    packed = np.sort(((h >> shift) << shift) | np.arange(len(v), dtype=np.uint64))
+    order = (packed & ((np.uint64(1) << shift) - np.uint64(1))).astype(np.int64)
+    hs = packed >> shift
+    del packed
     same_hash = hs[1:] == hs[:-1]
     del hs
     # Equal neighbours in hash order, compared exactly on all bits. Equal rows have equal
