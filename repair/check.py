@@ -581,8 +581,9 @@ def verdict_given_pairs(
     """:func:`check_printable_pairs` (``as_float32=False``) on float32-valued vertices
     whose intersecting face pairs are already known: ``pairs`` must be every pair that
     :func:`intersecting_face_pairs` finds among the non-degenerate faces at exactly these
-    coordinates (e.g. from :func:`repair.mend.round_finding_crossings`). They are tested
-    again when the faces hold duplicates, whose handling differs."""
+    coordinates (e.g. from :func:`repair.mend.round_finding_crossings`); copies of a face
+    may be in them (libigl's test is pairwise and never pairs two copies), the verdict
+    counts those of the first copies, as a test of its own would."""
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     if len(f) == 0:
@@ -599,8 +600,13 @@ def _verdict(
     n_degenerate = int(np.count_nonzero(degenerate))
     n_duplicate = _duplicate_faces(f)
 
-    if known_pairs is not None and n_duplicate == 0:
+    if known_pairs is not None:
         pairs = known_pairs
+        if n_duplicate:  # the test is pairwise: keep the pairs one test of the first copies finds
+            first = np.zeros(m, dtype=bool)
+            nondeg = np.flatnonzero(~degenerate)
+            first[nondeg[_first_of_duplicates(f[nondeg])]] = True
+            pairs = pairs[first[pairs].all(axis=1)]
     else:
         # The exact intersection test needs proper triangles, each vertex triple once.
         keep = np.flatnonzero(~degenerate)

@@ -58,9 +58,14 @@ def _remesh(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
         hit = np.unique(pairs)
         if len(hit) > LOCAL_REMESH_MAX_SHARE * len(f):
             hit = np.arange(len(f))
+    if len(hit) == len(f):
+        sub_v, sub_f = v, f
+    else:  # libigl's cost grows with all the vertices it is given: give it the few used
+        sub_v, sub_f = drop_unreferenced(v, f[hit])
     vv, ff, pairs_found, birth, im = cgal.remesh_self_intersections(
-        v, np.ascontiguousarray(f[hit]), stitch_all=True, cutoff=2**31 - 1
-    )
+        np.ascontiguousarray(sub_v), np.ascontiguousarray(sub_f), stitch_all=True,
+        cutoff=2**31 - 1,
+    )  # fmt: skip
     ff = np.asarray(im, dtype=np.int64)[ff]
     birth = hit[np.asarray(birth, dtype=np.int64)]
     if n_pairs < 0:

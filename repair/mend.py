@@ -37,6 +37,7 @@ __all__ = [
     "mend_intersections",
     "round_avoiding_crossings",
     "round_finding_crossings",
+    "crossings_after_change",
     "separate_singular_edges",
     "side_windings",
 ]
@@ -197,6 +198,7 @@ def round_finding_crossings(
     pairs = np.zeros((0, 2), dtype=np.int64)
     deg_faces = np.zeros(0, dtype=np.int64)
     region = np.arange(len(f))  # faces to test: all at first, then near the moved ones
+    grid = None  # built on the first rounding; choices move vertices far less than its pad
     changed = np.ones(len(f), dtype=bool)
     complete = False
     for attempt in range(max_tries + 1):
@@ -221,74 +223,121 @@ def round_finding_crossings(
         touched = np.zeros(len(v), dtype=bool)
         touched[bad_v] = True
         changed = touched[f].any(axis=1)
-        region = _faces_near(out, f, np.flatnonzero(changed))
+        if grid is None:
+            grid = FaceGrid(out, f)
+        region = grid.near(np.flatnonzero(changed))
     return out, pairs, complete
 
 
-def _faces_near(v: np.ndarray, f: np.ndarray, which: np.ndarray) -> np.ndarray:
-    """Faces whose bounding box meets the (slightly grown) box of any face in ``which``,
-    and perhaps a few more: a superset, which is all an exact test of the region needs.
+class FaceGrid:
+    """Finds the faces near a few others: those whose bounding box meets the (slightly
+    grown) box of one of them, and perhaps a few more -- a superset, which is all an
+    exact test of the region needs.
 
-    Grid cells are as large as 99 % of the faces' boxes. The grown box of each face of
-    ``which`` that fits in a cell marks at most 2x2x2 cells, and a face that fits is near
-    when its box covers a marked cell. The few larger faces are tested box against box.
-    All faces when ``which`` is a fifth of them or more.
+    Built once per mesh: grid cells as large as 99 % of the faces' boxes, each face that
+    fits listed under the (at most 2x2x2) cells its grown box covers, sorted by cell. A
+    query gathers the faces listed under the cells of the asked faces; the few faces
+    larger than a cell are tested box against box. Boxes are grown by ``1e-6`` of the
+    largest coordinate, so the grid stays valid while vertices move by less than that
+    (float32 rounding choices move them by one float32 ulp, ~6e-8 of it).
     """
-    which = np.asarray(which, dtype=np.int64)
-    if len(which) == 0 or len(f) == 0:
-        return which
-    if len(which) > len(f) // 5:
-        return np.arange(len(f))  # most of the mesh: one global test is cheaper
-    p = v[f]
-    lo, hi = p.min(axis=1), p.max(axis=1)
-    pad = 1e-6 * (float(np.abs(v).max()) or 1.0)
-    lo -= pad
-    hi += pad
-    origin = lo.min(axis=0)
-    span = float((hi.max(axis=0) - origin).max())
-    ext = (hi - lo).max(axis=1)
-    h = max(float(np.quantile(ext, 0.99)), span / 1024.0, 1e-300)
-    n = int(span / h) + 3
 
-    def cells(x: np.ndarray) -> np.ndarray:
-        return np.clip(np.floor((x - origin) / h), 0, n - 1).astype(np.int64)
+    def __init__(self, v: np.ndarray, f: np.ndarray) -> None:
+        a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+        pad = 1e-6 * (float(np.abs(v).max()) if len(v) else 1.0) or 1e-6
+        self.lo = np.minimum(np.minimum(a, b), c) - pad
+        self.hi = np.maximum(np.maximum(a, b), c) + pad
+        self.m = len(f)
+        if self.m == 0:
+            return
+        origin = self.lo.min(axis=0)
+        span = float((self.hi.max(axis=0) - origin).max())
+        ext = (self.hi - self.lo).max(axis=1)
+        h = max(float(np.quantile(ext, 0.99)), span / 1024.0, 1e-300)
+        n = int(span / h) + 3
+        fa = np.clip(np.floor((self.lo - origin) / h), 0, n - 1).astype(np.int64)
+        fb = np.clip(np.floor((self.hi - origin) / h), 0, n - 1).astype(np.int64)
+        self.fits = np.all(fb - fa <= 1, axis=1)
+        cx, cy, cz = (np.stack([fa[:, i], fb[:, i]], axis=1) for i in range(3))
+        keys = (cx[:, :, None, None] * n + cy[:, None, :, None]) * n + cz[:, None, None, :]
+        self.keys = keys.reshape(-1, 8)  # the cells at the 8 corners of each grown box
+        listed = np.flatnonzero(self.fits)
+        k = self.keys[listed].reshape(-1)
+        idx = np.repeat(np.arange(len(listed), dtype=np.int64), 8)
+        shift = max(int(len(listed)).bit_length(), 1)
+        if len(k) and int(k.max()) < (1 << (62 - shift)):
+            packed = np.sort((k << shift) | idx)  # one plain sort instead of an argsort
+            self.sorted_keys = packed >> shift
+            self.sorted_faces = listed[packed & ((1 << shift) - 1)]
+        else:
+            order = np.argsort(k, kind="stable")
+            self.sorted_keys = k[order]
+            self.sorted_faces = listed[idx[order]]
+        self.big = np.flatnonzero(~self.fits)
 
-    def keys(a: np.ndarray, b: np.ndarray, corner: int) -> np.ndarray:
-        c = np.where((corner >> np.arange(3)) & 1, b, a)
-        return (c[:, 0] * n + c[:, 1]) * n + c[:, 2]
-
-    fa, fb = cells(lo), cells(hi)
-    fits = np.all(fb - fa <= 1, axis=1)
-    near = np.zeros(len(f), dtype=bool)
-    w = which[fits[which]]
-    if len(w):
-        marked = np.unique(np.concatenate([keys(fa[w], fb[w], k) for k in range(8)]))
-        for k in range(8):
-            kk = keys(fa, fb, k)
-            pos = np.clip(np.searchsorted(marked, kk), 0, len(marked) - 1)
-            near |= marked[pos] == kk
-        near &= fits
-
-    def meet(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """Faces of ``a`` whose box meets the box of a face of ``b`` (a loop over ``a``)."""
+    def _meet(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Faces of ``a`` whose box meets the box of a face of ``b`` (chunks of ``a``)."""
         out = np.zeros(len(a), dtype=bool)
         for s in range(0, len(a), 64):
             g = a[s : s + 64]
-            m = (lo[g, None, :] <= hi[None, b]) & (hi[g, None, :] >= lo[None, b])
-            out[s : s + 64] = m.all(axis=2).any(axis=1)
+            lo, hi = self.lo[g, None, :], self.hi[g, None, :]
+            hit = (lo <= self.hi[None, b]) & (hi >= self.lo[None, b])
+            out[s : s + 64] = hit.all(axis=2).any(axis=1)
         return out
 
-    big = np.flatnonzero(~fits)
-    if len(big) and len(which):
-        near[big] = meet(big, which)
-    big_w = which[~fits[which]]
-    if len(big_w):
-        for s in range(0, len(big_w), 64):
-            g = big_w[s : s + 64]
-            m = (lo[None, :, :] <= hi[g, None, :]) & (hi[None, :, :] >= lo[g, None, :])
-            near |= m.all(axis=2).any(axis=0)
-    near[which] = True
-    return np.flatnonzero(near)
+    def near(self, which: np.ndarray) -> np.ndarray:
+        """Sorted indices of the faces near ``which`` (``which`` included)."""
+        which = np.asarray(which, dtype=np.int64)
+        if len(which) == 0 or self.m == 0:
+            return which
+        if len(which) > self.m // 5:
+            return np.arange(self.m)  # most of the mesh: one global test is cheaper
+        found = [which]
+        w = which[self.fits[which]]
+        if len(w):
+            cells = np.unique(self.keys[w])
+            first = np.searchsorted(self.sorted_keys, cells, side="left")
+            count = np.searchsorted(self.sorted_keys, cells, side="right") - first
+            total = int(count.sum())
+            start = np.repeat(first - np.cumsum(count) + count, count)
+            found.append(self.sorted_faces[start + np.arange(total)])
+        if len(self.big):
+            found.append(self.big[self._meet(self.big, which)])
+        big_w = which[~self.fits[which]]
+        if len(big_w):
+            near = np.zeros(self.m, dtype=bool)
+            for s in range(0, len(big_w), 64):
+                g = big_w[s : s + 64]
+                lo, hi = self.lo[g, None, :], self.hi[g, None, :]
+                hit = (self.lo[None] <= hi) & (self.hi[None] >= lo)
+                near |= hit.all(axis=2).any(axis=0)
+            found.append(np.flatnonzero(near))
+        return np.unique(np.concatenate(found))
+
+
+def crossings_after_change(
+    v: np.ndarray, f: np.ndarray, kept: np.ndarray, changed: np.ndarray
+) -> np.ndarray:
+    """All crossing face pairs of ``(v, f)`` (as :func:`repair.check.intersecting_face_pairs`
+    finds them among the non-degenerate faces), given ``kept``: every crossing pair of
+    two faces not marked in ``changed`` (bool per face). Only the region near the changed
+    faces is tested again. Copies of a face each get their pairs (libigl's test is
+    pairwise and never pairs two copies)."""
+    which = np.flatnonzero(changed)
+    if len(which) == 0:
+        return kept
+    region = FaceGrid(v, f).near(which)
+    fr = f[region]
+    ok = np.flatnonzero(~degenerate_mask(v, fr))
+    found = region[ok[intersecting_face_pairs(v, fr[ok])]]
+    found = found[changed[found].any(axis=1)]
+    both = np.vstack([np.asarray(kept, dtype=np.int64).reshape(-1, 2), found])
+    return unique_rows(np.sort(both, axis=1)) if len(both) else both
+
+
+def _faces_near(v: np.ndarray, f: np.ndarray, which: np.ndarray) -> np.ndarray:
+    """Faces near ``which`` (see :class:`FaceGrid`), for a single query."""
+    return FaceGrid(v, f).near(which)
 
 
 def _edge_neighbours(faces: np.ndarray, which: np.ndarray) -> np.ndarray:
@@ -415,8 +464,10 @@ def mend_intersections(
     rest = np.ones(len(f), dtype=bool)
     rest[bad] = False
     rest[deg] = False
+    # libigl's cost grows with all the vertices it is given: give it those of f[bad].
+    sub_v, sub_f = drop_unreferenced(v, f[bad])
     vv, ff, _, _, im = cgal.remesh_self_intersections(
-        np.ascontiguousarray(v), np.ascontiguousarray(f[bad]), stitch_all=True,
+        np.ascontiguousarray(sub_v), np.ascontiguousarray(sub_f), stitch_all=True,
         cutoff=2**31 - 1,
     )  # fmt: skip
     ff = np.asarray(im, dtype=np.int64)[np.asarray(ff, dtype=np.int64)]

@@ -57,6 +57,7 @@ from repair.hull import (
     unorientable_outer_hull,
 )
 from repair.mend import (
+    crossings_after_change,
     is_cycle,
     mend_intersections,
     round_finding_crossings,
@@ -415,13 +416,6 @@ def _collapse_damaged(
     return v, rep[lab][f]
 
 
-def _drop_collapsed(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """After merging vertices: drop faces with a repeated vertex and unused vertices (a
-    closed cycle stays one; coincident copies are merged by weight in the mend)."""
-    f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0])]
-    return drop_unreferenced(v, f)
-
-
 def _rounded_verdict(
     v: np.ndarray, f: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, Printability, np.ndarray]:
@@ -472,6 +466,7 @@ def _finish(
         # Mend locally while that shrinks the damage; where rounding keeps re-creating it
         # (crossing thin slabs), take the whole arrangement and outer hull again instead.
         local = is_cycle(f32) and not grew
+        changed = None  # faces whose corners a collapse moved (pairs known for the rest)
         if (round_ >= COLLAPSE_FROM or not local) and (
             verdict.intersecting_pairs or verdict.degenerate_faces
         ):
@@ -480,13 +475,19 @@ def _finish(
             collapsed = _collapse_damaged(v32, f32, reach, pairs)
             tally.collapsed += 1
             if collapsed[1] is not f32:
-                pairs = None
+                changed = np.any(collapsed[1] != f32, axis=1)
             v32, f32 = collapsed
         if verdict.duplicate_faces or round_ >= 1:
-            n_faces = len(f32)
-            v32, f32 = _drop_collapsed(v32, f32)
-            if len(f32) != n_faces:
-                pairs = None
+            # Drop faces a collapse left with a repeated corner, and unused vertices (a
+            # closed cycle stays one; coincident copies are merged by weight in the mend).
+            keep = (f32[:, 0] != f32[:, 1]) & (f32[:, 1] != f32[:, 2]) & (f32[:, 2] != f32[:, 0])
+            if pairs is not None and not keep.all():
+                pairs = np.cumsum(keep)[pairs[keep[pairs].all(axis=1)]] - 1
+                changed = changed[keep] if changed is not None else None
+            v32, f32 = drop_unreferenced(v32, f32[keep])
+        if pairs is not None and changed is not None:
+            # The pairs of faces the collapse left alone stand; test near the others.
+            pairs = crossings_after_change(v32, f32, pairs[~changed[pairs].any(axis=1)], changed)
         extra: list[tuple[np.ndarray, np.ndarray]] = []
         clean_touch = verdict.nonmanifold_edges and not (
             verdict.intersecting_pairs or verdict.degenerate_faces

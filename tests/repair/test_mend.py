@@ -11,6 +11,7 @@ from repair.check import check_printable, intersecting_face_pairs, weld_exact
 from repair.clean import clean_soup, degenerate_mask, net_faces
 from repair.mend import (
     _faces_near,
+    crossings_after_change,
     is_cycle,
     mend_intersections,
     round_avoiding_crossings,
@@ -108,6 +109,26 @@ def test_rounding_reports_exactly_the_crossings_a_whole_test_finds():
     ok = np.flatnonzero(~degenerate_mask(out, f))
     whole = ok[intersecting_face_pairs(out, f[ok])]
     assert np.array_equal(pairs, whole)
+
+
+def test_crossings_after_a_local_change_are_those_a_whole_test_finds():
+    v, f = _two_crossing_spheres()
+    ok = np.flatnonzero(~degenerate_mask(v, f))
+    before = ok[intersecting_face_pairs(v, f[ok])]
+    # Move a few vertices of crossing faces (and one far away) a little, copy one face.
+    rng = np.random.default_rng(2)
+    moved = np.r_[np.unique(f[before[:5]].reshape(-1)), 7]
+    v2 = v.copy()
+    v2[moved] += rng.normal(scale=0.3, size=(len(moved), 3))
+    f2 = np.vstack([f, f[before[0, 0]]])
+    changed = np.isin(f2, moved).any(axis=1)
+    changed[-1] = True
+    kept = before[~changed[before].any(axis=1)]
+    got = crossings_after_change(v2, f2, kept, changed)
+    ok2 = np.flatnonzero(~degenerate_mask(v2, f2))
+    whole = ok2[intersecting_face_pairs(v2, f2[ok2])]
+    assert np.array_equal(got, whole)
+    assert len(got) > 0 and not np.array_equal(got, before)
 
 
 def test_faces_near_holds_every_face_whose_box_meets_one_of_them():
