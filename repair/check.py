@@ -38,6 +38,7 @@ __all__ = [
     "check_printable",
     "check_printable_pairs",
     "degenerate_face_mask",
+    "edge_components",
     "intersecting_face_pairs",
     "round_to_float32",
     "weld_exact",
@@ -236,6 +237,15 @@ def _edge_stats(faces: np.ndarray, n_vertices: int) -> tuple[int, int, int, int,
     graph = coo_matrix((np.ones(len(link), dtype=np.int8), (fa, fb)), shape=(m, m))
     components, labels = connected_components(graph, directed=False)
     return boundary, nonmanifold, misoriented, int(components), labels
+
+
+def edge_components(faces: np.ndarray) -> np.ndarray:
+    """Label (int64, 0..k-1) of the edge-connected component (shell) of each face: faces
+    sharing an undirected edge, however many use it, are in one component."""
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    if len(f) == 0:
+        return np.zeros(0, dtype=np.int64)
+    return _edge_stats(f, int(f.max()) + 1)[4].astype(np.int64)
 
 
 def _sorted_face_keys(faces: np.ndarray) -> np.ndarray:

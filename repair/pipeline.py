@@ -41,6 +41,7 @@ from repair.check import (
     Printability,
     check_printable,
     check_printable_pairs,
+    edge_components,
     intersecting_face_pairs,
     round_to_float32,
     verdict_given_pairs,
@@ -112,24 +113,6 @@ class _Clock:
             self.progress(name, fraction)
 
 
-def _edge_components(faces: np.ndarray) -> np.ndarray:
-    """Label of the edge-connected component of each face."""
-    m = len(faces)
-    if m == 0:
-        return np.zeros(0, dtype=np.int64)
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    e = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    _, eid = unique_rows(e, return_inverse=True)
-    eid = eid.reshape(-1)
-    order = np.argsort(eid, kind="stable")
-    same = np.flatnonzero(eid[order][1:] == eid[order][:-1])
-    a, b = order[same] // 3, order[same + 1] // 3
-    g = coo_matrix((np.ones(len(a), dtype=np.int8), (a, b)), shape=(m, m))
-    return connected_components(g, directed=False)[1].astype(np.int64)
-
-
 def _edge_use(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Undirected edges (k, 2) and how many faces use each."""
     e = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
@@ -170,7 +153,7 @@ def _manifolds_of(v: np.ndarray, f: np.ndarray, labels: np.ndarray | None = None
     if manifold3d rejects one. Much faster than ``Manifold.decompose`` on many pieces."""
     import manifold3d as m3d
 
-    lab = _edge_components(f) if labels is None else labels
+    lab = edge_components(f) if labels is None else labels
     order = np.argsort(lab, kind="stable")
     cuts = np.r_[0, np.flatnonzero(np.diff(lab[order])) + 1, len(lab)]
     v32 = np.ascontiguousarray(v, dtype=np.float32)
@@ -201,7 +184,7 @@ def _union_fast_path(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarr
     he = np.stack([f.reshape(-1), f[:, [1, 2, 0]].reshape(-1)], axis=1)
     if len(unique_rows(he)) != len(he):  # some edge traversed twice the same way
         return None
-    labels = _edge_components(f)
+    labels = edge_components(f)
     n = int(labels.max()) + 1
     pairs = intersecting_face_pairs(v, f)
     if len(pairs) and np.any(labels[pairs[:, 0]] == labels[pairs[:, 1]]):
@@ -613,7 +596,7 @@ def repair_mesh(
             out_v, out_f = fv, ff
             tally.intersecting_pairs = before.intersecting_pairs
             # A shell is dropped as internal when none of its vertices survives the union.
-            comp_in = _edge_components(c.faces)
+            comp_in = edge_components(c.faces)
             key = np.dtype((np.void, 24))
             vin = np.ascontiguousarray(round_to_float32(c.vertices)).view(key).ravel()
             vout = np.ascontiguousarray(out_v).view(key).ravel()
@@ -626,7 +609,7 @@ def repair_mesh(
             sv, sf, poly, hull_birth = _outer_hull(cv, cf, eps, tally, c.segments)
             clock.lap("hull_and_thicken", 0.6)
             if len(cf):
-                comp_in = _edge_components(cf)
+                comp_in = edge_components(cf)
                 seen = np.unique(comp_in[hull_birth]) if len(hull_birth) else []
                 dropped_components = int(comp_in.max()) + 1 - len(seen)
             if len(sf) == 0:
@@ -650,7 +633,7 @@ def repair_mesh(
         part_vol = np.array([verdict.volume])
         part_tris = np.array([len(out_f)])
     else:
-        labels = _edge_components(out_f)
+        labels = edge_components(out_f)
         n_parts = int(labels.max()) + 1 if len(labels) else 0
         part_vol = _volumes(out_v, out_f, labels, n_parts) if n_parts else np.zeros(0)
         part_tris = np.bincount(labels, minlength=n_parts)

@@ -1,11 +1,13 @@
-"""Stage 2 of the repair (repair.hull): the exact arrangement. Re-meshing only the faces
-that intersect gives the same polyhedron as re-meshing the whole mesh."""
+"""Stages 2-3 of the repair (repair.hull): re-meshing only the faces that intersect gives
+the same polyhedron as re-meshing the whole mesh; nesting components by parts gives the
+same outer hull as one libigl call."""
 
 from __future__ import annotations
 
 import numpy as np
 import trimesh
 
+import repair.hull as hull
 from repair.check import intersecting_face_pairs, weld_exact
 from repair.hull import LOCAL_REMESH_MIN_FACES, _remesh
 
@@ -47,3 +49,58 @@ def test_arrangement_of_a_mesh_without_crossings_is_the_mesh():
     assert n == 0
     assert np.array_equal(rv, v) and np.array_equal(rf, f)
     assert np.array_equal(birth, np.arange(len(f)))
+
+
+def _sphere(sub: int, r: float, c=(0.0, 0.0, 0.0)):
+    s = trimesh.creation.icosphere(subdivisions=sub, radius=r)
+    return np.asarray(s.vertices) + c, np.asarray(s.faces, dtype=np.int64)
+
+
+def _box(lo, hi):
+    m = trimesh.creation.box(bounds=np.array([lo, hi], dtype=float))
+    return np.asarray(m.vertices), np.asarray(m.faces, dtype=np.int64)
+
+
+def _join(*parts):
+    vs, fs, off = [], [], 0
+    for v, f in parts:
+        vs.append(v)
+        fs.append(f + off)
+        off += len(v)
+    return np.vstack(vs), np.vstack(fs)
+
+
+def _single_call(v, f, monkeypatch):
+    with monkeypatch.context() as m:
+        m.setattr(hull, "_outside_sides_by_parts", lambda *a: None)
+        return hull.outer_hull_split(v, f)
+
+
+def test_components_nest_as_one_libigl_call_nests_them(monkeypatch):
+    big = _sphere(4, 10.0)  # 5120 faces: its cells are extracted on their own
+    inner = _box((-1, -1, -1), (1, 1, 1))  # inside the sphere: internal
+    outer = _box((20, 0, 0), (22, 2, 2))  # beside it: kept
+    sheet = (np.array([[30.0, 0, 0], [32, 0, 0], [30, 2, 0]]), np.array([[0, 1, 2]]))
+    v, f = _join(big, inner, outer, sheet)
+    split = hull.outer_hull_split(v, f)
+    assert np.array_equal(np.sort(split.solid_index), np.r_[0:5120, 5132:5144])
+    assert np.array_equal(split.sheet_index, [5144])
+    assert split.internal == 12
+    ref = _single_call(v, f, monkeypatch)
+    for a, b in zip(
+        (split.solid_faces, split.sheet_faces, split.solid_index, split.sheet_index),
+        (ref.solid_faces, ref.sheet_faces, ref.solid_index, ref.sheet_index),
+        strict=True,
+    ):
+        assert np.array_equal(a, b)
+
+
+def test_the_largest_component_inside_a_coarse_box_is_internal(monkeypatch):
+    big = _sphere(4, 10.0)
+    box = _box((-20, -20, -20), (20, 20, 20))  # 12 faces around 5120
+    v, f = _join(big, box)
+    split = hull.outer_hull_split(v, f)
+    assert np.array_equal(np.sort(split.solid_index), np.arange(5120, 5132))
+    assert split.internal == 5120 and len(split.sheet_index) == 0
+    ref = _single_call(v, f, monkeypatch)
+    assert np.array_equal(np.sort(ref.solid_index), np.sort(split.solid_index))
