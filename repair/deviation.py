@@ -3,7 +3,9 @@
 ``D = max over points p of the output surface of dist(p, input)``, where the input is
 its non-degenerate triangles plus the segments its degenerate triangles stood for.
 Estimated on the output's vertices, face centroids, edge midpoints and a few random
-points per face (deterministic seed). Units are mm. Vectorised (libigl AABB tree).
+points per face (deterministic seed); output faces that are input faces (perhaps with
+their corners rounded to float32) are bounded without samples. Units are mm. Vectorised
+(libigl AABB tree).
 """
 
 from __future__ import annotations
@@ -41,30 +43,51 @@ def _point_segment_d2(pts: np.ndarray, seg: np.ndarray) -> np.ndarray:
     return best
 
 
-def _new_faces(ov: np.ndarray, of: np.ndarray, iv: np.ndarray, inf: np.ndarray) -> np.ndarray:
-    """The output faces that are not input faces. An output face on exactly the corners of
-    an input face is that triangle (distance 0 everywhere), so it needs no samples."""
-    if len(inf) == 0 or len(iv) == 0:
-        return of
+def _match_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """For each row of ``a``: the index of a bit-identical row of ``b``, or -1."""
     key = np.dtype((np.void, 24))
-    ik = np.ascontiguousarray(iv + 0.0).view(key).ravel()
-    ok = np.ascontiguousarray(ov + 0.0).view(key).ravel()
-    order = np.argsort(ik)
-    pos = np.clip(np.searchsorted(ik[order], ok), 0, len(ik) - 1)
-    found = ik[order][pos] == ok
-    ids = np.where(found, order[pos], -1)  # input vertex id of each output vertex
+    bk = np.ascontiguousarray(b + 0.0).view(key).ravel()
+    ak = np.ascontiguousarray(a + 0.0).view(key).ravel()
+    order = np.argsort(bk)
+    pos = np.clip(np.searchsorted(bk[order], ak), 0, len(bk) - 1)
+    return np.where(bk[order][pos] == ak, order[pos], -1)
+
+
+def _new_faces(
+    ov: np.ndarray, of: np.ndarray, iv: np.ndarray, inf: np.ndarray
+) -> tuple[np.ndarray, float]:
+    """The output faces that are not input faces, and a bound (mm) on the distance of the
+    others from the input.
+
+    An output face on exactly the corners of an input face is that triangle (distance 0
+    everywhere), so it needs no samples. Nor does one whose corners are those corners
+    rounded to float32: every point of it lies within its largest corner displacement of
+    the input triangle (a convex combination of the corners, each moved that far at most),
+    so that displacement bounds its distance."""
+    if len(inf) == 0 or len(iv) == 0:
+        return of, 0.0
+    ids = _match_rows(ov, iv)
+    moved = np.zeros(len(ov))
+    iv32 = iv.astype(np.float32).astype(np.float64)
+    miss = np.flatnonzero(ids < 0)
+    if len(miss) and not np.array_equal(iv32, iv):
+        rid = _match_rows(ov[miss], iv32)
+        hit = rid >= 0
+        ids[miss[hit]] = rid[hit]
+        moved[miss[hit]] = np.linalg.norm(ov[miss[hit]] - iv[rid[hit]], axis=1)
     fid = ids[of]
     known = (fid >= 0).all(axis=1)
     n = len(iv)
+    if n >= 2**21:
+        return of, 0.0
     a = np.sort(fid[known], axis=1)
     b = np.sort(inf, axis=1)
-    kin = (b[:, 0] * n + b[:, 1]) * n + b[:, 2] if n < 2**21 else None
-    if kin is None:
-        return of
+    kin = (b[:, 0] * n + b[:, 1]) * n + b[:, 2]
     kout = (a[:, 0] * n + a[:, 1]) * n + a[:, 2]
     same = np.zeros(len(of), dtype=bool)
     same[np.flatnonzero(known)] = np.isin(kout, kin)
-    return of[~same]
+    bound = float(moved[of[same]].max()) if np.any(same) else 0.0
+    return of[~same], bound
 
 
 def _point_mesh_d2(pts: np.ndarray, v: np.ndarray, f: np.ndarray) -> np.ndarray:
@@ -129,11 +152,11 @@ def max_deviation(
     of = np.asarray(out_faces, dtype=np.int64)
     if len(of) == 0:
         return 0.0
-    of = _new_faces(ov, of, np.asarray(in_vertices, dtype=np.float64),
-                    np.asarray(in_faces, dtype=np.int64))  # fmt: skip
+    of, bound = _new_faces(ov, of, np.asarray(in_vertices, dtype=np.float64),
+                           np.asarray(in_faces, dtype=np.int64))  # fmt: skip
     if len(of) == 0:
-        return 0.0
-    # Only the vertices of new faces: the others are input vertices (distance 0).
+        return bound
+    # Only the vertices of new faces: the others are (rounded) input vertices.
     used, local = np.unique(of, return_inverse=True)
     pts = _surface_samples(ov[used], local.reshape(-1, 3), max_points)
     d2 = np.full(len(pts), np.inf)
@@ -142,4 +165,4 @@ def max_deviation(
                             np.asarray(in_faces, dtype=np.int64))  # fmt: skip
     if in_segments is not None and len(in_segments):
         d2 = np.minimum(d2, _point_segment_d2(pts, np.asarray(in_segments, dtype=np.float64)))
-    return float(np.sqrt(d2.max()))
+    return max(float(np.sqrt(d2.max())), bound)

@@ -1,5 +1,6 @@
 """Attene's deviation D (repair.deviation): the local distance tree answers exactly as
-the whole mesh would."""
+the whole mesh would; faces that are input faces rounded to float32 are bounded by how
+far rounding moved their corners."""
 
 from __future__ import annotations
 
@@ -21,3 +22,22 @@ def test_local_distance_tree_gives_the_same_distances_as_the_whole_mesh():
     pts = np.vstack([near, far])
     want = igl.point_mesh_squared_distance(pts, v, f)[0]
     assert np.array_equal(_point_mesh_d2(pts, v, f), want)
+
+
+def test_faces_rounded_to_float32_are_bounded_by_their_corner_displacement():
+    from repair.deviation import _point_mesh_d2, _surface_samples, max_deviation
+
+    m = trimesh.creation.icosphere(subdivisions=4, radius=20.0)
+    v, f = np.asarray(m.vertices) + 0.1, np.asarray(m.faces, dtype=np.int64)
+    out = v.astype(np.float32).astype(np.float64)
+    shift = np.linalg.norm(out - v, axis=1)
+    assert shift.max() > 0
+    d = max_deviation(out, f, v, f, max_points=0)
+    assert d == shift.max()  # the bound, without sampling
+    # Sampled distances of the rounded surface to the input stay within it.
+    pts = _surface_samples(out, f, 8 * len(f))
+    assert np.sqrt(_point_mesh_d2(pts, v, f).max()) <= d
+    # A face that is not a rounded input face is still measured.
+    moved = out.copy()
+    moved[0] += 0.5 * (v[0] - 0.1) / 20.0  # out along the normal
+    assert 0.45 <= max_deviation(moved, f, v, f) <= 0.5 + 1e-6
