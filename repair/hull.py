@@ -38,7 +38,9 @@ __all__ = [
 ]
 
 
-def _remesh(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+def _remesh(
+    v: np.ndarray, f: np.ndarray, pairs: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """One exact arrangement pass: (vertices, faces, birth face, intersecting pairs).
 
     Only the faces that intersect another are re-meshed: a face that meets no other one
@@ -54,7 +56,8 @@ def _remesh(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
     hit = np.arange(len(f))
     n_pairs = -1
     if len(f) >= LOCAL_REMESH_MIN_FACES and _duplicate_faces(f) == 0:
-        pairs = intersecting_face_pairs(v, f)
+        if pairs is None:
+            pairs = intersecting_face_pairs(v, f)
         n_pairs = len(pairs)
         if n_pairs == 0:
             return v, f, np.arange(len(f)), 0
@@ -88,7 +91,12 @@ def _remesh(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
 
 
 def resolve(
-    vertices: np.ndarray, faces: np.ndarray, *, max_rounds: int = 4, solid: bool = False
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    *,
+    max_rounds: int = 4,
+    solid: bool = False,
+    pairs: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """Make ``(vertices, faces)`` a polyhedron: no two faces meet except in a shared edge
     or vertex, no degenerate and no duplicate faces.
@@ -100,6 +108,7 @@ def resolve(
     With ``solid=True`` (the input is a closed oriented surface, e.g. a result rounded to
     float32) coincident faces cancel by orientation instead of keeping one layer.
 
+    ``pairs``: the intersecting face pairs of the input, if known (spares the first test).
     Returns ``(vertices, faces, birth, pairs)``: ``birth[i]`` is the input face face ``i``
     came from; ``pairs`` counts the intersecting face pairs found by the first pass.
     """
@@ -110,10 +119,11 @@ def resolve(
     for _ in range(max_rounds):
         if len(f) == 0:
             break
-        v, f, b, pairs = _remesh(v, f)
+        v, f, b, n_pairs = _remesh(v, f, pairs)
+        pairs = None
         birth = birth[b]
         if first_pairs < 0:
-            first_pairs = pairs
+            first_pairs = n_pairs
         v, f = weld_exact(v, f)
         deg = degenerate_mask(v, f)
         keep = np.flatnonzero(~deg)
@@ -121,7 +131,7 @@ def resolve(
         changed = len(keep) != len(f)
         f, birth = f[keep], birth[keep]
         v, f = drop_unreferenced(v, f)
-        if not changed and pairs == 0:
+        if not changed and n_pairs == 0:
             break
         if not changed and not np.any(deg):
             # The arrangement is exact and nothing was collapsed: it is a polyhedron.

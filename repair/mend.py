@@ -234,12 +234,15 @@ class FaceGrid:
     grown) box of one of them, and perhaps a few more -- a superset, which is all an
     exact test of the region needs.
 
-    Built once per mesh: grid cells as large as 99 % of the faces' boxes, each face that
-    fits listed under the (at most 2x2x2) cells its grown box covers, sorted by cell. A
-    query gathers the faces listed under the cells of the asked faces; the few faces
-    larger than a cell are tested box against box. Boxes are grown by ``1e-6`` of the
-    largest coordinate, so the grid stays valid while vertices move by less than that
-    (float32 rounding choices move them by one float32 ulp, ~6e-8 of it).
+    Built once per mesh: grid cells as large as 99 % of the faces' boxes, and each face
+    that fits in a cell listed under the cell of its low corner, sorted by cell. A face
+    that fits and meets a box has its low corner between the box's low corner less one
+    cell and its high corner, so a query gathers the faces listed under those cells for
+    each asked face. Larger faces are listed under every cell their box covers (which a
+    box they meet covers too), or, beyond 64 cells, tested box against box. Boxes are
+    grown by ``1e-6`` of the largest coordinate, so the grid stays valid while vertices
+    move by less than that (float32 rounding choices move them by one float32 ulp, ~6e-8
+    of it).
     """
 
     def __init__(self, v: np.ndarray, f: np.ndarray) -> None:
@@ -250,21 +253,25 @@ class FaceGrid:
         self.m = len(f)
         if self.m == 0:
             return
-        origin = self.lo.min(axis=0)
-        span = float((self.hi.max(axis=0) - origin).max())
+        self.origin = self.lo.min(axis=0)
+        span = float((self.hi.max(axis=0) - self.origin).max())
         ext = (self.hi - self.lo).max(axis=1)
-        h = max(float(np.quantile(ext, 0.99)), span / 1024.0, 1e-300)
-        n = int(span / h) + 3
-        fa = np.clip(np.floor((self.lo - origin) / h), 0, n - 1).astype(np.int64)
-        fb = np.clip(np.floor((self.hi - origin) / h), 0, n - 1).astype(np.int64)
-        self.fits = np.all(fb - fa <= 1, axis=1)
-        cx, cy, cz = (np.stack([fa[:, i], fb[:, i]], axis=1) for i in range(3))
-        keys = (cx[:, :, None, None] * n + cy[:, None, :, None]) * n + cz[:, None, None, :]
-        self.keys = keys.reshape(-1, 8)  # the cells at the 8 corners of each grown box
+        self.h = max(float(np.quantile(ext, 0.99)), span / 1024.0, 1e-300)
+        self.n = int(span / self.h) + 3
+        self.fits = ext <= self.h
         listed = np.flatnonzero(self.fits)
-        k = self.keys[listed].reshape(-1)
-        idx = np.repeat(np.arange(len(listed), dtype=np.int64), 8)
+        k = self._key(self._cell(self.lo[listed]))
+        # Larger faces are listed under every cell their box covers, up to 64 of them.
+        big = np.flatnonzero(~self.fits)
+        lo_c, hi_c = self._cell(self.lo[big]), self._cell(self.hi[big])
+        few = (hi_c - lo_c + 1).prod(axis=1) <= 64
+        self.big = big[~few]  # the rest: tested box against box
+        if np.any(few):
+            bk, rows = self._cells_in(lo_c[few], hi_c[few])
+            k = np.r_[k, bk]
+            listed = np.r_[listed, big[few][rows]]
         shift = max(int(len(listed)).bit_length(), 1)
+        idx = np.arange(len(listed), dtype=np.int64)
         if len(k) and int(k.max()) < (1 << (62 - shift)):
             packed = np.sort((k << shift) | idx)  # one plain sort instead of an argsort
             self.sorted_keys = packed >> shift
@@ -272,8 +279,25 @@ class FaceGrid:
         else:
             order = np.argsort(k, kind="stable")
             self.sorted_keys = k[order]
-            self.sorted_faces = listed[idx[order]]
-        self.big = np.flatnonzero(~self.fits)
+            self.sorted_faces = listed[order]
+
+    def _cells_in(self, lo_c: np.ndarray, hi_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Keys of all cells in each box of cells ``lo_c..hi_c`` (k, 3), and for each key
+        the row it came from."""
+        dims = hi_c - lo_c + 1
+        cover = dims.prod(axis=1)
+        local = np.arange(int(cover.sum())) - np.repeat(np.cumsum(cover) - cover, cover)
+        d = np.repeat(dims, cover, axis=0)
+        ijk = np.stack([local // (d[:, 1] * d[:, 2]), (local // d[:, 2]) % d[:, 1],
+                        local % d[:, 2]], axis=1)  # fmt: skip
+        rows = np.repeat(np.arange(len(lo_c)), cover)
+        return self._key(lo_c[rows] + ijk), rows
+
+    def _cell(self, x: np.ndarray) -> np.ndarray:
+        return np.clip(np.floor((x - self.origin) / self.h), 0, self.n - 1).astype(np.int64)
+
+    def _key(self, c: np.ndarray) -> np.ndarray:
+        return (c[..., 0] * self.n + c[..., 1]) * self.n + c[..., 2]
 
     def _meet(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """Faces of ``a`` whose box meets the box of a face of ``b`` (chunks of ``a``)."""
@@ -293,9 +317,11 @@ class FaceGrid:
         if len(which) > self.m // 5:
             return np.arange(self.m)  # most of the mesh: one global test is cheaper
         found = [which]
-        w = which[self.fits[which]]
-        if len(w):
-            cells = np.unique(self.keys[w])
+        # Cells from (low corner - one cell) to the high corner of each asked face.
+        lo_c, hi_c = self._cell(self.lo[which] - self.h), self._cell(self.hi[which])
+        few = (hi_c - lo_c + 1).prod(axis=1) <= 4096
+        if np.any(few):
+            cells = np.unique(self._cells_in(lo_c[few], hi_c[few])[0])
             first = np.searchsorted(self.sorted_keys, cells, side="left")
             count = np.searchsorted(self.sorted_keys, cells, side="right") - first
             total = int(count.sum())
@@ -303,11 +329,11 @@ class FaceGrid:
             found.append(self.sorted_faces[start + np.arange(total)])
         if len(self.big):
             found.append(self.big[self._meet(self.big, which)])
-        big_w = which[~self.fits[which]]
-        if len(big_w):
+        huge = which[~few]
+        if len(huge):
             near = np.zeros(self.m, dtype=bool)
-            for s in range(0, len(big_w), 64):
-                g = big_w[s : s + 64]
+            for s in range(0, len(huge), 64):
+                g = huge[s : s + 64]
                 lo, hi = self.lo[g, None, :], self.hi[g, None, :]
                 hit = (self.lo[None] <= hi) & (self.hi[None] >= lo)
                 near |= hit.all(axis=2).any(axis=0)

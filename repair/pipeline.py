@@ -47,7 +47,7 @@ from repair.check import (
     verdict_given_pairs,
     weld_exact,
 )
-from repair.clean import clean_soup, degenerate_mask, drop_unreferenced
+from repair.clean import clean_soup, degenerate_mask, drop_unreferenced, face_keys
 from repair.deviation import max_deviation
 from repair.holes import HolesClosed, close_small_holes
 from repair.hull import (
@@ -173,9 +173,37 @@ def _manifolds_of(v: np.ndarray, f: np.ndarray, labels: np.ndarray | None = None
     return out
 
 
-def _union_fast_path(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+def _carry_pairs(
+    v_in: np.ndarray, f_in: np.ndarray, pairs_in: np.ndarray, v: np.ndarray, f: np.ndarray
+) -> np.ndarray | None:
+    """The intersecting face pairs of ``(v, f)`` -- the cleaned input with lids added --
+    from those of the input (``pairs_in``, indices into ``f_in``, found on the same
+    coordinates): faces on the same three points as an input face keep its pairs, only
+    the region near the others (lids) is tested. None when the coordinates differ."""
+    if not np.array_equal(round_to_float32(v_in), v_in):
+        return None  # the input's pairs were found on its float32 rounding
+    # One vertex numbering for both, by exact position.
+    nv_in = len(v_in)
+    _, both = weld_exact(np.vstack([v_in, v]), np.vstack([f_in, f + nv_in]))
+    keys = face_keys(both)
+    k_in, k = keys[: len(f_in)], keys[len(f_in) :]
+    order = np.argsort(k_in, kind="stable")
+    pos = np.clip(np.searchsorted(k_in[order], k), 0, len(k_in) - 1)
+    found = k_in[order][pos] == k
+    # Each input face -> the face of f on its three points (if any).
+    to_f = np.full(len(f_in), -1, dtype=np.int64)
+    to_f[order[pos[found]]] = np.flatnonzero(found)
+    kept = to_f[pairs_in] if len(pairs_in) else np.zeros((0, 2), dtype=np.int64)
+    kept = kept[(kept >= 0).all(axis=1)]
+    return crossings_after_change(v, f, kept, ~found)
+
+
+def _union_fast_path(
+    v: np.ndarray, f: np.ndarray, pairs: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray] | None:
     """Exact union of closed, edge-manifold, consistently oriented shells that intersect
-    only one another (never themselves), by manifold3d. None when not applicable."""
+    only one another (never themselves), by manifold3d. None when not applicable.
+    ``pairs``: the intersecting face pairs of ``(v, f)`` if known."""
     if len(f) == 0:
         return None
     _, cnt = _edge_use(f)
@@ -186,7 +214,8 @@ def _union_fast_path(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarr
         return None
     labels = edge_components(f)
     n = int(labels.max()) + 1
-    pairs = intersecting_face_pairs(v, f)
+    if pairs is None:
+        pairs = intersecting_face_pairs(v, f)
     if len(pairs) and np.any(labels[pairs[:, 0]] == labels[pairs[:, 1]]):
         return None  # a shell intersects itself: needs the exact arrangement
     vol = _volumes(v, f, labels, n)
@@ -272,8 +301,10 @@ def _outer_hull(
     segments: np.ndarray | None = None,
     *,
     solid: bool = False,
+    pairs: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Resolve, take the outer hull, thicken sheets/wires and repeat until no sheet is left.
+    ``pairs``: the intersecting face pairs of ``(v, f)`` if known.
 
     Returns the closed solid ``(vertices, faces)`` plus the first pass's polyhedron and
     the birth face (into ``f``) of each of its outer-hull faces.
@@ -284,12 +315,13 @@ def _outer_hull(
         tally.passes += 1
         if round_ == 0 and not solid and is_unorientable(f):
             rv, rf, birth, split = unorientable_outer_hull(v, f)
-            pairs = len(intersecting_face_pairs(v, f))
+            n_pairs = len(intersecting_face_pairs(v, f) if pairs is None else pairs)
         else:
-            rv, rf, birth, pairs = resolve(v, f, solid=solid or round_ > 0)
+            known = pairs if round_ == 0 else None
+            rv, rf, birth, n_pairs = resolve(v, f, solid=solid or round_ > 0, pairs=known)
             split = outer_hull_split(rv, rf)
         if tally.intersecting_pairs < 0:
-            tally.intersecting_pairs = pairs
+            tally.intersecting_pairs = n_pairs
         tally.internal_faces += split.internal if round_ == 0 else 0
         if round_ == 0:
             first_poly = (rv, rf)
@@ -544,7 +576,7 @@ def repair_mesh(
         raise RepairError("face indices out of range")
 
     clock = _Clock(progress)
-    before = check_printable(v_in, f_in, as_float32=True)
+    before, pairs_in = check_printable_pairs(v_in, f_in, as_float32=True)
     clock.lap("check_input", 0.1)
     report: dict[str, Any] = {
         "epsilon": eps,
@@ -584,8 +616,9 @@ def repair_mesh(
         cv, cf, holes = close_small_holes(c.vertices, c.faces)
         clock.lap("holes", 0.25)
         fast = None
+        known = _carry_pairs(v_in, f_in, pairs_in, cv, cf)
         if len(c.segments) == 0:
-            fast = _union_fast_path(cv, cf)
+            fast = _union_fast_path(cv, cf, known)
         clock.lap("union", 0.4)
         verdict = None
         if fast is not None:
@@ -606,7 +639,7 @@ def repair_mesh(
             dropped_components = int(np.count_nonzero(~seen))
         else:
             path = "exact"
-            sv, sf, poly, hull_birth = _outer_hull(cv, cf, eps, tally, c.segments)
+            sv, sf, poly, hull_birth = _outer_hull(cv, cf, eps, tally, c.segments, pairs=known)
             clock.lap("hull_and_thicken", 0.6)
             if len(cf):
                 comp_in = edge_components(cf)

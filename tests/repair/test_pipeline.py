@@ -354,3 +354,26 @@ def test_a_failing_local_mend_falls_back_to_the_whole_outer_hull(monkeypatch):
     assert calls, "the mend was not reached: the case no longer tests the fallback"
     assert_printable(res)
     assert res.report["volume"] > 0
+
+
+def test_input_pairs_carried_past_cleaning_and_lids_are_those_a_whole_test_finds():
+    import trimesh
+
+    from repair.check import check_printable_pairs, intersecting_face_pairs
+    from repair.clean import clean_soup
+    from repair.holes import close_small_holes
+    from repair.pipeline import _carry_pairs
+
+    a = trimesh.creation.icosphere(subdivisions=3, radius=10.0)
+    b = trimesh.creation.icosphere(subdivisions=3, radius=8.0)
+    v = np.vstack([a.vertices, b.vertices + (9.3, 1.7, -2.1)]).astype(np.float32)
+    f = np.vstack([a.faces, b.faces + len(a.vertices)]).astype(np.int64)
+    f = np.vstack([np.delete(f, [5, 900, 1700], axis=0), f[:3]])  # holes and duplicates
+    v = v.astype(np.float64)
+    _, pairs_in = check_printable_pairs(v, f, as_float32=True)
+    c = clean_soup(v, f)
+    cv, cf, holes = close_small_holes(c.vertices, c.faces)
+    assert holes.count == 3 and c.duplicates_removed == 3
+    carried = _carry_pairs(v, f, pairs_in, cv, cf)
+    assert len(carried) > 0
+    assert np.array_equal(carried, intersecting_face_pairs(cv, cf))
