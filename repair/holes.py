@@ -28,6 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from repair.check import _argsort_with_keys
+
 __all__ = [
     "MAX_BOUNDARY_FRACTION",
     "MAX_PERIMETER_FRACTION",
@@ -75,10 +77,13 @@ class HolesClosed:
 
 def _edge_ids(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Undirected edge id of each face corner's edge (3m,) and each edge's use count."""
-    e = np.sort(np.stack([faces.reshape(-1), faces[:, [1, 2, 0]].reshape(-1)], axis=1), axis=1)
-    key = e[:, 0] * (int(faces.max()) + 1) + e[:, 1]
-    _, eid, cnt = np.unique(key, return_inverse=True, return_counts=True)
-    return eid.reshape(-1), cnt
+    a, b = faces.reshape(-1), faces[:, [1, 2, 0]].reshape(-1)
+    key = np.minimum(a, b) * (int(faces.max()) + 1) + np.maximum(a, b)
+    order, skey = _argsort_with_keys(key)
+    first = np.r_[True, skey[1:] != skey[:-1]]
+    eid = np.empty(len(key), dtype=np.int64)
+    eid[order] = np.cumsum(first) - 1
+    return eid, np.diff(np.r_[np.flatnonzero(first), len(key)])
 
 
 def _face_components(faces: np.ndarray, eid: np.ndarray, n_edges: int) -> np.ndarray:

@@ -268,3 +268,16 @@ def test_a_slab_whose_worker_dies_is_tested_again_in_the_parent(monkeypatch):
     monkeypatch.setattr(check_mod, "_pairs", dies_in_children)
     slabs = unique_rows(np.sort(check_mod._pairs_in_slabs(v, f, 3), axis=1))
     assert np.array_equal(slabs, one)
+
+
+def test_winding_numbers_agree_with_libigl():
+    import igl
+
+    v, f = _crossing_spheres()
+    rng = np.random.default_rng(4)
+    q = rng.normal(scale=9.0, size=(40, 3))
+    want = igl.winding_number(v, f, q)
+    got = check_mod._winding_numbers(v, f, q)
+    assert np.allclose(got, want, atol=1e-9)
+    inside = check_mod._winding_numbers(v, f[:, ::-1], np.zeros((1, 3)))
+    assert np.isclose(inside[0], -1.0)
