@@ -33,6 +33,27 @@ def test_already_printable_is_unchanged():
     assert res.report["deviation"] == 0.0
 
 
+def test_float64_input_is_repaired_on_its_float32_rounding_and_d_counts_it():
+    import trimesh
+
+    s = trimesh.creation.icosphere(subdivisions=3, radius=10.0)
+    v, f = np.asarray(s.vertices) + 0.1, np.asarray(s.faces, dtype=np.int64)
+    shift = np.linalg.norm(v.astype(np.float32).astype(np.float64) - v, axis=1).max()
+    assert shift > 0
+    res = repair_mesh(v, f, EPS)  # printable as it is: unchanged, but rounded
+    assert res.report["path"] == "unchanged"
+    assert np.array_equal(res.vertices, v.astype(np.float32).astype(np.float64))
+    assert res.report["deviation"] == shift
+    # Two overlapping copies: the union, with D the rounding (the union's surface lies on
+    # the rounded input).
+    v2, f2 = concat((v, f), (v + (7.3, 0.0, 0.0), f))
+    res = repair_mesh(v2, f2, EPS)
+    assert res.report["path"] == "union"
+    assert_printable(res)
+    shift2 = np.linalg.norm(v2.astype(np.float32).astype(np.float64) - v2, axis=1).max()
+    assert shift2 <= res.report["deviation"] <= shift2 + 1e-5
+
+
 def test_overlapping_closed_parts_give_the_exact_union():
     import manifold3d as m3d
 
