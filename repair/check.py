@@ -516,11 +516,15 @@ def _misnested_shells(
     corners = np.stack([a, b, c], axis=1)
     lo = np.minimum.reduceat(corners.min(axis=1)[order], starts[:-1], axis=0)
     hi = np.maximum.reduceat(corners.max(axis=1)[order], starts[:-1], axis=0)
-    from scipy.spatial import cKDTree
+    if n_shells <= 2048:  # a box-against-probe table (scipy.spatial costs 0.1 s to import)
+        inside = np.all((lo[:, None] <= probe[None]) & (probe[None] <= hi[:, None]), axis=2)
+        candidates = [np.flatnonzero(row) for row in inside]
+    else:
+        from scipy.spatial import cKDTree
 
-    tree = cKDTree(probe)
-    radius = 0.5 * np.linalg.norm(hi - lo, axis=1) * (1 + 1e-9) + 1e-300
-    candidates = tree.query_ball_point(0.5 * (lo + hi), radius)
+        tree = cKDTree(probe)
+        radius = 0.5 * np.linalg.norm(hi - lo, axis=1) * (1 + 1e-9) + 1e-300
+        candidates = tree.query_ball_point(0.5 * (lo + hi), radius)
     winding = np.zeros(n_shells)
     for d, cand in enumerate(candidates):
         cand = np.asarray(cand, dtype=np.int64)

@@ -300,13 +300,19 @@ class FaceGrid:
         return (c[..., 0] * self.n + c[..., 1]) * self.n + c[..., 2]
 
     def _meet(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """Faces of ``a`` whose box meets the box of a face of ``b`` (chunks of ``a``)."""
+        """Mask over ``a``: faces whose box meets the box of a face of ``b``, box against
+        box in chunks of 64 of the shorter list."""
+        lo, hi = self.lo, self.hi
         out = np.zeros(len(a), dtype=bool)
-        for s in range(0, len(a), 64):
-            g = a[s : s + 64]
-            lo, hi = self.lo[g, None, :], self.hi[g, None, :]
-            hit = (lo <= self.hi[None, b]) & (hi >= self.lo[None, b])
-            out[s : s + 64] = hit.all(axis=2).any(axis=1)
+        for s in range(0, min(len(a), len(b)), 64):
+            if len(a) <= len(b):
+                g = a[s : s + 64]
+                hit = (lo[g, None] <= hi[None, b]) & (hi[g, None] >= lo[None, b])
+                out[s : s + 64] = hit.all(axis=2).any(axis=1)
+            else:
+                g = b[s : s + 64]
+                hit = (lo[None, a] <= hi[g, None]) & (hi[None, a] >= lo[g, None])
+                out |= hit.all(axis=2).any(axis=0)
         return out
 
     def near(self, which: np.ndarray) -> np.ndarray:
@@ -331,13 +337,7 @@ class FaceGrid:
             found.append(self.big[self._meet(self.big, which)])
         huge = which[~few]
         if len(huge):
-            near = np.zeros(self.m, dtype=bool)
-            for s in range(0, len(huge), 64):
-                g = huge[s : s + 64]
-                lo, hi = self.lo[g, None, :], self.hi[g, None, :]
-                hit = (self.lo[None] <= hi) & (self.hi[None] >= lo)
-                near |= hit.all(axis=2).any(axis=0)
-            found.append(np.flatnonzero(near))
+            found.append(np.flatnonzero(self._meet(np.arange(self.m), huge)))
         return np.unique(np.concatenate(found))
 
 
@@ -359,11 +359,6 @@ def crossings_after_change(
     found = found[changed[found].any(axis=1)]
     both = np.vstack([np.asarray(kept, dtype=np.int64).reshape(-1, 2), found])
     return unique_rows(np.sort(both, axis=1)) if len(both) else both
-
-
-def _faces_near(v: np.ndarray, f: np.ndarray, which: np.ndarray) -> np.ndarray:
-    """Faces near ``which`` (see :class:`FaceGrid`), for a single query."""
-    return FaceGrid(v, f).near(which)
 
 
 def _edge_neighbours(faces: np.ndarray, which: np.ndarray) -> np.ndarray:

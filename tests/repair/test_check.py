@@ -281,3 +281,15 @@ def test_winding_numbers_agree_with_libigl():
     assert np.allclose(got, want, atol=1e-9)
     inside = check_mod._winding_numbers(v, f[:, ::-1], np.zeros((1, 3)))
     assert np.isclose(inside[0], -1.0)
+
+
+@pytest.mark.parametrize("n", [60, 2100])  # a box-probe table, then a k-d tree
+def test_one_shell_nested_among_many_is_found(n):
+    parts = [box((3.0 * i, 3.0 * j, 0.0), (3.0 * i + 2, 3.0 * j + 2, 2.0))
+             for i in range(50) for j in range((n + 49) // 50)][:n]  # fmt: skip
+    v, f = concat(*parts)
+    p = check_printable(v, f)
+    assert p.ok and p.components == n
+    v2, f2 = concat((v, f), box((3.5, 3.5, 0.5), (4.5, 4.5, 1.5)))  # inside box (1, 1)
+    p = check_printable(v2, f2)
+    assert not p.ok and p.misnested_shells == 1

@@ -10,7 +10,7 @@ from mesh_helpers import box, concat, signed_volume
 from repair.check import check_printable, intersecting_face_pairs, weld_exact
 from repair.clean import clean_soup, degenerate_mask, net_faces
 from repair.mend import (
-    _faces_near,
+    FaceGrid,
     crossings_after_change,
     is_cycle,
     mend_intersections,
@@ -138,11 +138,31 @@ def test_faces_near_holds_every_face_whose_box_meets_one_of_them():
     rng = np.random.default_rng(5)
     for k in (1, 7, 60):
         which = np.unique(rng.integers(0, len(f), k))
-        near = _faces_near(v, f, which)
+        near = FaceGrid(v, f).near(which)
         meets = (lo[None] <= hi[which, None]) & (hi[None] >= lo[which, None])
         truth = np.flatnonzero(meets.all(axis=2).any(axis=0))
         assert np.isin(truth, near).all()
         assert len(near) < len(f)  # a region, not the whole mesh
+
+
+def test_face_grid_handles_faces_far_larger_than_its_cells():
+    v, f = _two_crossing_spheres()
+    # Long slivers across the whole model, and one triangle larger than all of it.
+    big_v = np.array([[-30.0, -30, -30], [40, -30, -30], [-30, 40, 30],
+                      [-12.0, 0, 0], [20, 0.5, 0], [-12, 0.5, 0.1]])  # fmt: skip
+    v = np.vstack([v, big_v])
+    n = len(v) - 6
+    f = np.vstack([f, [[n, n + 1, n + 2], [n + 3, n + 4, n + 5]]])
+    p = v[f]
+    lo, hi = p.min(axis=1), p.max(axis=1)
+    grid = FaceGrid(v, f)
+    assert len(grid.big) >= 1  # the triangle larger than 64 cells is tested box to box
+    rng = np.random.default_rng(6)
+    for which in (np.array([len(f) - 2]), np.array([len(f) - 1, 3]),
+                  np.unique(rng.integers(0, len(f) - 2, 40))):  # fmt: skip
+        near = grid.near(which)
+        meets = (lo[None] <= hi[which, None]) & (hi[None] >= lo[which, None])
+        assert np.isin(np.flatnonzero(meets.all(axis=2).any(axis=0)), near).all()
 
 
 def test_pole_triangles_collapsed_onto_an_edge_are_not_wires():
