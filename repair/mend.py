@@ -241,7 +241,7 @@ class FaceGrid:
     each asked face. Larger faces are listed under every cell their box covers (which a
     box they meet covers too), or, beyond 64 cells, tested box against box. Where cells
     are coarse for the asked faces (a CAD mesh mixes sizes), the gathered faces are
-    tested box against box too, while that is cheap. Boxes are
+    tested box against box too, while that is cheap (gathered x asked <= 1M). Boxes are
     grown by ``1e-6`` of the largest coordinate, so the grid stays valid while vertices
     move by less than that (float32 rounding choices move them by one float32 ulp, ~6e-8
     of it).
@@ -335,7 +335,7 @@ class FaceGrid:
             total = int(count.sum())
             start = np.repeat(first - np.cumsum(count) + count, count)
             cand = np.unique(self.sorted_faces[start + np.arange(total)])
-            if len(cand) * len(which) <= 4_000_000:  # cells can be coarse: keep the boxes
+            if len(cand) * len(which) <= 1_000_000:  # cells can be coarse: keep the boxes
                 cand = cand[self._meet(cand, which)]  # that do meet one (cheap at this size)
             found.append(cand)
         if len(self.big):
