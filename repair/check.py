@@ -349,7 +349,7 @@ def _degeneracy_and_volume(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.
 
 
 #: Meshes with at least this many faces are tested in slabs, one per CPU (forked workers).
-PARALLEL_MIN_FACES = 60_000
+PARALLEL_MIN_FACES = 25_000
 #: At most this many slabs (and so processes) per test.
 MAX_WORKERS = 4
 
