@@ -25,7 +25,6 @@ All work is vectorised numpy except the exact intersection test (C++).
 from __future__ import annotations
 
 import dataclasses
-import os
 from dataclasses import dataclass
 from typing import Any
 
@@ -350,8 +349,6 @@ def _degeneracy_and_volume(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.
 
 #: Meshes with at least this many faces are tested in slabs, one per CPU (forked workers).
 PARALLEL_MIN_FACES = 25_000
-#: At most this many slabs (and so processes) per test.
-MAX_WORKERS = 4
 
 
 def intersecting_face_pairs(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -368,7 +365,9 @@ def intersecting_face_pairs(vertices: np.ndarray, faces: np.ndarray) -> np.ndarr
         return np.zeros((0, 2), dtype=np.int64)
     v = np.ascontiguousarray(vertices, dtype=np.float64)
     f = np.ascontiguousarray(faces, dtype=np.int64)
-    workers = _workers()
+    from repair.workers import cpu_workers
+
+    workers = cpu_workers()
     if len(f) >= PARALLEL_MIN_FACES and workers > 1:
         pairs = _pairs_in_slabs(v, f, workers)
     else:
@@ -386,29 +385,6 @@ def _pairs(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     return np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
 
 
-def _workers() -> int:
-    if not hasattr(os, "fork"):
-        return 1
-    try:
-        n = len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):
-        n = os.cpu_count() or 1
-    return max(1, min(n, MAX_WORKERS))
-
-
-def _die_with_parent() -> None:
-    """Linux: have the kernel kill this (forked) process if its parent dies first, so a
-    repair that is killed leaves no workers behind."""
-    try:
-        import ctypes
-        import signal
-
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
-
-
 def _pairs_in_slabs(v: np.ndarray, f: np.ndarray, k: int) -> np.ndarray:
     """The pairs of ``f``, found slab by slab, ``k`` slabs tested at once.
 
@@ -417,10 +393,10 @@ def _pairs_in_slabs(v: np.ndarray, f: np.ndarray, k: int) -> np.ndarray:
     intersect share a point, which lies in some slab, and both faces meet that slab, so
     each pair is found in at least one slab. Each slab is tested on all vertices with the
     faces' own indices, so adjacency (shared vertices) reads the same as in one test.
-
-    Slabs 1.. run in forked children that write their pairs to a pipe; a child that fails
-    in any way has its slab tested again here.
+    Slabs 1.. run in forked children (:func:`repair.workers.map_forked`).
     """
+    from repair.workers import map_forked
+
     p = v[f]
     axis = int(np.argmax(np.ptp(v, axis=0)))
     x = p[:, :, axis]
@@ -428,33 +404,12 @@ def _pairs_in_slabs(v: np.ndarray, f: np.ndarray, k: int) -> np.ndarray:
     cuts = np.quantile(x.mean(axis=1), np.arange(1, k) / k)
     edges = np.r_[-np.inf, cuts, np.inf]
     slabs = [np.flatnonzero((lo < edges[i + 1]) & (hi >= edges[i])) for i in range(k)]
-    children = []
-    for idx in slabs[1:]:
-        r, w = os.pipe()
-        pid = os.fork()
-        if pid == 0:  # child: test one slab, write the pairs, leave without cleanup
-            code = 1
-            try:
-                _die_with_parent()
-                os.close(r)
-                out = idx[_pairs(v, f[idx])].astype("<i8")
-                with os.fdopen(w, "wb") as pipe:
-                    pipe.write(out.tobytes())
-                code = 0
-            finally:
-                os._exit(code)
-        os.close(w)
-        children.append((pid, r, idx))
-    found = [slabs[0][_pairs(v, f[slabs[0]])]]
-    for pid, r, idx in children:
-        with os.fdopen(r, "rb") as pipe:
-            data = pipe.read()
-        _, status = os.waitpid(pid, 0)
-        if os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0 and len(data) % 16 == 0:
-            found.append(np.frombuffer(data, dtype="<i8").reshape(-1, 2).astype(np.int64))
-        else:
-            found.append(idx[_pairs(v, f[idx])])
-    return np.vstack(found)
+
+    def test(idx: np.ndarray) -> tuple[np.ndarray]:
+        return (idx[_pairs(v, f[idx])],)
+
+    found = map_forked(test, slabs, [[i] for i in range(k)])
+    return np.vstack([r[0].reshape(-1, 2) for r in found])
 
 
 def _winding_numbers(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray) -> np.ndarray:

@@ -1,0 +1,113 @@
+"""Run independent pieces of exact geometry side by side in forked processes.
+
+libigl's CGAL calls run on one thread (``IGL_NUM_THREADS=1`` keeps them reproducible),
+so independent pieces -- slabs of an intersection test, components of an arrangement --
+are spread over the CPUs by forking: a child computes its jobs and writes the arrays
+to a pipe, the parent computes the first share itself. A child that fails in any way
+(a native crash included) has its jobs run again in the parent, and children die with
+the parent. Results come back in job order, whatever the number of CPUs.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+__all__ = ["MAX_WORKERS", "balanced_shares", "cpu_workers", "map_forked"]
+
+#: At most this many processes per call.
+MAX_WORKERS = 4
+
+
+def cpu_workers() -> int:
+    """CPUs this process may use (at most :data:`MAX_WORKERS`); 1 where fork is missing."""
+    if not hasattr(os, "fork"):
+        return 1
+    try:
+        n = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        n = os.cpu_count() or 1
+    return max(1, min(n, MAX_WORKERS))
+
+
+def _die_with_parent() -> None:
+    """Linux: have the kernel kill this (forked) process if its parent dies first, so a
+    repair that is killed leaves no workers behind."""
+    try:
+        import ctypes
+        import signal
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
+def map_forked(
+    fn: Callable[[Any], tuple[np.ndarray, ...]],
+    jobs: Sequence[Any],
+    shares: Sequence[Sequence[int]],
+) -> list[tuple[np.ndarray, ...]]:
+    """``[fn(job) for job in jobs]``, the jobs of ``shares[0]`` run here and those of each
+    further share in a forked child. ``fn`` returns a tuple of numpy arrays."""
+    out: list[tuple[np.ndarray, ...] | None] = [None] * len(jobs)
+    children = []
+    for share in shares[1:]:
+        if not share:
+            continue
+        r, w = os.pipe()
+        pid = os.fork()
+        if pid == 0:  # child: run the share, write the arrays, leave without cleanup
+            code = 1
+            try:
+                _die_with_parent()
+                os.close(r)
+                buf = io.BytesIO()
+                arrays = {}
+                for j in share:
+                    for k, a in enumerate(fn(jobs[j])):
+                        arrays[f"{j}_{k}"] = np.asarray(a)
+                np.savez(buf, **arrays)
+                with os.fdopen(w, "wb") as pipe:
+                    pipe.write(buf.getvalue())
+                code = 0
+            finally:
+                os._exit(code)
+        os.close(w)
+        children.append((pid, r, share))
+    for j in shares[0] if shares else ():
+        out[j] = tuple(fn(jobs[j]))
+    for pid, r, share in children:
+        with os.fdopen(r, "rb") as pipe:
+            data = pipe.read()
+        _, status = os.waitpid(pid, 0)
+        got = None
+        if os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0:
+            try:
+                z = np.load(io.BytesIO(data))
+                got = {j: tuple(z[f"{j}_{k}"] for k in range(_count(z.files, j))) for j in share}
+            except (OSError, ValueError, KeyError):
+                got = None
+        for j in share:
+            out[j] = got[j] if got is not None else tuple(fn(jobs[j]))
+    return [o if o is not None else tuple(fn(jobs[i])) for i, o in enumerate(out)]
+
+
+def _count(names: list[str], j: int) -> int:
+    prefix = f"{j}_"
+    return sum(1 for n in names if n.startswith(prefix))
+
+
+def balanced_shares(sizes: Sequence[int], k: int) -> list[list[int]]:
+    """Jobs (by index) in ``k`` shares of about equal total size, largest jobs first."""
+    shares: list[list[int]] = [[] for _ in range(max(k, 1))]
+    load = [0] * len(shares)
+    for j in sorted(range(len(sizes)), key=lambda i: -sizes[i]):
+        s = load.index(min(load))
+        shares[s].append(j)
+        load[s] += sizes[j]
+    return [sorted(s) for s in shares]
