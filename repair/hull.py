@@ -24,10 +24,10 @@ from repair.check import _duplicate_faces, edge_components, intersecting_face_pa
 from repair.clean import cancel_opposite_faces, degenerate_mask, drop_unreferenced, unique_faces
 from repair.rows import unique_rows
 
-# Re-mesh only the intersecting faces when the mesh has at least this many faces and at
-# most this share of them intersect (else the whole mesh in one libigl call).
+#: Re-mesh only the intersecting faces, component by component, from this many faces.
 LOCAL_REMESH_MIN_FACES = 2000
-LOCAL_REMESH_MAX_SHARE = 0.5
+#: Arrange the components on several CPUs from this many crossing faces.
+PARALLEL_MIN_ARRANGED = 200
 
 __all__ = [
     "HullSplit",
@@ -38,6 +38,19 @@ __all__ = [
 ]
 
 
+def _remesh_all(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """libigl's exact arrangement of ``(v, f)`` in one call: (vertices, faces, birth into
+    ``f``, intersecting pairs found)."""
+    import igl.copyleft.cgal as cgal
+
+    vv, ff, pairs, birth, im = cgal.remesh_self_intersections(
+        np.ascontiguousarray(v, dtype=np.float64), np.ascontiguousarray(f, dtype=np.int64),
+        stitch_all=True, cutoff=2**31 - 1,
+    )  # fmt: skip
+    ff = np.asarray(im, dtype=np.int64)[np.asarray(ff, dtype=np.int64)]
+    return np.asarray(vv, dtype=np.float64), ff, np.asarray(birth, dtype=np.int64), len(pairs)
+
+
 def _remesh(
     v: np.ndarray, f: np.ndarray, pairs: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
@@ -45,49 +58,61 @@ def _remesh(
 
     Only the faces that intersect another are re-meshed: a face that meets no other one
     beyond a shared vertex or edge cannot be split (a split point on its edge would lie
-    on the face across that edge too, so that face would be in a pair). The new faces get
-    their own copies of the vertices, to be merged by an exact weld. Falls back
-    to the whole mesh when most faces are involved or faces repeat a vertex triple.
+    on the face across that edge too, so that face would be in a pair). For the same
+    reason the groups of faces linked by crossings (components of the pair graph) are
+    independent: each is arranged on its own, side by side on the CPUs
+    (:func:`repair.workers.map_forked`), and the output is the same for any number of
+    them. The new faces get their own copies of the vertices, to be merged by an exact
+    weld. Small meshes, and meshes whose faces repeat a vertex triple, are arranged
+    whole in one call.
     """
-    import igl.copyleft.cgal as cgal
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from repair.workers import balanced_shares, cpu_workers, map_forked
 
     v = np.ascontiguousarray(v, dtype=np.float64)
     f = np.ascontiguousarray(f, dtype=np.int64)
-    hit = np.arange(len(f))
-    n_pairs = -1
-    if len(f) >= LOCAL_REMESH_MIN_FACES and _duplicate_faces(f) == 0:
-        if pairs is None:
-            pairs = intersecting_face_pairs(v, f)
-        n_pairs = len(pairs)
-        if n_pairs == 0:
-            return v, f, np.arange(len(f)), 0
-        hit = np.unique(pairs)
-        if len(hit) > LOCAL_REMESH_MAX_SHARE * len(f):
-            hit = np.arange(len(f))
-    if len(hit) == len(f):
-        sub_v, sub_f = v, f
-    else:  # libigl's cost grows with all the vertices it is given: give it the few used
-        sub_v, sub_f = drop_unreferenced(v, f[hit])
-    vv, ff, pairs_found, birth, im = cgal.remesh_self_intersections(
-        np.ascontiguousarray(sub_v), np.ascontiguousarray(sub_f), stitch_all=True,
-        cutoff=2**31 - 1,
-    )  # fmt: skip
-    ff = np.asarray(im, dtype=np.int64)[ff]
-    birth = hit[np.asarray(birth, dtype=np.int64)]
-    if n_pairs < 0:
-        n_pairs = len(pairs_found)
-    if len(hit) == len(f):
-        return vv, ff, birth, n_pairs
-    # libigl reorders the vertices: give the new ones their own indices after the
-    # input's; the caller's exact weld merges the coincident copies.
+    if len(f) < LOCAL_REMESH_MIN_FACES or _duplicate_faces(f):
+        return _remesh_all(v, f)
+    if pairs is None:
+        pairs = intersecting_face_pairs(v, f)
+    if len(pairs) == 0:
+        return v, f, np.arange(len(f)), 0
+    hit = np.unique(pairs)
+    local = np.searchsorted(hit, pairs)
+    g = coo_matrix((np.ones(len(pairs), dtype=np.int8), (local[:, 0], local[:, 1])),
+                   shape=(len(hit), len(hit)))  # fmt: skip
+    _, lab = connected_components(g, directed=False)
+    order = np.argsort(lab, kind="stable")
+    cuts = np.flatnonzero(np.diff(lab[order])) + 1
+    groups = np.split(hit[order], cuts)  # by lowest face first (labels follow hit order)
+
+    def arrange(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        # libigl's cost grows with all the vertices it is given: give it the few used.
+        sv, sf = drop_unreferenced(v, f[faces])
+        vv, ff, birth, _ = _remesh_all(sv, sf)
+        return vv, ff, faces[birth]
+
+    sizes = [len(g_) for g_ in groups]
+    workers = cpu_workers() if len(hit) >= PARALLEL_MIN_ARRANGED else 1
+    parts = map_forked(arrange, groups, balanced_shares(sizes, workers))
+    # New vertices after the input's, each part's after the last; faces by birth.
+    out_v, out_f, out_b = [v], [], []
     rest = np.ones(len(f), dtype=bool)
     rest[hit] = False
     keep = np.flatnonzero(rest)
-    out_v = np.vstack([v, np.asarray(vv, dtype=np.float64)])
-    out_f = np.vstack([f[keep], ff + len(v)])
-    out_b = np.r_[keep, birth]
-    order = np.argsort(out_b, kind="stable")  # input order, as a whole-mesh pass gives
-    return out_v, out_f[order], out_b[order], n_pairs
+    out_f.append(f[keep])
+    out_b.append(keep)
+    offset = len(v)
+    for vv, ff, birth in parts:
+        out_v.append(vv)
+        out_f.append(ff + offset)
+        out_b.append(birth)
+        offset += len(vv)
+    vs, fs, bs = np.vstack(out_v), np.vstack(out_f), np.concatenate(out_b)
+    by_birth = np.argsort(bs, kind="stable")  # input order, as a whole-mesh pass gives
+    return vs, fs[by_birth], bs[by_birth], len(pairs)
 
 
 def resolve(

@@ -104,3 +104,47 @@ def test_the_largest_component_inside_a_coarse_box_is_internal(monkeypatch):
     assert split.internal == 5120 and len(split.sheet_index) == 0
     ref = _single_call(v, f, monkeypatch)
     assert np.array_equal(np.sort(ref.solid_index), np.sort(split.solid_index))
+
+
+def test_components_arranged_apart_give_the_same_polyhedron_on_any_number_of_cpus(
+    monkeypatch,
+):
+    import igl.copyleft.cgal as cgal
+
+    import repair.workers as workers
+
+    # Three separate pairs of crossing spheres: three independent groups of crossings.
+    parts = []
+    for k in range(3):
+        parts += [_sphere(3, 5.0, (30.0 * k, 0, 0)), _sphere(3, 4.0, (30.0 * k + 4.1, 0.7, 0))]
+    v, f = _join(*parts)
+    runs = []
+    for n in (1, 3):
+        monkeypatch.setattr(workers, "cpu_workers", lambda n=n: n)
+        runs.append(_remesh(v, f))
+    for a, b in zip(runs[0], runs[1], strict=True):
+        assert np.array_equal(np.asarray(a), np.asarray(b))
+    lv, lf, lb, n_pairs = runs[0]
+    wv, wf, _, wb, im = cgal.remesh_self_intersections(v, f, stitch_all=True, cutoff=2**31 - 1)
+    wf = np.asarray(im)[wf]
+    assert n_pairs == len(intersecting_face_pairs(v, f))
+    lv, lf = weld_exact(lv, lf)
+    wv, wf = weld_exact(np.asarray(wv), wf)
+    assert _triangles(lv, lf, lb) == _triangles(wv, wf, np.asarray(wb))
+
+
+def test_a_worker_that_dies_has_its_jobs_run_again():
+    import os
+    import signal
+
+    from repair.workers import map_forked
+
+    parent = os.getpid()
+
+    def square(x):
+        if os.getpid() != parent and x == 3:
+            os.kill(os.getpid(), signal.SIGKILL)
+        return (np.array([x * x]),)
+
+    got = map_forked(square, [1, 2, 3, 4, 5], [[0, 4], [1, 2], [3]])
+    assert [int(r[0][0]) for r in got] == [1, 4, 9, 16, 25]
