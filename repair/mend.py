@@ -162,13 +162,13 @@ def round_avoiding_crossings(
     """Round vertices to float32 (what a binary STL stores) so that rounding itself makes
     no two faces cross. Returns ``(vertices float64, crossing pairs left)``; see
     :func:`round_finding_crossings`."""
-    out, pairs, _ = round_finding_crossings(vertices, faces, max_tries)
+    out, pairs = round_finding_crossings(vertices, faces, max_tries)
     return out, int(len(pairs))
 
 
 def round_finding_crossings(
     vertices: np.ndarray, faces: np.ndarray, max_tries: int = 8
-) -> tuple[np.ndarray, np.ndarray, bool]:
+) -> tuple[np.ndarray, np.ndarray]:
     """Round vertices to float32 (what a binary STL stores) so that rounding itself makes
     no two faces cross.
 
@@ -178,11 +178,11 @@ def round_finding_crossings(
     moved ones are tested again -- a few rounds of exact tests on the damaged region only.
     No vertex moves by more than one float32 ulp.
 
-    Returns ``(vertices float64, pairs, complete)``: ``pairs`` (k, 2) are the crossing
-    face pairs (i < j) among the non-degenerate faces at the returned coordinates; when
-    ``complete`` they are all of them, exactly as :func:`repair.check.intersecting_face_pairs`
-    finds them (a pair of untouched faces cannot change; every pair with a moved face is
-    re-tested), so a caller need not test the whole mesh again.
+    Returns ``(vertices float64, pairs)``: ``pairs`` (k, 2) are all the crossing face
+    pairs (i < j) among the non-degenerate faces at the returned coordinates, exactly as
+    :func:`repair.check.intersecting_face_pairs` finds them (a pair of untouched faces
+    cannot change; every pair with a moved face is re-tested, the last choices too), so a
+    caller need not test the whole mesh again.
     """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
@@ -200,7 +200,6 @@ def round_finding_crossings(
     region = np.arange(len(f))  # faces to test: all at first, then near the moved ones
     grid = None  # built on the first rounding; choices move vertices far less than its pad
     changed = np.ones(len(f), dtype=bool)
-    complete = False
     for attempt in range(max_tries + 1):
         fr = f[region]
         deg = degenerate_mask(out, fr)
@@ -215,8 +214,7 @@ def round_finding_crossings(
         bad_v = np.unique(f[hit].reshape(-1))
         bad_v = bad_v[moved[bad_v]]
         if len(bad_v) == 0 or attempt == max_tries:
-            complete = True  # the last choices are tested too: the pairs are all known
-            break
+            break  # the last choices were tested too: the pairs are all known
         choice[bad_v] += 1
         bits = (choice[bad_v, None] >> np.arange(3)) & 1
         out[bad_v] = np.where(bits == 1, other[bad_v], r[bad_v]).astype(np.float64)
@@ -226,7 +224,7 @@ def round_finding_crossings(
         if grid is None:
             grid = FaceGrid(out, f)
         region = grid.near(np.flatnonzero(changed))
-    return out, pairs, complete
+    return out, pairs
 
 
 class FaceGrid:

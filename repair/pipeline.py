@@ -175,13 +175,12 @@ def _manifolds_of(v: np.ndarray, f: np.ndarray, labels: np.ndarray | None = None
 
 def _carry_pairs(
     v_in: np.ndarray, f_in: np.ndarray, pairs_in: np.ndarray, v: np.ndarray, f: np.ndarray
-) -> np.ndarray | None:
+) -> np.ndarray:
     """The intersecting face pairs of ``(v, f)`` -- the cleaned input with lids added --
     from those of the input (``pairs_in``, indices into ``f_in``, found on the same
     coordinates): faces on the same three points as an input face keep its pairs, only
-    the region near the others (lids) is tested. None when the coordinates differ."""
-    if not np.array_equal(round_to_float32(v_in), v_in):
-        return None  # the input's pairs were found on its float32 rounding
+    the region near the others (lids) is tested. ``v_in`` must be float32-valued (as
+    :func:`repair_mesh` makes it), the coordinates ``pairs_in`` were found on."""
     # One vertex numbering for both, by exact position.
     nv_in = len(v_in)
     _, both = weld_exact(np.vstack([v_in, v]), np.vstack([f_in, f + nv_in]))
@@ -435,11 +434,11 @@ def _rounded_verdict(
     v: np.ndarray, f: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, Printability, np.ndarray]:
     """Round to float32 avoiding crossings, weld, and check: ``(v32, f32, verdict,
-    pairs)``. The crossings found while rounding are reused when they are complete and
-    the weld merged nothing (same faces, same coordinates: the same test)."""
-    r, found, complete = round_finding_crossings(v, f)
+    pairs)``. The crossings found while rounding are reused when the weld merged nothing
+    (same faces, same coordinates: the same test)."""
+    r, found = round_finding_crossings(v, f)
     v32, f32 = weld_exact(r, f)
-    if complete and len(v32) == len(r):
+    if len(v32) == len(r):
         verdict, pairs = verdict_given_pairs(v32, f32, found)
     else:
         verdict, pairs = check_printable_pairs(v32, f32)

@@ -19,6 +19,14 @@ def box(lo=(0.0, 0.0, 0.0), hi=(1.0, 1.0, 1.0)) -> tuple[np.ndarray, np.ndarray]
     return v, f
 
 
+def sphere(subdivisions: int, radius: float, centre=(0.0, 0.0, 0.0)):
+    """Closed outward icosphere (trimesh), 20 * 4**subdivisions triangles."""
+    import trimesh
+
+    s = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
+    return np.asarray(s.vertices) + np.asarray(centre, float), np.asarray(s.faces, np.int64)
+
+
 def signed_volume(v, f) -> float:
     a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
     return float(np.einsum("ij,ij->", a, np.cross(b, c)) / 6.0)

@@ -8,7 +8,7 @@ import signal
 import numpy as np
 import pytest
 import trimesh
-from mesh_helpers import concat
+from mesh_helpers import concat, sphere
 
 import repair.check as check_mod
 from repair.check import (
@@ -237,10 +237,7 @@ def test_large_clean_mesh_passes():
 
 
 def _crossing_spheres():
-    a = trimesh.creation.icosphere(subdivisions=4, radius=10.0)
-    b = trimesh.creation.icosphere(subdivisions=3, radius=6.0)
-    v = np.vstack([a.vertices, b.vertices + (8.3, 1.7, -2.1)])
-    return v, np.vstack([a.faces, b.faces + len(a.vertices)]).astype(np.int64)
+    return concat(sphere(4, 10.0), sphere(3, 6.0, (8.3, 1.7, -2.1)))
 
 
 @pytest.mark.skipif(not hasattr(os, "fork"), reason="slabs run in forked processes")

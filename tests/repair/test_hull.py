@@ -5,7 +5,7 @@ same outer hull as one libigl call."""
 from __future__ import annotations
 
 import numpy as np
-import trimesh
+from mesh_helpers import box, concat, sphere
 
 import repair.hull as hull
 from repair.check import intersecting_face_pairs, weld_exact
@@ -18,10 +18,7 @@ def _triangles(v: np.ndarray, f: np.ndarray, birth: np.ndarray) -> list:
 
 
 def test_local_arrangement_is_the_whole_mesh_arrangement():
-    a = trimesh.creation.icosphere(subdivisions=3, radius=10.0)
-    b = trimesh.creation.icosphere(subdivisions=3, radius=7.0)
-    v = np.vstack([a.vertices, b.vertices + (9.3, 1.7, -2.1)])
-    f = np.vstack([a.faces, b.faces + len(a.vertices)]).astype(np.int64)
+    v, f = concat(sphere(3, 10.0), sphere(3, 7.0, (9.3, 1.7, -2.1)))
     assert len(f) >= LOCAL_REMESH_MIN_FACES
     pairs = intersecting_face_pairs(v, f)
     assert 0 < len(np.unique(pairs)) < len(f) // 4  # a local pass, not the whole mesh
@@ -43,31 +40,11 @@ def test_local_arrangement_is_the_whole_mesh_arrangement():
 
 
 def test_arrangement_of_a_mesh_without_crossings_is_the_mesh():
-    s = trimesh.creation.icosphere(subdivisions=4, radius=10.0)
-    v, f = np.asarray(s.vertices), np.asarray(s.faces, dtype=np.int64)
+    v, f = sphere(4, 10.0)
     rv, rf, birth, n = _remesh(v, f)
     assert n == 0
     assert np.array_equal(rv, v) and np.array_equal(rf, f)
     assert np.array_equal(birth, np.arange(len(f)))
-
-
-def _sphere(sub: int, r: float, c=(0.0, 0.0, 0.0)):
-    s = trimesh.creation.icosphere(subdivisions=sub, radius=r)
-    return np.asarray(s.vertices) + c, np.asarray(s.faces, dtype=np.int64)
-
-
-def _box(lo, hi):
-    m = trimesh.creation.box(bounds=np.array([lo, hi], dtype=float))
-    return np.asarray(m.vertices), np.asarray(m.faces, dtype=np.int64)
-
-
-def _join(*parts):
-    vs, fs, off = [], [], 0
-    for v, f in parts:
-        vs.append(v)
-        fs.append(f + off)
-        off += len(v)
-    return np.vstack(vs), np.vstack(fs)
 
 
 def _single_call(v, f, monkeypatch):
@@ -77,11 +54,11 @@ def _single_call(v, f, monkeypatch):
 
 
 def test_components_nest_as_one_libigl_call_nests_them(monkeypatch):
-    big = _sphere(4, 10.0)  # 5120 faces: its cells are extracted on their own
-    inner = _box((-1, -1, -1), (1, 1, 1))  # inside the sphere: internal
-    outer = _box((20, 0, 0), (22, 2, 2))  # beside it: kept
+    big = sphere(4, 10.0)  # 5120 faces: its cells are extracted on their own
+    inner = box((-1, -1, -1), (1, 1, 1))  # inside the sphere: internal
+    outer = box((20, 0, 0), (22, 2, 2))  # beside it: kept
     sheet = (np.array([[30.0, 0, 0], [32, 0, 0], [30, 2, 0]]), np.array([[0, 1, 2]]))
-    v, f = _join(big, inner, outer, sheet)
+    v, f = concat(big, inner, outer, sheet)
     split = hull.outer_hull_split(v, f)
     assert np.array_equal(np.sort(split.solid_index), np.r_[0:5120, 5132:5144])
     assert np.array_equal(split.sheet_index, [5144])
@@ -96,9 +73,9 @@ def test_components_nest_as_one_libigl_call_nests_them(monkeypatch):
 
 
 def test_the_largest_component_inside_a_coarse_box_is_internal(monkeypatch):
-    big = _sphere(4, 10.0)
-    box = _box((-20, -20, -20), (20, 20, 20))  # 12 faces around 5120
-    v, f = _join(big, box)
+    big = sphere(4, 10.0)
+    around = box((-20, -20, -20), (20, 20, 20))  # 12 faces around 5120
+    v, f = concat(big, around)
     split = hull.outer_hull_split(v, f)
     assert np.array_equal(np.sort(split.solid_index), np.arange(5120, 5132))
     assert split.internal == 5120 and len(split.sheet_index) == 0
@@ -116,8 +93,8 @@ def test_components_arranged_apart_give_the_same_polyhedron_on_any_number_of_cpu
     # Three separate pairs of crossing spheres: three independent groups of crossings.
     parts = []
     for k in range(3):
-        parts += [_sphere(3, 5.0, (30.0 * k, 0, 0)), _sphere(3, 4.0, (30.0 * k + 4.1, 0.7, 0))]
-    v, f = _join(*parts)
+        parts += [sphere(3, 5.0, (30.0 * k, 0, 0)), sphere(3, 4.0, (30.0 * k + 4.1, 0.7, 0))]
+    v, f = concat(*parts)
     runs = []
     for n in (1, 3):
         monkeypatch.setattr(workers, "cpu_workers", lambda n=n: n)
