@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from repair.check import degenerate_face_mask, weld_exact
-from repair.rows import unique_rows
+from repair.rows import unique_ints, unique_rows
 
 __all__ = [
     "Cleaned",
@@ -68,7 +68,7 @@ def net_faces(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     f = np.asarray(faces, dtype=np.int64)
     if len(f) == 0:
         return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    _, first, inv = np.unique(face_keys(f), return_index=True, return_inverse=True)
+    _, first, inv = unique_ints(face_keys(f), return_index=True, return_inverse=True)
     inv = inv.reshape(-1)
     # Orientation parity: a face and its sorted row are related by an even or odd
     # permutation.
@@ -77,7 +77,7 @@ def net_faces(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     total = np.bincount(inv, weights=sign).astype(np.int64)
     # Among each surviving group keep one face whose sign matches the sum.
     cand = np.flatnonzero((total[inv] != 0) & ((sign > 0) == (total[inv] > 0)))
-    _, one = np.unique(inv[cand], return_index=True)
+    _, one = unique_ints(inv[cand], return_index=True)
     idx = np.sort(cand[one])
     return idx, np.abs(total[inv[idx]])
 
@@ -106,8 +106,12 @@ def drop_unreferenced(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarr
     """Remove vertices no face uses; faces are re-indexed (order preserved)."""
     if len(faces) == 0:
         return vertices[:0], faces.reshape(0, 3)
-    used, inv = np.unique(faces.reshape(-1), return_inverse=True)
-    return vertices[used], inv.reshape(-1, 3).astype(np.int64)
+    f = np.asarray(faces, dtype=np.int64)
+    mark = np.zeros(len(vertices), dtype=bool)
+    mark[f.reshape(-1)] = True
+    used = np.flatnonzero(mark)
+    new_id = np.cumsum(mark) - 1  # no sort: vertex ids are dense
+    return vertices[used], new_id[f].reshape(-1, 3)
 
 
 def _not_on_edges(degenerate: np.ndarray, faces: np.ndarray) -> np.ndarray:

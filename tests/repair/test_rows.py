@@ -29,3 +29,21 @@ def test_unique_rows_of_huge_indices_falls_back_to_numpy():
     rows, inv = unique_rows(a, return_inverse=True)
     assert rows.tolist() == [[0, 0, 0], [2**40] * 3]
     assert inv.tolist() == [1, 0, 1]
+
+
+@pytest.mark.parametrize("n,lo,hi", [(5000, -50, 300), (1, 0, 5), (0, 0, 1), (2000, -2**40, 2**40),
+                                     (3000, 0, 2**61)])  # fmt: skip
+@pytest.mark.parametrize("flags", [(False, False, False), (True, True, True), (False, True, False)])
+def test_unique_ints_matches_numpy(n, lo, hi, flags):
+    from repair.rows import unique_ints
+
+    a = np.random.default_rng(n).integers(lo, hi, size=n)
+    a = np.r_[a, a[: n // 3]]  # repeats, first occurrences to find
+    want = np.unique(a, return_index=flags[0], return_inverse=flags[1], return_counts=flags[2])
+    got = unique_ints(a, *flags)
+    want = want if isinstance(want, tuple) else (want,)
+    got = got if isinstance(got, tuple) else (got,)
+    assert len(got) == len(want)
+    for w, g in zip(want, got, strict=True):
+        assert np.array_equal(np.asarray(w).reshape(-1), np.asarray(g).reshape(-1))
+    assert got[0].dtype == want[0].dtype
