@@ -348,7 +348,7 @@ def _degeneracy_and_volume(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.
 
 
 #: Meshes with at least this many faces are tested in slabs, one per CPU (forked workers).
-PARALLEL_MIN_FACES = 25_000
+PARALLEL_MIN_FACES = 8_000
 
 
 def intersecting_face_pairs(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
