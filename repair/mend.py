@@ -27,7 +27,7 @@ import numpy as np
 
 from repair.check import intersecting_face_pairs, weld_exact
 from repair.clean import degenerate_mask, drop_unreferenced, face_keys, net_faces
-from repair.rows import unique_rows
+from repair.rows import unique_ints, unique_rows
 
 __all__ = [
     "Mended",
@@ -167,7 +167,10 @@ def round_avoiding_crossings(
 
 
 def round_finding_crossings(
-    vertices: np.ndarray, faces: np.ndarray, max_tries: int = 8
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    max_tries: int = 8,
+    known: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Round vertices to float32 (what a binary STL stores) so that rounding itself makes
     no two faces cross.
@@ -183,6 +186,11 @@ def round_finding_crossings(
     :func:`repair.check.intersecting_face_pairs` finds them (a pair of untouched faces
     cannot change; every pair with a moved face is re-tested, the last choices too), so a
     caller need not test the whole mesh again.
+
+    ``known = (same, pairs)``: ``same`` (bool per face) marks faces whose corners are
+    float32 values already, with ``pairs`` all the crossing pairs among them (a mesh
+    mended after an earlier check: its untouched faces). Only the faces near the others
+    are tested then.
     """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
@@ -200,6 +208,14 @@ def round_finding_crossings(
     region = np.arange(len(f))  # faces to test: all at first, then near the moved ones
     grid = None  # built on the first rounding; choices move vertices far less than its pad
     changed = np.ones(len(f), dtype=bool)
+    if known is not None:
+        same = np.asarray(known[0], dtype=bool)
+        if np.all(exact[f[same]]):  # their corners do not round: their pairs stand
+            changed = ~same
+            pairs = np.asarray(known[1], dtype=np.int64).reshape(-1, 2)
+            deg_faces = np.flatnonzero(same & degenerate_mask(out, f))
+            grid = FaceGrid(out, f)
+            region = grid.near(np.flatnonzero(changed)) if np.any(changed) else region[:0]
     for attempt in range(max_tries + 1):
         fr = f[region]
         deg = degenerate_mask(out, fr)
@@ -388,7 +404,7 @@ def is_cycle(faces: np.ndarray) -> bool:
     lo, hi = np.minimum(a, b), np.maximum(a, b)
     key = lo * n + hi
     sign = np.where(a < b, 1, -1)
-    uk, inv = np.unique(key, return_inverse=True)
+    uk, inv = unique_ints(key, return_inverse=True)
     return bool(np.all(np.bincount(inv.reshape(-1), weights=sign, minlength=len(uk)) == 0))
 
 
@@ -471,7 +487,7 @@ def mend_intersections(
     key = face_keys(f)
     if pairs is None:
         ok = np.flatnonzero(~degm)
-        _, first = np.unique(key[ok], return_index=True)
+        _, first = unique_ints(key[ok], return_index=True)
         one = ok[first]
         pairs = one[intersecting_face_pairs(v, f[one])]
     if len(pairs) == 0 and not np.any(degm):

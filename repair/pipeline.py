@@ -64,7 +64,7 @@ from repair.mend import (
     round_finding_crossings,
     separate_singular_edges,
 )
-from repair.rows import unique_rows
+from repair.rows import unique_ints, unique_rows
 from repair.thicken import region_prisms, sheet_slabs
 from repair.wires import cylinders, visible_segments
 
@@ -173,6 +173,20 @@ def _manifolds_of(v: np.ndarray, f: np.ndarray, labels: np.ndarray | None = None
     return out
 
 
+def _same_faces(va: np.ndarray, fa: np.ndarray, vb: np.ndarray, fb: np.ndarray) -> np.ndarray:
+    """For each face of ``(vb, fb)``: a face of ``(va, fa)`` on the same three points
+    (exactly equal coordinates, any order), or -1."""
+    if len(fa) == 0:
+        return np.full(len(fb), -1, dtype=np.int64)
+    # One vertex numbering for both, by exact position.
+    _, both = weld_exact(np.vstack([va, vb]), np.vstack([fa, fb + len(va)]))
+    keys = face_keys(both)
+    ka, kb = keys[: len(fa)], keys[len(fa) :]
+    order = np.argsort(ka, kind="stable")
+    pos = np.clip(np.searchsorted(ka[order], kb), 0, len(ka) - 1)
+    return np.where(ka[order][pos] == kb, order[pos], -1)
+
+
 def _carry_pairs(
     v_in: np.ndarray, f_in: np.ndarray, pairs_in: np.ndarray, v: np.ndarray, f: np.ndarray
 ) -> np.ndarray:
@@ -181,17 +195,11 @@ def _carry_pairs(
     coordinates): faces on the same three points as an input face keep its pairs, only
     the region near the others (lids) is tested. ``v_in`` must be float32-valued (as
     :func:`repair_mesh` makes it), the coordinates ``pairs_in`` were found on."""
-    # One vertex numbering for both, by exact position.
-    nv_in = len(v_in)
-    _, both = weld_exact(np.vstack([v_in, v]), np.vstack([f_in, f + nv_in]))
-    keys = face_keys(both)
-    k_in, k = keys[: len(f_in)], keys[len(f_in) :]
-    order = np.argsort(k_in, kind="stable")
-    pos = np.clip(np.searchsorted(k_in[order], k), 0, len(k_in) - 1)
-    found = k_in[order][pos] == k
+    match = _same_faces(v_in, f_in, v, f)
+    found = match >= 0
     # Each input face -> the face of f on its three points (if any).
     to_f = np.full(len(f_in), -1, dtype=np.int64)
-    to_f[order[pos[found]]] = np.flatnonzero(found)
+    to_f[match[found]] = np.flatnonzero(found)
     kept = to_f[pairs_in] if len(pairs_in) else np.zeros((0, 2), dtype=np.int64)
     kept = kept[(kept >= 0).all(axis=1)]
     return crossings_after_change(v, f, kept, ~found)
@@ -431,12 +439,30 @@ def _collapse_damaged(
 
 
 def _rounded_verdict(
-    v: np.ndarray, f: np.ndarray
+    v: np.ndarray,
+    f: np.ndarray,
+    before: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, Printability, np.ndarray]:
     """Round to float32 avoiding crossings, weld, and check: ``(v32, f32, verdict,
     pairs)``. The crossings found while rounding are reused when the weld merged nothing
-    (same faces, same coordinates: the same test)."""
-    r, found = round_finding_crossings(v, f)
+    (same faces, same coordinates: the same test). ``before = (v, f, pairs)``: a checked
+    mesh this one was mended from, with all its crossing pairs; faces on the same points
+    as one of its faces keep their pairs, and only the region near the others is tested.
+    """
+    known = None
+    if before is not None:
+        match = _same_faces(before[0], before[1], v, f)
+        hit = np.flatnonzero(match >= 0)
+        # A face matched twice (copies) is tested again: pairs come per face.
+        _, first, cnt = unique_ints(match[hit], return_index=True, return_counts=True)
+        hit = hit[first[cnt == 1]]
+        same = np.zeros(len(f), dtype=bool)
+        same[hit] = True
+        to_new = np.full(len(before[1]), -1, dtype=np.int64)
+        to_new[match[hit]] = hit
+        kept = to_new[before[2]] if len(before[2]) else np.zeros((0, 2), dtype=np.int64)
+        known = (same, kept[(kept >= 0).all(axis=1)])
+    r, found = round_finding_crossings(v, f, known=known)
     v32, f32 = weld_exact(r, f)
     if len(v32) == len(r):
         verdict, pairs = verdict_given_pairs(v32, f32, found)
@@ -463,8 +489,10 @@ def _finish(
     tried_separation = False
     worse = 0
     last_damage = None
+    before = None  # the checked mesh a mend started from, and its crossing pairs
     for round_ in range(MAX_FINISH_ROUNDS):
-        v32, f32, verdict, pairs = _rounded_verdict(v, f)
+        v32, f32, verdict, pairs = _rounded_verdict(v, f, before)
+        before = None
         if verdict.ok:
             return v32, f32, verdict
         damage = verdict.intersecting_pairs + verdict.degenerate_faces + verdict.nonmanifold_edges
@@ -514,10 +542,13 @@ def _finish(
             step = float(np.abs(v32).max()) * 2.0**-17
             sep = separate_singular_edges(v32, f32, step)
             if sep is not None:
-                trial = _rounded_verdict(*sep[:2])[2]
+                tried = _rounded_verdict(*sep[:2], None if pairs is None else (v32, f32, pairs))
+                trial = tried[2]
                 left = trial.intersecting_pairs + trial.degenerate_faces
                 if left + trial.nonmanifold_edges < verdict.nonmanifold_edges:
                     v, f, tally.separated = sep
+                    if trial.ok:  # what the next round would find: done
+                        return tried[0], tried[1], trial
                     continue
         if clean_touch:
             # Parts that touch along an edge: thicken the edge so they fuse.
@@ -533,6 +564,8 @@ def _finish(
             except (RuntimeError, ValueError, IndexError):
                 md = None  # libigl refused the subset: take the whole outer hull below
             if md is not None:
+                if pairs is not None and not extra:
+                    before = (mv, mf, pairs)
                 v, f = md.vertices, md.faces
                 continue
         c = clean_soup(*_concat([(v32, f32), *extra]), solid=True)

@@ -106,6 +106,27 @@ def test_rounding_reports_exactly_the_crossings_a_whole_test_finds():
     assert np.array_equal(pairs, whole)
 
 
+def test_rounding_with_known_pairs_of_untouched_faces_finds_what_a_whole_test_finds():
+    # A mesh checked once (float32 corners, all its crossings known), then changed in a
+    # few places: only the region near the changed faces is tested again.
+    v, f = _two_crossing_spheres()
+    out, pairs = round_finding_crossings(v, f, max_tries=5)
+    assert len(pairs) > 0
+    rng = np.random.default_rng(4)
+    moved = np.r_[np.unique(f[pairs[:3]].reshape(-1)), 11]
+    v2 = out.copy()
+    v2[moved] += rng.normal(scale=0.2, size=(len(moved), 3))  # not float32 values
+    same = ~np.isin(f, moved).any(axis=1)
+    kept = pairs[same[pairs].all(axis=1)]
+    got_v, got = round_finding_crossings(v2, f, max_tries=5, known=(same, kept))
+    assert np.array_equal(got_v[~np.isin(np.arange(len(v2)), moved)],
+                          out[~np.isin(np.arange(len(v2)), moved)])  # fmt: skip
+    ok = np.flatnonzero(~degenerate_mask(got_v, f))
+    whole = ok[intersecting_face_pairs(got_v, f[ok])]
+    assert np.array_equal(got, whole)
+    assert len(kept) > 0 and not np.array_equal(got, pairs)
+
+
 def test_crossings_after_a_local_change_are_those_a_whole_test_finds():
     v, f = _two_crossing_spheres()
     ok = np.flatnonzero(~degenerate_mask(v, f))
