@@ -3,8 +3,10 @@
 ``D = max over points p of the output surface of dist(p, input)``, where the input is
 its non-degenerate triangles plus the segments its degenerate triangles stood for.
 Estimated on the output's vertices, face centroids, edge midpoints and a few random
-points per face (deterministic seed); output faces that are input faces (perhaps with
-their corners rounded to float32) are bounded without samples. Units are mm. Vectorised
+points per face (deterministic seed). Bounded without samples: output faces that are
+input faces (perhaps with their corners rounded to float32), and pieces of input faces
+named by a hint (a union keeps the input's triangles and says which each piece is of),
+each verified by its corners' distance to that triangle. Units are mm. Vectorised
 (libigl AABB tree).
 """
 
@@ -12,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from repair.rows import unique_rows
+from repair.rows import unique_ints, unique_rows
 
 __all__ = ["max_deviation"]
 
@@ -56,8 +58,8 @@ def _match_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def _new_faces(
     ov: np.ndarray, of: np.ndarray, iv: np.ndarray, inf: np.ndarray
 ) -> tuple[np.ndarray, float]:
-    """The output faces that are not input faces, and a bound (mm) on the distance of the
-    others from the input.
+    """Mask of the output faces that are not input faces, and a bound (mm) on the
+    distance of the others from the input.
 
     An output face on exactly the corners of an input face is that triangle (distance 0
     everywhere), so it needs no samples. Nor does one whose corners are those corners
@@ -65,7 +67,7 @@ def _new_faces(
     the input triangle (a convex combination of the corners, each moved that far at most),
     so that displacement bounds its distance."""
     if len(inf) == 0 or len(iv) == 0:
-        return of, 0.0
+        return np.ones(len(of), dtype=bool), 0.0
     ids = _match_rows(ov, iv)
     moved = np.zeros(len(ov))
     iv32 = iv.astype(np.float32).astype(np.float64)
@@ -79,7 +81,7 @@ def _new_faces(
     known = (fid >= 0).all(axis=1)
     n = len(iv)
     if n >= 2**21:
-        return of, 0.0
+        return np.ones(len(of), dtype=bool), 0.0
     a = np.sort(fid[known], axis=1)
     b = np.sort(inf, axis=1)
     kin = (b[:, 0] * n + b[:, 1]) * n + b[:, 2]
@@ -87,7 +89,45 @@ def _new_faces(
     same = np.zeros(len(of), dtype=bool)
     same[np.flatnonzero(known)] = np.isin(kout, kin)
     bound = float(moved[of[same]].max()) if np.any(same) else 0.0
-    return of[~same], bound
+    return ~same, bound
+
+
+def _point_triangle_d2(q: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Squared distance (mm²) from each point ``q`` (k, 3) to its triangle ``abc`` (k, 3)
+    each: the closest point by Voronoi region of the corners, edges and face (Ericson,
+    *Real-Time Collision Detection* 5.1.5), vectorised."""
+    ab, ac, ap = b - a, c - a, q - a
+    bp, cp = q - b, q - c
+
+    def dot(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        return np.einsum("ij,ij->i", x, y)
+
+    d1, d2 = dot(ab, ap), dot(ac, ap)
+    d3, d4 = dot(ab, bp), dot(ac, bp)
+    d5, d6 = dot(ab, cp), dot(ac, cp)
+    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_ab = d1 / (d1 - d3)
+        t_ac = d2 / (d2 - d6)
+        t_bc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        den = va + vb + vc
+        v, w = vb / den, vc / den
+    inner = a + ab * v[:, None] + ac * w[:, None]
+    conds = [
+        (d1 <= 0) & (d2 <= 0),
+        (d3 >= 0) & (d4 <= d3),
+        (vc <= 0) & (d1 >= 0) & (d3 <= 0),
+        (d6 >= 0) & (d5 <= d6),
+        (vb <= 0) & (d2 >= 0) & (d6 <= 0),
+        (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0),
+    ]
+    choices = [a, b, a + ab * t_ab[:, None], c, a + ac * t_ac[:, None],
+               b + (c - b) * t_bc[:, None]]  # fmt: skip
+    closest = inner
+    for cond, choice in zip(conds[::-1], choices[::-1], strict=True):  # the first region that holds
+        closest = np.where(cond[:, None], choice, closest)
+    d = q - closest
+    return dot(d, d)
 
 
 def _point_mesh_d2(pts: np.ndarray, v: np.ndarray, f: np.ndarray) -> np.ndarray:
@@ -135,6 +175,51 @@ def _point_mesh_d2(pts: np.ndarray, v: np.ndarray, f: np.ndarray) -> np.ndarray:
     return d2
 
 
+def _within_input_faces(
+    ov: np.ndarray, of: np.ndarray, iv: np.ndarray, tri: np.ndarray
+) -> tuple[np.ndarray, float]:
+    """Which output faces ``of`` are shown to lie on the input triangles ``tri`` (one
+    each, indices into ``iv``), and a bound (mm) on their distance from the input.
+
+    A piece of an input face (a union cuts faces where shells cross) lies in it: every
+    point of the output face is within its largest corner distance of that triangle (a
+    convex set). Shown where that bound is at float32-rounding scale (4 ulps of the
+    largest coordinate); the other faces are left to be sampled."""
+    if len(of) == 0:
+        return np.zeros(0, dtype=bool), 0.0
+    p = ov[of]
+    t = iv[tri]
+    d2 = np.max(
+        [_point_triangle_d2(p[:, k], t[:, 0], t[:, 1], t[:, 2]) for k in range(3)], axis=0
+    )
+    tol = 2.0**-21 * max(float(np.abs(iv).max()), float(np.abs(ov).max()), 1.0)
+    ok = d2 <= tol * tol
+    return ok, (float(np.sqrt(d2[ok].max())) if np.any(ok) else 0.0)
+
+
+def _neighbour_guesses(
+    of: np.ndarray, hint: np.ndarray, which: np.ndarray, limit: int = 200_000
+) -> tuple[np.ndarray, np.ndarray]:
+    """Candidate input faces for the faces ``which`` of ``of``: the distinct hints of the
+    faces sharing a corner with each. Returns ``(rows, input faces)``, one row per
+    candidate (at most ``limit``)."""
+    has = np.flatnonzero(hint >= 0)
+    if len(which) == 0 or len(has) == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    # (vertex, hint) of every hinted face's corners, distinct, sorted by vertex.
+    vh = unique_rows(np.stack([of[has].reshape(-1), np.repeat(hint[has], 3)], axis=1))
+    corner = of[which].reshape(-1)
+    start = np.searchsorted(vh[:, 0], corner, side="left")
+    cnt = np.searchsorted(vh[:, 0], corner, side="right") - start
+    total = int(cnt.sum())
+    if total == 0 or total > limit:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    pos = np.repeat(start - np.cumsum(cnt) + cnt, cnt) + np.arange(total)
+    rows = np.repeat(np.repeat(which, 3), cnt)
+    pair = unique_rows(np.stack([rows, vh[pos, 1]], axis=1))
+    return pair[:, 0], pair[:, 1]
+
+
 def max_deviation(
     out_vertices: np.ndarray,
     out_faces: np.ndarray,
@@ -143,8 +228,13 @@ def max_deviation(
     in_segments: np.ndarray | None = None,
     *,
     max_points: int = 400_000,
+    hint: np.ndarray | None = None,
 ) -> float:
     """Largest distance (mm) from sampled output surface points to the input.
+
+    ``hint`` (optional, per output face): an input face it is believed to lie on, or -1.
+    A guess only: each is verified (:func:`_within_input_faces`), and faces it does not
+    hold for are measured as the others.
 
     Returns 0.0 for an empty output and ``inf`` when the input has nothing to measure to.
     """
@@ -152,17 +242,31 @@ def max_deviation(
     of = np.asarray(out_faces, dtype=np.int64)
     if len(of) == 0:
         return 0.0
-    of, bound = _new_faces(ov, of, np.asarray(in_vertices, dtype=np.float64),
-                           np.asarray(in_faces, dtype=np.int64))  # fmt: skip
+    iv = np.asarray(in_vertices, dtype=np.float64)
+    inf = np.asarray(in_faces, dtype=np.int64)
+    new, bound = _new_faces(ov, of, iv, inf)
+    if hint is not None and len(inf) and np.any(new):
+        h = np.asarray(hint, dtype=np.int64)
+        h = np.where(h < len(inf), h, -1)
+        guess = np.flatnonzero(new & (h >= 0))
+        shown, b = _within_input_faces(ov, of[guess], iv, inf[h[guess]])
+        new[guess[shown]] = False
+        bound = max(bound, b)
+        # A face cut again later (a mend after rounding) has no hint of its own, but
+        # usually lies on the input face of a face sharing one of its corners.
+        rows, tri = _neighbour_guesses(of, h, np.flatnonzero(new))
+        shown, b = _within_input_faces(ov, of[rows], iv, inf[tri])
+        new[rows[shown]] = False
+        bound = max(bound, b)
+    of = of[new]
     if len(of) == 0:
         return bound
     # Only the vertices of new faces: the others are (rounded) input vertices.
-    used, local = np.unique(of, return_inverse=True)
+    used, local = unique_ints(of.reshape(-1), return_inverse=True)
     pts = _surface_samples(ov[used], local.reshape(-1, 3), max_points)
     d2 = np.full(len(pts), np.inf)
-    if len(in_faces):
-        d2 = _point_mesh_d2(pts, np.asarray(in_vertices, dtype=np.float64),
-                            np.asarray(in_faces, dtype=np.int64))  # fmt: skip
+    if len(inf):
+        d2 = _point_mesh_d2(pts, iv, inf)
     if in_segments is not None and len(in_segments):
         d2 = np.minimum(d2, _point_segment_d2(pts, np.asarray(in_segments, dtype=np.float64)))
     return max(float(np.sqrt(d2.max())), bound)

@@ -148,9 +148,13 @@ def _concat(parts: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.
 # --------------------------------------------------------------------------- fast paths
 
 
-def _manifolds_of(v: np.ndarray, f: np.ndarray, labels: np.ndarray | None = None) -> list | None:
+def _manifolds_of(
+    v: np.ndarray, f: np.ndarray, labels: np.ndarray | None = None, *, keep_faces: bool = False
+) -> list | None:
     """One manifold3d solid per edge-connected component of ``(v, f)`` (float32), or None
-    if manifold3d rejects one. Much faster than ``Manifold.decompose`` on many pieces."""
+    if manifold3d rejects one. Much faster than ``Manifold.decompose`` on many pieces.
+    ``keep_faces``: give each triangle its own face id, so that manifold3d keeps the
+    input's triangles (cutting them where needed) instead of merging coplanar ones."""
     import manifold3d as m3d
 
     lab = edge_components(f) if labels is None else labels
@@ -160,11 +164,13 @@ def _manifolds_of(v: np.ndarray, f: np.ndarray, labels: np.ndarray | None = None
     out = []
     for i in range(len(cuts) - 1):
         ff = f[order[cuts[i] : cuts[i + 1]]]
-        used, inv = np.unique(ff, return_inverse=True)
+        used, inv = unique_ints(ff.reshape(-1), return_inverse=True)
+        ids = {"face_id": order[cuts[i] : cuts[i + 1]].astype(np.uint32)} if keep_faces else {}
         solid = m3d.Manifold(
             m3d.Mesh(
                 vert_properties=np.ascontiguousarray(v32[used]),
                 tri_verts=np.ascontiguousarray(inv.reshape(-1, 3), dtype=np.uint32),
+                **ids,
             )
         )
         if solid.status() != m3d.Error.NoError:
@@ -209,7 +215,9 @@ def _union_fast_path(
     v: np.ndarray, f: np.ndarray, pairs: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """Exact union of closed, edge-manifold, consistently oriented shells that intersect
-    only one another (never themselves), by manifold3d. None when not applicable.
+    only one another (never themselves), by manifold3d: ``(vertices, faces, source)``,
+    ``source`` the face of ``f`` each output face is a piece of (manifold3d keeps the
+    input's triangles, cut where the shells cross). None when not applicable.
     ``pairs``: the intersecting face pairs of ``(v, f)`` if known."""
     if len(f) == 0:
         return None
@@ -234,7 +242,7 @@ def _union_fast_path(
     import manifold3d as m3d
 
     try:
-        parts = _manifolds_of(v, f, labels)
+        parts = _manifolds_of(v, f, labels, keep_faces=True)
         if not parts:
             return None
         out = m3d.Manifold.batch_boolean(parts, m3d.OpType.Add) if len(parts) > 1 else parts[0]
@@ -245,7 +253,10 @@ def _union_fast_path(
     rf = np.asarray(res.tri_verts, dtype=np.int64)
     if len(rf) == 0:
         return None
-    return weld_exact(rv, rf)
+    source = np.asarray(res.face_id, dtype=np.int64).reshape(-1)
+    if len(source) != len(rf) or source.min() < 0 or source.max() >= len(f):
+        source = np.full(len(rf), -1, dtype=np.int64)
+    return (*weld_exact(rv, rf), source)
 
 
 def _manifold_union(
@@ -663,12 +674,19 @@ def repair_mesh(
             fast = _union_fast_path(cv, cf, known)
         clock.lap("union", 0.4)
         verdict = None
+        hint = None  # per output face: the input face it lies on, if known
         if fast is not None:
             fv, ff, verdict = _finish(fast[0], fast[1], eps, tally)
             clock.lap("finish", 0.7)
         if verdict is not None and verdict.ok:
             path = "union"
             out_v, out_f = fv, ff
+            # The input face each written face is a piece of, where finishing kept it
+            # (its corners rounded to nearest): D bounds those without samples.
+            to_input = _same_faces(c.vertices, c.faces, cv, cf)  # lids: -1
+            source = np.where(fast[2] >= 0, to_input[fast[2]], -1)
+            match = _same_faces(round_to_float32(fast[0]), fast[1], out_v, out_f)
+            hint = np.where(match >= 0, source[match], -1)
             tally.intersecting_pairs = before.intersecting_pairs
             # A shell is dropped as internal when none of its vertices survives the union.
             comp_in = edge_components(c.faces)
@@ -701,7 +719,7 @@ def repair_mesh(
         # from it (each rounded face lies within its corners' displacement of the original).
         deviation = rounding + max_deviation(
             out_v, out_f, c.vertices, c.faces, c.segments,
-            max_points=400_000 if path == "exact" else 0,
+            max_points=400_000 if path == "exact" else 0, hint=hint,
         )  # fmt: skip
         clock.lap("deviation", 0.95)
 

@@ -41,3 +41,45 @@ def test_faces_rounded_to_float32_are_bounded_by_their_corner_displacement():
     moved = out.copy()
     moved[0] += 0.5 * (v[0] - 0.1) / 20.0  # out along the normal
     assert 0.45 <= max_deviation(moved, f, v, f) <= 0.5 + 1e-6
+
+
+def _pieces(lift: float):
+    """One input triangle (10 mm) and its four midpoint pieces lifted by ``lift`` mm."""
+    v = np.array([[0.0, 0, 0], [10, 0, 0], [0, 10, 0]])
+    f = np.array([[0, 1, 2]])
+    m = np.array([[5.0, 0, 0], [5, 5, 0], [0, 5, 0]])
+    ov = np.vstack([v, m]) + [0, 0, lift]
+    of = np.array([[0, 3, 5], [3, 1, 4], [5, 4, 2], [3, 4, 5]])
+    return ov, of, v, f
+
+
+def test_a_hint_bounds_pieces_of_input_faces_and_never_changes_the_answer():
+    from repair.deviation import max_deviation
+
+    # A lift at rounding scale: the hint bounds each piece by its corners' distance.
+    for lift in (1e-6, 1e-3):  # below / above the hint's float32-rounding tolerance
+        ov, of, v, f = _pieces(lift)
+        plain = max_deviation(ov, of, v, f, max_points=0)
+        right = max_deviation(ov, of, v, f, max_points=0, hint=np.zeros(4, dtype=np.int64))
+        wrong = max_deviation(ov, of, v, f, max_points=0, hint=np.full(4, 7))  # no such face
+        assert plain == right == wrong
+        assert abs(right - lift) < 1e-12
+    # A hint that points at the right face of a piece not lying on it is not trusted.
+    ov, of, v, f = _pieces(0.0)
+    ov[4, 2] = 0.25  # the middle corner lifted: pieces reach 0.25 mm off the input
+    hinted = max_deviation(ov, of, v, f, max_points=0, hint=np.zeros(4, dtype=np.int64))
+    assert hinted == max_deviation(ov, of, v, f, max_points=0) == 0.25
+
+
+def test_point_triangle_distance_matches_libigl():
+    import igl
+
+    from repair.deviation import _point_triangle_d2
+
+    rng = np.random.default_rng(3)
+    tri = rng.normal(size=(500, 3, 3))
+    q = rng.normal(size=(500, 3)) * 2.0
+    got = _point_triangle_d2(q, tri[:, 0], tri[:, 1], tri[:, 2])
+    for i in range(0, 500, 25):  # each point against its own triangle
+        want = igl.point_mesh_squared_distance(q[i : i + 1], tri[i], np.array([[0, 1, 2]]))[0]
+        assert abs(got[i] - want[0]) <= 1e-12 * max(1.0, want[0])
