@@ -266,6 +266,7 @@ class FaceGrid:
         pad = 1e-6 * (float(np.abs(v).max()) if len(v) else 1.0) or 1e-6
         self.lo = np.minimum(np.minimum(a, b), c) - pad
         self.hi = np.maximum(np.maximum(a, b), c) + pad
+        self.lo_t, self.hi_t = np.ascontiguousarray(self.lo.T), np.ascontiguousarray(self.hi.T)
         self.m = len(f)
         if self.m == 0:
             return
@@ -343,15 +344,19 @@ class FaceGrid:
         lo_c, hi_c = self._cell(self.lo[which] - self.h), self._cell(self.hi[which])
         few = (hi_c - lo_c + 1).prod(axis=1) <= 4096
         if np.any(few):
-            cells = np.unique(self._cells_in(lo_c[few], hi_c[few])[0])
-            first = np.searchsorted(self.sorted_keys, cells, side="left")
-            count = np.searchsorted(self.sorted_keys, cells, side="right") - first
+            keys, rows = self._cells_in(lo_c[few], hi_c[few])
+            first = np.searchsorted(self.sorted_keys, keys, side="left")
+            count = np.searchsorted(self.sorted_keys, keys, side="right") - first
             total = int(count.sum())
             start = np.repeat(first - np.cumsum(count) + count, count)
-            cand = np.unique(self.sorted_faces[start + np.arange(total)])
-            if len(cand) * len(which) <= 1_000_000:  # cells can be coarse: keep the boxes
-                cand = cand[self._meet(cand, which)]  # that do meet one (cheap at this size)
-            found.append(cand)
+            cand = self.sorted_faces[start + np.arange(total)]
+            if total <= 8_000_000:  # cells can be coarse: keep the faces whose box meets
+                asked = which[few][np.repeat(rows, count)]  # the asked face's whose cell
+                for k in range(3):  # listed them, axis by axis on ever fewer pairs
+                    lo, hi = self.lo_t[k], self.hi_t[k]
+                    hit = (lo[cand] <= hi[asked]) & (hi[cand] >= lo[asked])
+                    cand, asked = cand[hit], asked[hit]
+            found.append(np.unique(cand))
         if len(self.big):
             found.append(self.big[self._meet(self.big, which)])
         huge = which[~few]

@@ -154,11 +154,32 @@ def test_faces_near_holds_every_face_whose_box_meets_one_of_them():
     rng = np.random.default_rng(5)
     for k in (1, 7, 60):
         which = np.unique(rng.integers(0, len(f), k))
-        near = FaceGrid(v, f).near(which)
+        grid = FaceGrid(v, f)
+        near = grid.near(which)
         meets = (lo[None] <= hi[which, None]) & (hi[None] >= lo[which, None])
         truth = np.flatnonzero(meets.all(axis=2).any(axis=0))
         assert np.isin(truth, near).all()
         assert len(near) < len(f)  # a region, not the whole mesh
+        # Exactly the faces whose (slightly grown) box meets one of theirs.
+        glo, ghi = grid.lo, grid.hi
+        meets = (glo[None] <= ghi[which, None]) & (ghi[None] >= glo[which, None])
+        assert np.array_equal(near, np.flatnonzero(meets.all(axis=2).any(axis=0)))
+
+
+def test_faces_near_many_asked_faces_are_exactly_those_whose_box_meets_one():
+    # Many asked faces over coarse cells: each asked face's cells are filtered by its own
+    # box, not by all of them at once.
+    v, f = sphere(5, 10.0)
+    which = np.unique(np.random.default_rng(8).integers(0, len(f), 2000))
+    grid = FaceGrid(v, f)
+    near = grid.near(which)
+    glo, ghi = grid.lo, grid.hi
+    truth = np.zeros(len(f), dtype=bool)
+    for s in range(0, len(which), 200):
+        w = which[s : s + 200]
+        truth |= ((glo[None] <= ghi[w, None]) & (ghi[None] >= glo[w, None])).all(axis=2).any(axis=0)
+    assert np.array_equal(near, np.flatnonzero(truth))
+    assert len(near) < len(f)
 
 
 def test_face_grid_handles_faces_far_larger_than_its_cells():
@@ -179,6 +200,9 @@ def test_face_grid_handles_faces_far_larger_than_its_cells():
         near = grid.near(which)
         meets = (lo[None] <= hi[which, None]) & (hi[None] >= lo[which, None])
         assert np.isin(np.flatnonzero(meets.all(axis=2).any(axis=0)), near).all()
+        glo, ghi = grid.lo, grid.hi  # and no more than the grown boxes meet
+        meets = (glo[None] <= ghi[which, None]) & (ghi[None] >= glo[which, None])
+        assert np.array_equal(near, np.flatnonzero(meets.all(axis=2).any(axis=0)))
 
 
 def test_pole_triangles_collapsed_onto_an_edge_are_not_wires():
