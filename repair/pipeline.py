@@ -246,7 +246,7 @@ def _union_fast_path(
         if not parts:
             return None
         out = m3d.Manifold.batch_boolean(parts, m3d.OpType.Add) if len(parts) > 1 else parts[0]
-        res = out.to_mesh()
+        res = out.to_mesh64()
     except Exception:  # noqa: BLE001 - any failure means: take the exact path
         return None
     rv = np.asarray(res.vert_properties, dtype=np.float64)[:, :3]
