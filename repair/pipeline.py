@@ -193,6 +193,35 @@ def _same_faces(va: np.ndarray, fa: np.ndarray, vb: np.ndarray, fb: np.ndarray) 
     return np.where(ka[order][pos] == kb, order[pos], -1)
 
 
+def _union_hint(
+    v_in: np.ndarray,
+    f_in: np.ndarray,
+    v: np.ndarray,
+    f: np.ndarray,
+    union: tuple[np.ndarray, np.ndarray, np.ndarray],
+    out_v: np.ndarray,
+    out_f: np.ndarray,
+) -> np.ndarray:
+    """For each written face (``out_v, out_f``, finished from ``union = (vertices, faces,
+    source)``, the union of ``(v, f)``): the face of ``(v_in, f_in)`` it is believed to
+    be a piece of, or -1 (a guess, verified by :func:`repair.deviation.max_deviation`).
+    ``f`` is ``f_in`` with lids appended, unless flaps were moved (then matched by
+    points); finishing keeps the union's faces in order unless it mended them."""
+    n = len(f_in)
+    if len(f) >= n and len(v) >= len(v_in) and np.array_equal(f[:n], f_in) and np.array_equal(
+        v[: len(v_in)], v_in
+    ):
+        to_input = np.r_[np.arange(n), np.full(len(f) - n, -1)]
+    else:
+        to_input = _same_faces(v_in, f_in, v, f)  # lids: -1
+    uv, uf, source = union
+    source = np.where(source >= 0, to_input[source], -1)
+    if len(out_f) == len(uf):  # finished in one round: the same faces, rounded
+        return source
+    match = _same_faces(round_to_float32(uv), uf, out_v, out_f)
+    return np.where(match >= 0, source[match], -1)
+
+
 def _carry_pairs(
     v_in: np.ndarray, f_in: np.ndarray, pairs_in: np.ndarray, v: np.ndarray, f: np.ndarray
 ) -> np.ndarray:
@@ -683,10 +712,7 @@ def repair_mesh(
             out_v, out_f = fv, ff
             # The input face each written face is a piece of, where finishing kept it
             # (its corners rounded to nearest): D bounds those without samples.
-            to_input = _same_faces(c.vertices, c.faces, cv, cf)  # lids: -1
-            source = np.where(fast[2] >= 0, to_input[fast[2]], -1)
-            match = _same_faces(round_to_float32(fast[0]), fast[1], out_v, out_f)
-            hint = np.where(match >= 0, source[match], -1)
+            hint = _union_hint(c.vertices, c.faces, cv, cf, fast, out_v, out_f)
             tally.intersecting_pairs = before.intersecting_pairs
             # A shell is dropped as internal when none of its vertices survives the union.
             comp_in = edge_components(c.faces)
