@@ -198,12 +198,12 @@ def _union_hint(
     f_in: np.ndarray,
     v: np.ndarray,
     f: np.ndarray,
-    union: tuple[np.ndarray, np.ndarray, np.ndarray],
+    union: _Union,
     out_v: np.ndarray,
     out_f: np.ndarray,
 ) -> np.ndarray:
-    """For each written face (``out_v, out_f``, finished from ``union = (vertices, faces,
-    source)``, the union of ``(v, f)``): the face of ``(v_in, f_in)`` it is believed to
+    """For each written face (``out_v, out_f``, finished from ``union``, the union of
+    ``(v, f)``): the face of ``(v_in, f_in)`` it is believed to
     be a piece of, or -1 (a guess, verified by :func:`repair.deviation.max_deviation`).
     ``f`` is ``f_in`` with lids appended, unless flaps were moved (then matched by
     points); finishing keeps the union's faces in order unless it mended them."""
@@ -214,8 +214,8 @@ def _union_hint(
         to_input = np.r_[np.arange(n), np.full(len(f) - n, -1)]
     else:
         to_input = _same_faces(v_in, f_in, v, f)  # lids: -1
-    uv, uf, source = union
-    source = np.where(source >= 0, to_input[source], -1)
+    uv, uf = union.vertices, union.faces
+    source = np.where(union.source >= 0, to_input[union.source], -1)
     if len(out_f) == len(uf):  # finished in one round: the same faces, rounded
         return source
     match = _same_faces(round_to_float32(uv), uf, out_v, out_f)
@@ -240,14 +240,30 @@ def _carry_pairs(
     return crossings_after_change(v, f, kept, ~found)
 
 
+@dataclass(frozen=True)
+class _Union:
+    """The union of shells: its ``vertices`` and ``faces``; for each face, the ``source``
+    face of the input it is a piece of; the input's ``shells`` (label per input face)."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    source: np.ndarray
+    shells: np.ndarray
+
+    def shells_dropped(self) -> int:
+        """Input shells no piece of which is in the union (nested inside others)."""
+        seen = np.zeros(int(self.shells.max()) + 1, dtype=bool)
+        seen[self.shells[self.source[self.source >= 0]]] = True
+        return int(np.count_nonzero(~seen))
+
+
 def _union_fast_path(
     v: np.ndarray, f: np.ndarray, pairs: np.ndarray | None = None
-) -> tuple[np.ndarray, np.ndarray] | None:
+) -> _Union | None:
     """Exact union of closed, edge-manifold, consistently oriented shells that intersect
-    only one another (never themselves), by manifold3d: ``(vertices, faces, source)``,
-    ``source`` the face of ``f`` each output face is a piece of (manifold3d keeps the
-    input's triangles, cut where the shells cross). None when not applicable.
-    ``pairs``: the intersecting face pairs of ``(v, f)`` if known."""
+    only one another (never themselves), by manifold3d, which keeps the input's
+    triangles, cut where the shells cross, and says which each piece is of. None when
+    not applicable. ``pairs``: the intersecting face pairs of ``(v, f)`` if known."""
     if len(f) == 0:
         return None
     _, cnt = _edge_use(f)
@@ -284,8 +300,8 @@ def _union_fast_path(
         return None
     source = np.asarray(res.face_id, dtype=np.int64).reshape(-1)
     if len(source) != len(rf) or source.min() < 0 or source.max() >= len(f):
-        source = np.full(len(rf), -1, dtype=np.int64)
-    return (*weld_exact(rv, rf), source)
+        return None  # provenance lost: take the exact path rather than guess
+    return _Union(*weld_exact(rv, rf), source, labels)
 
 
 def _manifold_union(
@@ -705,7 +721,7 @@ def repair_mesh(
         verdict = None
         hint = None  # per output face: the input face it lies on, if known
         if fast is not None:
-            fv, ff, verdict = _finish(fast[0], fast[1], eps, tally)
+            fv, ff, verdict = _finish(fast.vertices, fast.faces, eps, tally)
             clock.lap("finish", 0.7)
         if verdict is not None and verdict.ok:
             path = "union"
@@ -714,15 +730,8 @@ def repair_mesh(
             # (its corners rounded to nearest): D bounds those without samples.
             hint = _union_hint(c.vertices, c.faces, cv, cf, fast, out_v, out_f)
             tally.intersecting_pairs = before.intersecting_pairs
-            # A shell is dropped as internal when none of its vertices survives the union.
-            comp_in = edge_components(c.faces)
-            key = np.dtype((np.void, 24))
-            vin = np.ascontiguousarray(round_to_float32(c.vertices)).view(key).ravel()
-            vout = np.ascontiguousarray(out_v).view(key).ravel()
-            kept = np.isin(vin, vout)
-            seen = np.zeros(int(comp_in.max()) + 1, dtype=bool)
-            seen[comp_in[kept[c.faces].any(axis=1)]] = True
-            dropped_components = int(np.count_nonzero(~seen))
+            # Lids close holes of a shell and make no shell of their own.
+            dropped_components = fast.shells_dropped()
         else:
             path = "exact"
             sv, sf, poly, hull_birth = _outer_hull(cv, cf, eps, tally, c.segments, pairs=known)
