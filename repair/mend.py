@@ -332,8 +332,9 @@ class FaceGrid:
                 out |= hit.all(axis=2).any(axis=0)
         return out
 
-    def near(self, which: np.ndarray) -> np.ndarray:
-        """Sorted indices of the faces near ``which`` (``which`` included)."""
+    def near(self, which: np.ndarray, chunk: int = 2**20) -> np.ndarray:
+        """Sorted indices of the faces near ``which`` (``which`` included); cell listings
+        are box-tested ``chunk`` at a time."""
         which = np.asarray(which, dtype=np.int64)
         if len(which) == 0 or self.m == 0:
             return which
@@ -347,16 +348,23 @@ class FaceGrid:
             keys, rows = self._cells_in(lo_c[few], hi_c[few])
             first = np.searchsorted(self.sorted_keys, keys, side="left")
             count = np.searchsorted(self.sorted_keys, keys, side="right") - first
-            total = int(count.sum())
-            start = np.repeat(first - np.cumsum(count) + count, count)
-            cand = self.sorted_faces[start + np.arange(total)]
-            if total <= 8_000_000:  # cells can be coarse: keep the faces whose box meets
-                asked = which[few][np.repeat(rows, count)]  # the asked face's whose cell
-                for k in range(3):  # listed them, axis by axis on ever fewer pairs
+            asked_of_key = which[few][rows]
+            # Cells can be coarse: keep the faces whose box meets the asked face's whose
+            # cell listed them -- ``chunk`` listings at a time (memory).
+            ends = np.cumsum(count)
+            steps = np.arange(1, 1 + int(ends[-1]) // chunk) * chunk
+            cuts = np.unique(np.r_[0, np.searchsorted(ends, steps), len(keys)])
+            for a, b in zip(cuts[:-1], cuts[1:], strict=True):
+                c = count[a:b]
+                total = int(c.sum())
+                start = np.repeat(first[a:b] - np.cumsum(c) + c, c)
+                cand = self.sorted_faces[start + np.arange(total)]
+                asked = np.repeat(asked_of_key[a:b], c)
+                for k in range(3):  # axis by axis, on ever fewer pairs
                     lo, hi = self.lo_t[k], self.hi_t[k]
                     hit = (lo[cand] <= hi[asked]) & (hi[cand] >= lo[asked])
                     cand, asked = cand[hit], asked[hit]
-            found.append(np.unique(cand))
+                found.append(np.unique(cand))
         if len(self.big):
             found.append(self.big[self._meet(self.big, which)])
         huge = which[~few]

@@ -180,6 +180,7 @@ def test_faces_near_many_asked_faces_are_exactly_those_whose_box_meets_one():
         truth |= ((glo[None] <= ghi[w, None]) & (ghi[None] >= glo[w, None])).all(axis=2).any(axis=0)
     assert np.array_equal(near, np.flatnonzero(truth))
     assert len(near) < len(f)
+    assert np.array_equal(grid.near(which, chunk=1000), near)  # box-tested in chunks
 
 
 def test_face_grid_handles_faces_far_larger_than_its_cells():
