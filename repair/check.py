@@ -38,6 +38,7 @@ __all__ = [
     "check_printable_pairs",
     "degenerate_face_mask",
     "edge_components",
+    "edge_stats",
     "intersecting_face_pairs",
     "round_to_float32",
     "weld_exact",
@@ -79,6 +80,8 @@ class Printability:
     components: int
     volume: float
     float32: bool = False
+    #: Label (0..components-1) of each face's shell; not part of :meth:`to_dict`.
+    shells: np.ndarray | None = dataclasses.field(default=None, compare=False, repr=False)
 
     @property
     def ok(self) -> bool:
@@ -97,7 +100,7 @@ class Printability:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-serialisable dict of every field plus ``"ok"``."""
-        d = dataclasses.asdict(self)
+        d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "shells"}
         d["ok"] = self.ok
         return d
 
@@ -238,13 +241,21 @@ def _edge_stats(faces: np.ndarray, n_vertices: int) -> tuple[int, int, int, int,
     return boundary, nonmanifold, misoriented, int(components), labels
 
 
+def edge_stats(faces: np.ndarray) -> tuple[int, int, int, int, np.ndarray]:
+    """``(boundary, nonmanifold, misoriented, shells, labels)``: undirected edges used by
+    one face, by more than two, by two in the same direction; the number of
+    edge-connected components (shells) and the label (int64, 0..k-1) of each face's."""
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    if len(f) == 0:
+        return 0, 0, 0, 0, np.zeros(0, dtype=np.int64)
+    b, nm, mo, k, labels = _edge_stats(f, int(f.max()) + 1)
+    return b, nm, mo, k, labels.astype(np.int64)
+
+
 def edge_components(faces: np.ndarray) -> np.ndarray:
     """Label (int64, 0..k-1) of the edge-connected component (shell) of each face: faces
     sharing an undirected edge, however many use it, are in one component."""
-    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
-    if len(f) == 0:
-        return np.zeros(0, dtype=np.int64)
-    return _edge_stats(f, int(f.max()) + 1)[4].astype(np.int64)
+    return edge_stats(faces)[4]
 
 
 def _sorted_face_keys(faces: np.ndarray) -> np.ndarray:
@@ -634,5 +645,6 @@ def _verdict(
         components=components,
         volume=volume,
         float32=as_float32,
+        shells=labels.astype(np.int64),
     )
     return verdict, pairs

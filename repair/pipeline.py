@@ -42,6 +42,7 @@ from repair.check import (
     check_printable,
     check_printable_pairs,
     edge_components,
+    edge_stats,
     intersecting_face_pairs,
     round_to_float32,
     verdict_given_pairs,
@@ -266,14 +267,10 @@ def _union_fast_path(
     not applicable. ``pairs``: the intersecting face pairs of ``(v, f)`` if known."""
     if len(f) == 0:
         return None
-    _, cnt = _edge_use(f)
-    if np.any(cnt != 2):
+    # Every edge used by exactly two faces, in opposite directions; and the shells.
+    boundary, nonmanifold, misoriented, n, labels = edge_stats(f)
+    if boundary or nonmanifold or misoriented:
         return None
-    he = np.stack([f.reshape(-1), f[:, [1, 2, 0]].reshape(-1)], axis=1)
-    if len(unique_rows(he)) != len(he):  # some edge traversed twice the same way
-        return None
-    labels = edge_components(f)
-    n = int(labels.max()) + 1
     if pairs is None:
         pairs = intersecting_face_pairs(v, f)
     if len(pairs) and np.any(labels[pairs[:, 0]] == labels[pairs[:, 1]]):
@@ -763,7 +760,8 @@ def repair_mesh(
         part_vol = np.array([verdict.volume])
         part_tris = np.array([len(out_f)])
     else:
-        labels = edge_components(out_f)
+        known = verdict.shells is not None and len(verdict.shells) == len(out_f)
+        labels = verdict.shells if known else edge_components(out_f)
         n_parts = int(labels.max()) + 1 if len(labels) else 0
         part_vol = _volumes(out_v, out_f, labels, n_parts) if n_parts else np.zeros(0)
         part_tris = np.bincount(labels, minlength=n_parts)

@@ -94,6 +94,9 @@ def test_disjoint_and_nested_shells():
     p = check_printable(v, f)
     assert p.ok and p.components == 2 and p.volume == pytest.approx(2.0)
     assert p.shells_outward is True and p.misnested_shells == 0
+    # The shell of each face comes with the verdict (not in its JSON form).
+    assert p.shells.tolist() == [0] * 12 + [1] * 12
+    assert "shells" not in p.to_dict()
     # A hollow box (inner shell inverted) is a legitimate solid with a cavity.
     vi, fi = box((1, 1, 1), (2, 2, 2))
     v, f = concat(box((0, 0, 0), (3, 3, 3)), (vi, fi[:, ::-1]))
