@@ -207,13 +207,9 @@ def _merge_cells_at_boundaries(cells: np.ndarray, faces: np.ndarray, n_cells: in
 def is_unorientable(faces: np.ndarray) -> bool:
     """True when some edge used by exactly two faces stays traversed twice the same way
     after :func:`repair.thicken.orient_patches` (a Klein bottle, a Moebius strip)."""
-    from repair.thicken import _edge_pairs, _half_edges, orient_patches
+    from repair.thicken import _orient_patches
 
-    f, cut = orient_patches(np.asarray(faces, dtype=np.int64))
-    if not np.any(cut):
-        return False
-    _, eid = _half_edges(f)
-    use = _edge_pairs(eid)[2]
+    _, cut, use = _orient_patches(np.asarray(faces, dtype=np.int64))
     return bool(np.any(cut & (use == 2)))
 
 

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from repair.rows import unique_rows
+from repair.rows import unique_ints, unique_rows
 
 __all__ = ["MITER_LIMIT", "face_prisms", "orient_patches", "region_prisms", "sheet_slabs"]
 
@@ -42,7 +42,13 @@ def _half_edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Directed half-edges (3m, 2) in face order (half-edge 3f+k runs from corner k to k+1),
     and an id per undirected edge."""
     he = np.stack([faces.reshape(-1), faces[:, [1, 2, 0]].reshape(-1)], axis=1)
-    _, eid = unique_rows(np.sort(he, axis=1), return_inverse=True)
+    if len(he) == 0:
+        return he, np.zeros(0, dtype=np.int64)
+    lo, hi = np.minimum(he[:, 0], he[:, 1]), np.maximum(he[:, 0], he[:, 1])
+    n = int(hi.max()) + 1
+    if n < 2**31:  # one key per undirected edge, numbered in (lo, hi) order
+        return he, unique_ints(lo * n + hi, return_inverse=True)[1]
+    _, eid = unique_rows(np.stack([lo, hi], axis=1), return_inverse=True)
     return he, eid.reshape(-1)
 
 
@@ -50,8 +56,14 @@ def _edge_pairs(eid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """For edges used by exactly two half-edges: the two half-edge indices.
     Also returns the use count of each half-edge's edge."""
     cnt = np.bincount(eid)
-    order = np.argsort(eid, kind="stable")
-    se = eid[order]
+    n = len(eid)
+    shift = max(n.bit_length(), 1)
+    if n and int(eid.max()) < (1 << (62 - shift)):  # one plain sort of (id, position)
+        packed = np.sort((eid.astype(np.int64) << shift) | np.arange(n, dtype=np.int64))
+        order, se = packed & ((1 << shift) - 1), packed >> shift
+    else:
+        order = np.argsort(eid, kind="stable")
+        se = eid[order]
     two = cnt[se] == 2
     first = np.r_[True, se[1:] != se[:-1]]
     starts = order[first & two]
@@ -65,11 +77,19 @@ def orient_patches(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     Returns ``(faces, cut)`` where ``cut`` marks the half-edges (3f+k) whose edge must be
     cut: non-manifold edges, and the edges that stay inconsistent in unorientable patches.
     """
+    out, cut, _ = _orient_patches(faces)
+    return out, cut
+
+
+def _orient_patches(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`orient_patches`, plus the use count of each returned half-edge's edge."""
     m = len(faces)
     he, eid = _half_edges(faces)
     h1, h2, use = _edge_pairs(eid)
     f1, f2 = h1 // 3, h2 // 3
     consistent = he[h1, 0] == he[h2, 1]  # opposite directions
+    if consistent.all():  # already oriented (what the double cover would keep): cut
+        return faces.copy(), use > 2, use  # only the non-manifold edges
     # Double cover: node 2f+s is face f with flip s.
     a = np.r_[2 * f1, 2 * f1 + 1]
     b = np.r_[2 * f2 + np.where(consistent, 0, 1), 2 * f2 + np.where(consistent, 1, 0)]
@@ -77,9 +97,16 @@ def orient_patches(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     l0, l1 = lab[0::2], lab[1::2]
     flip = l1 < l0
     unorientable = np.flatnonzero(l0 == l1)
-    if len(unorientable):
-        flip = _orient_by_tree(m, f1, f2, consistent, flip, unorientable)
     out = faces.copy()
+    if len(unorientable) == 0:
+        # Whole patches flipped, each consistent: only non-manifold edges are cut. A
+        # flipped face (c, b, a) has half-edges (bc, ab, ca): its first two swap.
+        out[flip] = out[flip][:, ::-1]
+        use2 = use.reshape(-1, 3).copy()
+        use2[flip] = use2[flip][:, [1, 0, 2]]
+        use2 = use2.reshape(-1)
+        return out, use2 > 2, use2
+    flip = _orient_by_tree(m, f1, f2, consistent, flip, unorientable)
     out[flip] = out[flip][:, ::-1]
     # Re-derive consistency after flipping; inconsistent manifold edges are cuts.
     he2, eid2 = _half_edges(out)
@@ -88,7 +115,7 @@ def orient_patches(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     cut = use2 > 2
     cut[g1[bad]] = True
     cut[g2[bad]] = True
-    return out, cut
+    return out, cut, use2
 
 
 def _orient_by_tree(
