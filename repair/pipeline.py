@@ -281,6 +281,9 @@ def _union_fast_path(
     f = f.copy()
     inv = vol[labels] < 0
     f[inv] = f[inv][:, ::-1]
+    if n == 1 and len(pairs) == 0:  # one closed shell, crossing nothing: it is the union
+        uv, uf = drop_unreferenced(v, f)
+        return _Union(uv, uf, np.arange(len(uf)), labels)
     import manifold3d as m3d
 
     try:
