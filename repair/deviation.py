@@ -244,19 +244,32 @@ def max_deviation(
         return 0.0
     iv = np.asarray(in_vertices, dtype=np.float64)
     inf = np.asarray(in_faces, dtype=np.int64)
-    new, bound = _new_faces(ov, of, iv, inf)
-    if hint is not None and len(inf) and np.any(new):
+    new = np.ones(len(of), dtype=bool)
+    bound = 0.0
+    if hint is not None and len(inf):
         h = np.asarray(hint, dtype=np.int64)
         h = np.where(h < len(inf), h, -1)
-        guess = np.flatnonzero(new & (h >= 0))
-        shown, b = _within_input_faces(ov, of[guess], iv, inf[h[guess]])
+        guess = np.flatnonzero(h >= 0)
+        # The hinted face itself (corners equal in any order): distance 0.
+        p, t = ov[of[guess]], iv[inf[h[guess]]]
+        eq = np.ones((len(guess), 3, 3), dtype=bool)
+        for k in range(3):  # corner i of p equals corner j of t, coordinate by coordinate
+            eq &= p[:, :, None, k] == t[:, None, :, k]
+        same = eq.any(axis=2).all(axis=1)
+        new[guess[same]] = False
+        guess = guess[~same]
+        shown, bound = _within_input_faces(ov, of[guess], iv, inf[h[guess]])
         new[guess[shown]] = False
-        bound = max(bound, b)
         # A face cut again later (a mend after rounding) has no hint of its own, but
         # usually lies on the input face of a face sharing one of its corners.
         rows, tri = _neighbour_guesses(of, h, np.flatnonzero(new))
         shown, b = _within_input_faces(ov, of[rows], iv, inf[tri])
         new[rows[shown]] = False
+        bound = max(bound, b)
+    if np.any(new):
+        left = np.flatnonzero(new)
+        still, b = _new_faces(ov, of[left], iv, inf)
+        new[left[~still]] = False
         bound = max(bound, b)
     of = of[new]
     if len(of) == 0:
