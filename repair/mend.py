@@ -210,7 +210,8 @@ def round_finding_crossings(
     changed = np.ones(len(f), dtype=bool)
     if known is not None:
         same = np.asarray(known[0], dtype=bool)
-        if np.all(exact[f[same]]):  # their corners do not round: their pairs stand
+        # Their corners do not round: their pairs stand (worth it where few changed).
+        if np.count_nonzero(~same) <= len(f) // 5 and np.all(exact[f[same]]):
             changed = ~same
             pairs = np.asarray(known[1], dtype=np.int64).reshape(-1, 2)
             deg_faces = np.flatnonzero(same & degenerate_mask(out, f))
@@ -332,6 +333,28 @@ class FaceGrid:
                 out |= hit.all(axis=2).any(axis=0)
         return out
 
+    def _meeting(
+        self, first: np.ndarray, count: np.ndarray, asked: np.ndarray, chunk: int
+    ) -> list[np.ndarray]:
+        """The faces listed under cells ``first[i] .. first[i] + count[i]`` (positions in
+        the sorted listing) whose box meets that of face ``asked[i]`` -- cells can be
+        coarse -- box-tested ``chunk`` listings at a time (memory)."""
+        out = []
+        ends = np.cumsum(count)
+        steps = np.arange(1, 1 + int(ends[-1]) // chunk) * chunk
+        cuts = np.unique(np.r_[0, np.searchsorted(ends, steps), len(count)])
+        for a, b in zip(cuts[:-1], cuts[1:], strict=True):
+            c = count[a:b]
+            start = np.repeat(first[a:b] - np.cumsum(c) + c, c)
+            cand = self.sorted_faces[start + np.arange(int(c.sum()))]
+            by = np.repeat(asked[a:b], c)
+            for k in range(3):  # axis by axis, on ever fewer pairs
+                lo, hi = self.lo_t[k], self.hi_t[k]
+                hit = (lo[cand] <= hi[by]) & (hi[cand] >= lo[by])
+                cand, by = cand[hit], by[hit]
+            out.append(np.unique(cand))
+        return out
+
     def near(self, which: np.ndarray, chunk: int = 2**20) -> np.ndarray:
         """Sorted indices of the faces near ``which`` (``which`` included); cell listings
         are box-tested ``chunk`` at a time."""
@@ -348,23 +371,16 @@ class FaceGrid:
             keys, rows = self._cells_in(lo_c[few], hi_c[few])
             first = np.searchsorted(self.sorted_keys, keys, side="left")
             count = np.searchsorted(self.sorted_keys, keys, side="right") - first
-            asked_of_key = which[few][rows]
-            # Cells can be coarse: keep the faces whose box meets the asked face's whose
-            # cell listed them -- ``chunk`` listings at a time (memory).
-            ends = np.cumsum(count)
-            steps = np.arange(1, 1 + int(ends[-1]) // chunk) * chunk
-            cuts = np.unique(np.r_[0, np.searchsorted(ends, steps), len(keys)])
-            for a, b in zip(cuts[:-1], cuts[1:], strict=True):
-                c = count[a:b]
-                total = int(c.sum())
-                start = np.repeat(first[a:b] - np.cumsum(c) + c, c)
-                cand = self.sorted_faces[start + np.arange(total)]
-                asked = np.repeat(asked_of_key[a:b], c)
-                for k in range(3):  # axis by axis, on ever fewer pairs
-                    lo, hi = self.lo_t[k], self.hi_t[k]
-                    hit = (lo[cand] <= hi[asked]) & (hi[cand] >= lo[asked])
-                    cand, asked = cand[hit], asked[hit]
-                found.append(np.unique(cand))
+            if int(count.sum()) <= 8 * self.m + chunk:
+                found.extend(self._meeting(first, count, which[few][rows], chunk))
+            else:
+                # Coarse cells and many asked faces: every face listed in their cells (a
+                # superset; box-testing each listing would cost more than it saves).
+                keys = np.unique(keys)
+                first = np.searchsorted(self.sorted_keys, keys, side="left")
+                count = np.searchsorted(self.sorted_keys, keys, side="right") - first
+                start = np.repeat(first - np.cumsum(count) + count, count)
+                found.append(np.unique(self.sorted_faces[start + np.arange(int(count.sum()))]))
         if len(self.big):
             found.append(self.big[self._meet(self.big, which)])
         huge = which[~few]

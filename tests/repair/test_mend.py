@@ -183,6 +183,25 @@ def test_faces_near_many_asked_faces_are_exactly_those_whose_box_meets_one():
     assert np.array_equal(grid.near(which, chunk=1000), near)  # box-tested in chunks
 
 
+def test_faces_near_many_asked_faces_over_coarse_cells_are_a_superset():
+    # 2 % long slivers make the cells as large as the model: listing every asked face's
+    # cells would list the mesh many times over, so the cells' faces are taken whole.
+    v, f = sphere(4, 10.0)
+    rng = np.random.default_rng(9)
+    ends = rng.normal(size=(110, 2, 3)) * 10.0
+    sv = np.concatenate([ends, ends[:, :1] + 0.01], axis=1).reshape(-1, 3)
+    v = np.vstack([v, sv])
+    f = np.vstack([f, len(v) - len(sv) + np.arange(len(sv)).reshape(-1, 3)])
+    grid = FaceGrid(v, f)
+    which = np.unique(rng.integers(0, 5120, 900))
+    near = grid.near(which)
+    glo, ghi = grid.lo, grid.hi
+    meets = ((glo[None] <= ghi[which, None]) & (ghi[None] >= glo[which, None])).all(axis=2)
+    truth = np.flatnonzero(meets.any(axis=0))
+    assert np.isin(truth, near).all()
+    assert len(near) > len(truth)  # the superset branch, not the exact one
+
+
 def test_face_grid_handles_faces_far_larger_than_its_cells():
     v, f = _two_crossing_spheres()
     # Long slivers across the whole model, and one triangle larger than all of it.
