@@ -274,13 +274,17 @@ def main() -> int:
                              f"{mem:>13} {'OK ' if r['ok'] else 'BAD'}")  # fmt: skip
         print(f"{name[:36]:36} {tris:8d} " + " ".join(cells), flush=True)
     print()
+    def median_rate(runs: list[dict]) -> str:
+        rates = [r["tris"] / r["s"] for r in runs if r.get("tris", 0) > 1000 and "s" in r]
+        return f"{statistics.median(rates) / 1e3:.1f}k" if rates else "-"
+
     for t in TOOLS:
         runs = [r[t] for n, r in results.items() if not n.startswith("cli:")]
+        corpus = [r[t] for n, r in results.items() if not n.startswith(("cli:", "gen:"))]
         ok = sum(1 for r in runs if r.get("ok"))
-        rates = [r["tris"] / r["s"] for r in runs if r.get("tris", 0) > 1000 and "s" in r]
-        med = statistics.median(rates) if rates else float("nan")
-        print(f"{t:10} printable {ok}/{len(runs)}; median {med / 1e3:.1f}k tri/s on inputs "
-              f"> 1k triangles (whole-process cli: rows excluded)")  # fmt: skip
+        print(f"{t:10} printable {ok}/{len(runs)}; median tri/s on inputs > 1k triangles: "
+              f"corpus {median_rate(corpus)} ({sum(1 for r in corpus if r.get('tris', 0) > 1000)}"
+              f" files), all rows {median_rate(runs)} (whole-process cli: rows excluded)")
     if a.json:
         Path(a.json).write_text(json.dumps(results, indent=2))
     return 0

@@ -137,6 +137,8 @@ def resolve(
     Returns ``(vertices, faces, birth, pairs)``: ``birth[i]`` is the input face face ``i``
     came from; ``pairs`` counts the intersecting face pairs found by the first pass.
     """
+    from repair.mend import crossings_after_change
+
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
     birth = np.arange(len(f))
@@ -144,8 +146,11 @@ def resolve(
     for _ in range(max_rounds):
         if len(f) == 0:
             break
+        n_before = len(v)
         v, f, b, n_pairs = _remesh(v, f, pairs)
         pairs = None
+        # Faces on a vertex the arrangement made (its new vertices come after the old).
+        new = (f >= n_before).any(axis=1)
         birth = birth[b]
         if first_pairs < 0:
             first_pairs = n_pairs
@@ -154,13 +159,18 @@ def resolve(
         keep = np.flatnonzero(~deg)
         keep = keep[(cancel_opposite_faces if solid else unique_faces)(f[keep])]
         changed = len(keep) != len(f)
-        f, birth = f[keep], birth[keep]
+        f, birth, new = f[keep], birth[keep], new[keep]
         v, f = drop_unreferenced(v, f)
         if not changed and n_pairs == 0:
             break
         if not changed and not np.any(deg):
             # The arrangement is exact and nothing was collapsed: it is a polyhedron.
             break
+        if len(f) >= LOCAL_REMESH_MIN_FACES and np.count_nonzero(new) <= len(f) // 5:
+            # The faces the pass left alone crossed nothing and still do not (their
+            # corners did not move): only near the new ones can rounding have made
+            # crossings. (Collapsed faces are gone; welding moves no point.)
+            pairs = crossings_after_change(v, f, np.zeros((0, 2), dtype=np.int64), new)
     return v, f, birth, max(first_pairs, 0)
 
 
