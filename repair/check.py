@@ -412,8 +412,7 @@ def _pairs_in_slabs(v: np.ndarray, f: np.ndarray, k: int) -> np.ndarray:
     axis = int(np.argmax(np.ptp(v, axis=0)))
     x = p[:, :, axis]
     lo, hi = x.min(axis=1), x.max(axis=1)
-    cuts = np.quantile(x.mean(axis=1), np.arange(1, k) / k)
-    edges = np.r_[-np.inf, cuts, np.inf]
+    edges = np.r_[-np.inf, _even_cuts(lo, hi, k), np.inf]
     slabs = [np.flatnonzero((lo < edges[i + 1]) & (hi >= edges[i])) for i in range(k)]
 
     def test(idx: np.ndarray) -> tuple[np.ndarray]:
@@ -421,6 +420,35 @@ def _pairs_in_slabs(v: np.ndarray, f: np.ndarray, k: int) -> np.ndarray:
 
     found = map_forked(test, slabs, [[i] for i in range(k)])
     return np.vstack([r[0].reshape(-1, 2) for r in found])
+
+
+def _even_cuts(lo: np.ndarray, hi: np.ndarray, k: int) -> np.ndarray:
+    """``k - 1`` cuts along an axis so that the ``k`` slabs ``[c_i, c_i+1)`` hold about
+    as many faces each (extents ``[lo, hi]``; a face spanning a cut is in both slabs).
+
+    Slab ``[a, b)`` holds ``#(lo < b) - #(hi < a)`` faces, so for a target ``t`` each
+    cut is the low end of rank ``t + #(hi < previous cut)``; ``t`` is bisected until the
+    last slab holds about ``t`` too."""
+    sl, sh = np.sort(lo), np.sort(hi)
+    m = len(lo)
+
+    def cuts_for(t: int) -> tuple[list[float], int]:
+        out, prev = [], -np.inf
+        for _ in range(k - 1):
+            below = int(np.searchsorted(sh, prev, side="left"))
+            c = float(sl[min(t + below, m - 1)])
+            out.append(c)
+            prev = c
+        return out, m - int(np.searchsorted(sh, prev, side="left"))
+
+    a, b = (m + k - 1) // k, m
+    while a < b:  # the smallest target whose last slab is no larger than it
+        t = (a + b) // 2
+        if cuts_for(t)[1] <= t:
+            b = t
+        else:
+            a = t + 1
+    return np.asarray(cuts_for(a)[0])
 
 
 def _winding_numbers(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray) -> np.ndarray:

@@ -84,17 +84,39 @@ def map_forked(
     for pid, r, share in children:
         with os.fdopen(r, "rb") as pipe:
             data = pipe.read()
-        _, status = os.waitpid(pid, 0)
+        # A child writes only once all its results are computed, and a cut-off archive
+        # does not load: complete data is the success test. Its exit (unmapping a copy of
+        # this process) need not be waited for here: it is reaped in the background.
+        _reap(pid)
         got = None
-        if os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0:
-            try:
-                z = np.load(io.BytesIO(data))
-                got = {j: tuple(z[f"{j}_{k}"] for k in range(_count(z.files, j))) for j in share}
-            except (OSError, ValueError, KeyError):
-                got = None
+        try:
+            z = np.load(io.BytesIO(data))
+            got = {j: tuple(z[f"{j}_{k}"] for k in range(_count(z.files, j))) for j in share}
+        except (OSError, ValueError, KeyError, EOFError):
+            got = None
         for j in share:
             out[j] = got[j] if got is not None else tuple(fn(jobs[j]))
     return [o if o is not None else tuple(fn(jobs[i])) for i, o in enumerate(out)]
+
+
+def _reap(pid: int) -> None:
+    """Collect a finished child's exit status, now or (if it is still exiting) from a
+    background thread, so that it leaves no zombie."""
+    import threading
+
+    try:
+        done, _ = os.waitpid(pid, os.WNOHANG)
+    except ChildProcessError:
+        return
+    if done == 0:
+        threading.Thread(target=_wait_quietly, args=(pid,), daemon=True).start()
+
+
+def _wait_quietly(pid: int) -> None:
+    try:
+        os.waitpid(pid, 0)
+    except ChildProcessError:
+        pass
 
 
 def _count(names: list[str], j: int) -> int:

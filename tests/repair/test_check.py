@@ -293,3 +293,17 @@ def test_one_shell_nested_among_many_is_found(n):
     v2, f2 = concat((v, f), box((3.5, 3.5, 0.5), (4.5, 4.5, 1.5)))  # inside box (1, 1)
     p = check_printable(v2, f2)
     assert not p.ok and p.misnested_shells == 1
+
+
+@pytest.mark.parametrize("k", [2, 3, 4])
+def test_slab_cuts_give_every_slab_about_as_many_faces(k):
+    from repair.check import _even_cuts
+
+    rng = np.random.default_rng(k)
+    lo = rng.normal(size=3000) * 10.0
+    hi = lo + np.abs(rng.normal(size=3000)) * rng.uniform(0.0, 4.0, size=3000)  # mixed sizes
+    e = np.r_[-np.inf, _even_cuts(lo, hi, k), np.inf]
+    inside = [(lo < e[i + 1]) & (hi >= e[i]) for i in range(k)]
+    assert np.logical_or.reduce(inside).all()  # every face is tested somewhere
+    counts = [int(s.sum()) for s in inside]
+    assert max(counts) - min(counts) <= 0.02 * max(counts)
