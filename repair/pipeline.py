@@ -48,7 +48,7 @@ from repair.check import (
     verdict_given_pairs,
     weld_exact,
 )
-from repair.clean import clean_soup, degenerate_mask, drop_unreferenced, face_keys
+from repair.clean import Cleaned, clean_soup, degenerate_mask, drop_unreferenced, face_keys
 from repair.deviation import max_deviation
 from repair.holes import HolesClosed, close_small_holes
 from repair.hull import (
@@ -231,7 +231,12 @@ def _carry_pairs(
     coordinates): faces on the same three points as an input face keep its pairs, only
     the region near the others (lids) is tested. ``v_in`` must be float32-valued (as
     :func:`repair_mesh` makes it), the coordinates ``pairs_in`` were found on."""
-    match = _same_faces(v_in, f_in, v, f)
+    n = len(f_in)
+    if len(f) >= n and np.array_equal(v[f[:n]], v_in[f_in]):
+        # Cleaning removed nothing and lids were appended: the same faces, row by row.
+        match = np.r_[np.arange(n), np.full(len(f) - n, -1)]
+    else:
+        match = _same_faces(v_in, f_in, v, f)
     found = match >= 0
     # Each input face -> the face of f on its three points (if any).
     to_f = np.full(len(f_in), -1, dtype=np.int64)
@@ -712,7 +717,12 @@ def repair_mesh(
         deviation = rounding
         clock.lap("finish", 0.9)
     else:
-        c = clean_soup(v_in, f_in)
+        if before.degenerate_faces == 0 and before.duplicate_faces == 0:
+            # The check (on the same welded coordinates) found nothing for cleaning to
+            # remove: the welded input is the cleaned input.
+            c = Cleaned(*drop_unreferenced(*weld_exact(v_in, f_in)), np.zeros((0, 2, 3)), 0, 0)
+        else:
+            c = clean_soup(v_in, f_in)
         degenerate_removed, duplicates_removed = c.degenerate_removed, c.duplicates_removed
         clock.lap("clean", 0.2)
         if len(c.faces) == 0 and len(c.segments) == 0:
