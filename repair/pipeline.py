@@ -264,16 +264,22 @@ class _Union:
 
 
 def _union_fast_path(
-    v: np.ndarray, f: np.ndarray, pairs: np.ndarray | None = None
+    v: np.ndarray,
+    f: np.ndarray,
+    pairs: np.ndarray | None = None,
+    census: tuple[int, int, int, int, np.ndarray | None] | None = None,
 ) -> _Union | None:
     """Exact union of closed, edge-manifold, consistently oriented shells that intersect
     only one another (never themselves), by manifold3d, which keeps the input's
     triangles, cut where the shells cross, and says which each piece is of. None when
-    not applicable. ``pairs``: the intersecting face pairs of ``(v, f)`` if known."""
+    not applicable. ``pairs``: the intersecting face pairs of ``(v, f)`` if known;
+    ``census``: :func:`repair.check.edge_stats` of ``f`` if known."""
     if len(f) == 0:
         return None
     # Every edge used by exactly two faces, in opposite directions; and the shells.
-    boundary, nonmanifold, misoriented, n, labels = edge_stats(f)
+    if census is None or census[4] is None or len(census[4]) != len(f):
+        census = edge_stats(f)
+    boundary, nonmanifold, misoriented, n, labels = census
     if boundary or nonmanifold or misoriented:
         return None
     if pairs is None:
@@ -734,7 +740,12 @@ def repair_mesh(
         fast = None
         known = _carry_pairs(v_in, f_in, pairs_in, cv, cf)
         if len(c.segments) == 0:
-            fast = _union_fast_path(cv, cf, known)
+            # The input check's edge census holds for the same faces (cleaning and lids
+            # changed nothing); else the fast path takes its own.
+            same = len(cf) == len(f_in) and np.array_equal(cv[cf], v_in[f_in])
+            census = (before.boundary_edges, before.nonmanifold_edges, before.misoriented_edges,
+                      before.components, before.shells) if same else None  # fmt: skip
+            fast = _union_fast_path(cv, cf, known, census)
         clock.lap("union", 0.4)
         verdict = None
         hint = None  # per output face: the input face it lies on, if known
