@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from repair.rows import unique_ints, unique_rows
+from repair.rows import ranges, unique_ints, unique_rows
 
 __all__ = ["max_deviation"]
 
@@ -214,7 +214,7 @@ def _neighbour_guesses(
     total = int(cnt.sum())
     if total == 0 or total > limit:
         return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    pos = np.repeat(start - np.cumsum(cnt) + cnt, cnt) + np.arange(total)
+    pos = ranges(start, cnt)
     rows = np.repeat(np.repeat(which, 3), cnt)
     pair = unique_rows(np.stack([rows, vh[pos, 1]], axis=1))
     return pair[:, 0], pair[:, 1]

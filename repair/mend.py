@@ -27,7 +27,7 @@ import numpy as np
 
 from repair.check import intersecting_face_pairs, weld_exact
 from repair.clean import degenerate_mask, drop_unreferenced, face_keys, net_faces
-from repair.rows import unique_ints, unique_rows
+from repair.rows import ranges, unique_ints, unique_rows
 
 __all__ = [
     "Mended",
@@ -345,8 +345,7 @@ class FaceGrid:
         cuts = np.unique(np.r_[0, np.searchsorted(ends, steps), len(count)])
         for a, b in zip(cuts[:-1], cuts[1:], strict=True):
             c = count[a:b]
-            start = np.repeat(first[a:b] - np.cumsum(c) + c, c)
-            cand = self.sorted_faces[start + np.arange(int(c.sum()))]
+            cand = self.sorted_faces[ranges(first[a:b], c)]
             by = np.repeat(asked[a:b], c)
             for k in range(3):  # axis by axis, on ever fewer pairs
                 lo, hi = self.lo_t[k], self.hi_t[k]
@@ -379,8 +378,7 @@ class FaceGrid:
                 keys = np.unique(keys)
                 first = np.searchsorted(self.sorted_keys, keys, side="left")
                 count = np.searchsorted(self.sorted_keys, keys, side="right") - first
-                start = np.repeat(first - np.cumsum(count) + count, count)
-                found.append(np.unique(self.sorted_faces[start + np.arange(int(count.sum()))]))
+                found.append(np.unique(self.sorted_faces[ranges(first, count)]))
         if len(self.big):
             found.append(self.big[self._meet(self.big, which)])
         huge = which[~few]

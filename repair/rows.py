@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["unique_ints", "unique_rows"]
+__all__ = ["ranges", "unique_ints", "unique_rows"]
 
 
 def unique_rows(
@@ -82,3 +82,13 @@ def unique_ints(
     if return_counts:
         out.append(np.diff(np.r_[starts, n]))
     return out[0] if len(out) == 1 else tuple(out)
+
+
+def ranges(first: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """``first[i], first[i] + 1, ..., first[i] + count[i] - 1`` for every ``i``, one after
+    the other (int64): the positions of runs in a sorted array, gathered at once."""
+    count = np.asarray(count, dtype=np.int64)
+    total = int(count.sum())
+    return np.repeat(np.asarray(first, dtype=np.int64) - np.cumsum(count) + count, count) + (
+        np.arange(total, dtype=np.int64)
+    )

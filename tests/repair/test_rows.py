@@ -16,12 +16,19 @@ def test_unique_rows_matches_numpy(shape, flags):
     want = np.unique(a, axis=0, return_index=flags[0], return_inverse=flags[1],
                      return_counts=flags[2])  # fmt: skip
     got = unique_rows(a, *flags)
+    _assert_same_outputs(want, got)
+    assert np.asarray(got if not isinstance(got, tuple) else got[0]).shape == (
+        np.asarray(want if not isinstance(want, tuple) else want[0]).shape
+    )
+
+
+def _assert_same_outputs(want, got) -> None:
+    """The same arrays (flattened) in the same order, as np.unique returns them."""
     want = want if isinstance(want, tuple) else (want,)
     got = got if isinstance(got, tuple) else (got,)
     assert len(got) == len(want)
     for w, g in zip(want, got, strict=True):
         assert np.array_equal(np.asarray(w).reshape(-1), np.asarray(g).reshape(-1))
-    assert got[0].shape == want[0].shape
 
 
 def test_unique_rows_of_huge_indices_falls_back_to_numpy():
@@ -41,9 +48,13 @@ def test_unique_ints_matches_numpy(n, lo, hi, flags):
     a = np.r_[a, a[: n // 3]]  # repeats, first occurrences to find
     want = np.unique(a, return_index=flags[0], return_inverse=flags[1], return_counts=flags[2])
     got = unique_ints(a, *flags)
-    want = want if isinstance(want, tuple) else (want,)
-    got = got if isinstance(got, tuple) else (got,)
-    assert len(got) == len(want)
-    for w, g in zip(want, got, strict=True):
-        assert np.array_equal(np.asarray(w).reshape(-1), np.asarray(g).reshape(-1))
-    assert got[0].dtype == want[0].dtype
+    _assert_same_outputs(want, got)
+    first = got if not isinstance(got, tuple) else got[0]
+    assert first.dtype == (want if not isinstance(want, tuple) else want[0]).dtype
+
+
+def test_ranges_gathers_runs_in_order():
+    from repair.rows import ranges
+
+    assert ranges(np.array([5, 0, 9]), np.array([2, 0, 3])).tolist() == [5, 6, 9, 10, 11]
+    assert ranges(np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)).tolist() == []
