@@ -180,11 +180,21 @@ def _manifolds_of(
     return out
 
 
+def _starts_with(va: np.ndarray, fa: np.ndarray, vb: np.ndarray, fb: np.ndarray) -> bool:
+    """True when the first ``len(fa)`` faces of ``(vb, fb)`` are those of ``(va, fa)``,
+    row by row, on exactly the same points (cleaning that removed nothing, lids appended)."""
+    n = len(fa)
+    return len(fb) >= n and np.array_equal(vb[fb[:n]], va[fa])
+
+
 def _same_faces(va: np.ndarray, fa: np.ndarray, vb: np.ndarray, fb: np.ndarray) -> np.ndarray:
     """For each face of ``(vb, fb)``: a face of ``(va, fa)`` on the same three points
-    (exactly equal coordinates, any order), or -1."""
+    (exactly equal coordinates, any order), or -1. Row by row when ``fb`` starts with
+    ``fa``'s faces; else by one exact weld of both."""
     if len(fa) == 0:
         return np.full(len(fb), -1, dtype=np.int64)
+    if _starts_with(va, fa, vb, fb):
+        return np.r_[np.arange(len(fa)), np.full(len(fb) - len(fa), -1)]
     # One vertex numbering for both, by exact position.
     _, both = weld_exact(np.vstack([va, vb]), np.vstack([fa, fb + len(va)]))
     keys = face_keys(both)
@@ -206,15 +216,8 @@ def _union_hint(
     """For each written face (``out_v, out_f``, finished from ``union``, the union of
     ``(v, f)``): the face of ``(v_in, f_in)`` it is believed to
     be a piece of, or -1 (a guess, verified by :func:`repair.deviation.max_deviation`).
-    ``f`` is ``f_in`` with lids appended, unless flaps were moved (then matched by
-    points); finishing keeps the union's faces in order unless it mended them."""
-    n = len(f_in)
-    if len(f) >= n and len(v) >= len(v_in) and np.array_equal(f[:n], f_in) and np.array_equal(
-        v[: len(v_in)], v_in
-    ):
-        to_input = np.r_[np.arange(n), np.full(len(f) - n, -1)]
-    else:
-        to_input = _same_faces(v_in, f_in, v, f)  # lids: -1
+    Finishing keeps the union's faces in order unless it mended them."""
+    to_input = _same_faces(v_in, f_in, v, f)  # lids: -1
     uv, uf = union.vertices, union.faces
     source = np.where(union.source >= 0, to_input[union.source], -1)
     if len(out_f) == len(uf):  # finished in one round: the same faces, rounded
@@ -231,19 +234,27 @@ def _carry_pairs(
     coordinates): faces on the same three points as an input face keep its pairs, only
     the region near the others (lids) is tested. ``v_in`` must be float32-valued (as
     :func:`repair_mesh` makes it), the coordinates ``pairs_in`` were found on."""
-    n = len(f_in)
-    if len(f) >= n and np.array_equal(v[f[:n]], v_in[f_in]):
-        # Cleaning removed nothing and lids were appended: the same faces, row by row.
-        match = np.r_[np.arange(n), np.full(len(f) - n, -1)]
-    else:
-        match = _same_faces(v_in, f_in, v, f)
-    found = match >= 0
-    # Each input face -> the face of f on its three points (if any).
-    to_f = np.full(len(f_in), -1, dtype=np.int64)
-    to_f[match[found]] = np.flatnonzero(found)
-    kept = to_f[pairs_in] if len(pairs_in) else np.zeros((0, 2), dtype=np.int64)
-    kept = kept[(kept >= 0).all(axis=1)]
-    return crossings_after_change(v, f, kept, ~found)
+    same, kept = _carried_pairs(_same_faces(v_in, f_in, v, f), len(f_in), pairs_in)
+    return crossings_after_change(v, f, kept, ~same)
+
+
+def _carried_pairs(
+    match: np.ndarray, n_before: int, pairs_before: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Faces that keep their crossing pairs, and those pairs: ``match`` gives for each
+    face the earlier face on its three points (or -1), ``pairs_before`` all the crossing
+    pairs of the ``n_before`` earlier faces. A face matched twice (a copy) is not kept:
+    the test is pairwise, so each copy must be tested for its own pairs."""
+    hit = np.flatnonzero(match >= 0)
+    _, first, cnt = unique_ints(match[hit], return_index=True, return_counts=True)
+    hit = hit[first[cnt == 1]]
+    same = np.zeros(len(match), dtype=bool)
+    same[hit] = True
+    to_new = np.full(n_before, -1, dtype=np.int64)
+    to_new[match[hit]] = hit
+    pairs = np.asarray(pairs_before, dtype=np.int64).reshape(-1, 2)
+    kept = to_new[pairs] if len(pairs) else np.zeros((0, 2), dtype=np.int64)
+    return same, kept[(kept >= 0).all(axis=1)]
 
 
 @dataclass(frozen=True)
@@ -519,16 +530,7 @@ def _rounded_verdict(
     known = None
     if before is not None:
         match = _same_faces(before[0], before[1], v, f)
-        hit = np.flatnonzero(match >= 0)
-        # A face matched twice (copies) is tested again: pairs come per face.
-        _, first, cnt = unique_ints(match[hit], return_index=True, return_counts=True)
-        hit = hit[first[cnt == 1]]
-        same = np.zeros(len(f), dtype=bool)
-        same[hit] = True
-        to_new = np.full(len(before[1]), -1, dtype=np.int64)
-        to_new[match[hit]] = hit
-        kept = to_new[before[2]] if len(before[2]) else np.zeros((0, 2), dtype=np.int64)
-        known = (same, kept[(kept >= 0).all(axis=1)])
+        known = _carried_pairs(match, len(before[1]), before[2])
     r, found = round_finding_crossings(v, f, known=known)
     v32, f32 = weld_exact(r, f)
     if len(v32) == len(r):
@@ -742,7 +744,7 @@ def repair_mesh(
         if len(c.segments) == 0:
             # The input check's edge census holds for the same faces (cleaning and lids
             # changed nothing); else the fast path takes its own.
-            same = len(cf) == len(f_in) and np.array_equal(cv[cf], v_in[f_in])
+            same = len(cf) == len(f_in) and _starts_with(v_in, f_in, cv, cf)
             census = (before.boundary_edges, before.nonmanifold_edges, before.misoriented_edges,
                       before.components, before.shells) if same else None  # fmt: skip
             fast = _union_fast_path(cv, cf, known, census)

@@ -91,6 +91,12 @@ def test_rounding_keeps_representable_vertices_and_moves_others_one_ulp_at_most(
     assert np.all(np.abs(out - v) <= ulp)
 
 
+def _whole_test(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """The crossing pairs one test of all the non-degenerate faces finds."""
+    ok = np.flatnonzero(~degenerate_mask(v, f))
+    return ok[intersecting_face_pairs(v, f[ok])]
+
+
 def _two_crossing_spheres():
     return concat(sphere(3, 10.0), sphere(2, 6.0, (8.3, 1.7, -2.1)))
 
@@ -101,9 +107,7 @@ def test_rounding_reports_exactly_the_crossings_a_whole_test_finds():
     v, f = _two_crossing_spheres()
     out, pairs = round_finding_crossings(v, f, max_tries=5)
     assert len(pairs) > 0
-    ok = np.flatnonzero(~degenerate_mask(out, f))
-    whole = ok[intersecting_face_pairs(out, f[ok])]
-    assert np.array_equal(pairs, whole)
+    assert np.array_equal(pairs, _whole_test(out, f))
 
 
 def test_rounding_with_known_pairs_of_untouched_faces_finds_what_a_whole_test_finds():
@@ -121,16 +125,13 @@ def test_rounding_with_known_pairs_of_untouched_faces_finds_what_a_whole_test_fi
     got_v, got = round_finding_crossings(v2, f, max_tries=5, known=(same, kept))
     assert np.array_equal(got_v[~np.isin(np.arange(len(v2)), moved)],
                           out[~np.isin(np.arange(len(v2)), moved)])  # fmt: skip
-    ok = np.flatnonzero(~degenerate_mask(got_v, f))
-    whole = ok[intersecting_face_pairs(got_v, f[ok])]
-    assert np.array_equal(got, whole)
+    assert np.array_equal(got, _whole_test(got_v, f))
     assert len(kept) > 0 and not np.array_equal(got, pairs)
 
 
 def test_crossings_after_a_local_change_are_those_a_whole_test_finds():
     v, f = _two_crossing_spheres()
-    ok = np.flatnonzero(~degenerate_mask(v, f))
-    before = ok[intersecting_face_pairs(v, f[ok])]
+    before = _whole_test(v, f)
     # Move a few vertices of crossing faces (and one far away) a little, copy one face.
     rng = np.random.default_rng(2)
     moved = np.r_[np.unique(f[before[:5]].reshape(-1)), 7]
@@ -141,9 +142,7 @@ def test_crossings_after_a_local_change_are_those_a_whole_test_finds():
     changed[-1] = True
     kept = before[~changed[before].any(axis=1)]
     got = crossings_after_change(v2, f2, kept, changed)
-    ok2 = np.flatnonzero(~degenerate_mask(v2, f2))
-    whole = ok2[intersecting_face_pairs(v2, f2[ok2])]
-    assert np.array_equal(got, whole)
+    assert np.array_equal(got, _whole_test(v2, f2))
     assert len(got) > 0 and not np.array_equal(got, before)
 
 
