@@ -29,6 +29,7 @@ case "$mode" in
         ;;
     test)
         .venv/bin/python -m pip install -q -e '.[test]'
+        .venv/bin/ruff check --quiet . || { echo "bootstrap: ruff found problems (above)" >&2; exit 1; }
         exec .venv/bin/python -m pytest "$@"
         ;;
     *)
