@@ -11,18 +11,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from repair.check import degenerate_face_mask, weld_exact
+from repair.check import Printability, degenerate_face_mask
 from repair.rows import unique_ints, unique_rows
+from repair.topology import face_keys, half_edges, unique_faces, weld_exact
 
 __all__ = [
     "Cleaned",
     "cancel_opposite_faces",
+    "clean_checked",
     "clean_soup",
     "degenerate_mask",
     "drop_unreferenced",
-    "face_keys",
     "net_faces",
-    "unique_faces",
 ]
 
 
@@ -31,30 +31,6 @@ def degenerate_mask(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     if len(faces) == 0:
         return np.zeros(0, dtype=bool)
     return degenerate_face_mask(vertices, faces)
-
-
-def unique_faces(faces: np.ndarray) -> np.ndarray:
-    """Sorted indices of the first face of each vertex set (either orientation).
-
-    Keeping these leaves one *layer* of the soup (Attene Def. 3.1).
-    """
-    if len(faces) < 2:
-        return np.arange(len(faces))
-    s = np.sort(faces, axis=1)
-    _, first = unique_rows(s, return_index=True)
-    return np.sort(first)
-
-
-def face_keys(faces: np.ndarray) -> np.ndarray:
-    """One int64 key per face, equal for faces on the same vertex set (any order)."""
-    f = np.asarray(faces, dtype=np.int64)
-    if len(f) == 0:
-        return np.zeros(0, dtype=np.int64)
-    s = np.sort(f, axis=1)
-    n = int(f.max()) + 1
-    if n < 2**21:
-        return (s[:, 0] * n + s[:, 1]) * n + s[:, 2]
-    return unique_rows(s, return_inverse=True)[1].reshape(-1).astype(np.int64)
 
 
 def net_faces(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -122,9 +98,9 @@ def _not_on_edges(degenerate: np.ndarray, faces: np.ndarray) -> np.ndarray:
     # The segment of a collinear triangle joins its two outer corners; both of its other
     # sides lie on it too. It is a surface edge when all its distinct sides are.
     n = int(max(degenerate.max(), faces.max())) + 1
-    e = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    e = np.sort(half_edges(faces), axis=1)
     surface = np.unique(e[:, 0] * n + e[:, 1])
-    d = np.sort(degenerate[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    d = np.sort(half_edges(degenerate), axis=1)
     key = d[:, 0] * n + d[:, 1]
     on = np.isin(key, surface) | (d[:, 0] == d[:, 1])
     return degenerate[~on.reshape(-1, 3).all(axis=1)]
@@ -186,3 +162,14 @@ def clean_soup(vertices: np.ndarray, faces: np.ndarray, *, solid: bool = False) 
     f = f[keep]
     v, f = drop_unreferenced(v, f)
     return Cleaned(v, f, segments, int(np.count_nonzero(deg)), int(dup))
+
+
+def clean_checked(vertices: np.ndarray, faces: np.ndarray, verdict: Printability) -> Cleaned:
+    """:func:`clean_soup` of a mesh whose ``verdict`` was found on exactly these
+    coordinates (``as_float32``, welded the same way): when that check found no
+    degenerate and no duplicate face, there is nothing to remove, and the welded input
+    is the cleaned input."""
+    if verdict.degenerate_faces == 0 and verdict.duplicate_faces == 0:
+        v, f = drop_unreferenced(*weld_exact(vertices, faces))
+        return Cleaned(v, f, np.zeros((0, 2, 3)), 0, 0)
+    return clean_soup(vertices, faces)

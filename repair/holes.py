@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from repair.check import _argsort_with_keys
+from repair.topology import edge_components, edge_ids, half_edges
 
 __all__ = [
     "MAX_BOUNDARY_FRACTION",
@@ -75,29 +75,6 @@ class HolesClosed:
         }
 
 
-def _edge_ids(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Undirected edge id of each face corner's edge (3m,) and each edge's use count."""
-    a, b = faces.reshape(-1), faces[:, [1, 2, 0]].reshape(-1)
-    key = np.minimum(a, b) * (int(faces.max()) + 1) + np.maximum(a, b)
-    order, skey = _argsort_with_keys(key)
-    first = np.r_[True, skey[1:] != skey[:-1]]
-    eid = np.empty(len(key), dtype=np.int64)
-    eid[order] = np.cumsum(first) - 1
-    return eid, np.diff(np.r_[np.flatnonzero(first), len(key)])
-
-
-def _face_components(faces: np.ndarray, eid: np.ndarray, n_edges: int) -> np.ndarray:
-    """Edge-connected component of each face (faces sharing any edge are connected)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    m = len(faces)
-    fid = np.repeat(np.arange(m), 3)
-    # Bipartite face-edge graph: faces 0..m-1, edges m..m+n_edges-1.
-    g = coo_matrix((np.ones(3 * m, dtype=np.int8), (fid, m + eid)), shape=(m + n_edges,) * 2)
-    return connected_components(g, directed=False)[1][:m].astype(np.int64)
-
-
 def boundary_loops(faces: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
     """Closed loops of boundary edges (edges used by exactly one face).
 
@@ -110,9 +87,9 @@ def boundary_loops(faces: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
     f = np.asarray(faces, dtype=np.int64)
     if len(f) == 0:
         return [], np.zeros(0, dtype=np.int64)
-    he = np.stack([f.reshape(-1), f[:, [1, 2, 0]].reshape(-1)], axis=1)  # (3m, 2) a->b
-    eid, cnt = _edge_ids(f)
-    comp = _face_components(f, eid, len(cnt))
+    he = half_edges(f)  # (3m, 2) a->b
+    eid, cnt = edge_ids(f)
+    comp = edge_components(f, eid)
     bnd = np.flatnonzero(cnt[eid] == 1)
     if len(bnd) == 0:
         return [], np.zeros(0, dtype=np.int64)
@@ -152,8 +129,8 @@ def _shells(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per face: edge-connected component and the use count of each of its 3 edges
     (m, 3); per component: "almost closed" flag and bounding-box diagonal (mm)."""
-    eid, cnt = _edge_ids(f)
-    comp = _face_components(f, eid, len(cnt))
+    eid, cnt = edge_ids(f)
+    comp = edge_components(f, eid)
     n = int(comp.max()) + 1
     # Each undirected edge belongs to one component (its faces are edge-connected).
     edge_comp = np.empty(len(cnt), dtype=np.int64)
@@ -219,7 +196,7 @@ def close_small_holes(
     """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
-    if len(f) == 0 or not np.any(_edge_ids(f)[1] == 1):
+    if len(f) == 0 or not np.any(edge_ids(f)[1] == 1):
         return v, f, HolesClosed()  # no open edge: nothing to close
     flaps = flap_faces(v, f, max_boundary_fraction=max_boundary_fraction)
     flap_f = f[flaps]

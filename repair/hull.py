@@ -20,9 +20,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from repair.check import _duplicate_faces, edge_components, intersecting_face_pairs, weld_exact
-from repair.clean import cancel_opposite_faces, degenerate_mask, drop_unreferenced, unique_faces
+from repair.clean import cancel_opposite_faces, degenerate_mask, drop_unreferenced
+from repair.intersections import intersecting_face_pairs
 from repair.rows import unique_rows
+from repair.thicken import orient_patches, orient_patches_with_edge_use
+from repair.topology import (
+    connected_labels,
+    count_duplicate_faces,
+    edge_components,
+    edge_ids,
+    unique_faces,
+    weld_exact,
+)
+from repair.winding import winding_numbers
 
 #: Re-mesh only the intersecting faces, component by component, from this many faces.
 LOCAL_REMESH_MIN_FACES = 2000
@@ -66,14 +76,11 @@ def _remesh(
     weld. Small meshes, and meshes whose faces repeat a vertex triple, are arranged
     whole in one call.
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     from repair.workers import balanced_shares, cpu_workers, map_forked
 
     v = np.ascontiguousarray(v, dtype=np.float64)
     f = np.ascontiguousarray(f, dtype=np.int64)
-    if len(f) < LOCAL_REMESH_MIN_FACES or _duplicate_faces(f):
+    if len(f) < LOCAL_REMESH_MIN_FACES or count_duplicate_faces(f):
         return _remesh_all(v, f)
     if pairs is None:
         pairs = intersecting_face_pairs(v, f)
@@ -81,9 +88,7 @@ def _remesh(
         return v, f, np.arange(len(f)), 0
     hit = np.unique(pairs)
     local = np.searchsorted(hit, pairs)
-    g = coo_matrix((np.ones(len(pairs), dtype=np.int8), (local[:, 0], local[:, 1])),
-                   shape=(len(hit), len(hit)))  # fmt: skip
-    _, lab = connected_components(g, directed=False)
+    lab = connected_labels(len(hit), local[:, 0], local[:, 1])
     order = np.argsort(lab, kind="stable")
     cuts = np.flatnonzero(np.diff(lab[order])) + 1
     groups = np.split(hit[order], cuts)  # by lowest face first (labels follow hit order)
@@ -137,7 +142,7 @@ def resolve(
     Returns ``(vertices, faces, birth, pairs)``: ``birth[i]`` is the input face face ``i``
     came from; ``pairs`` counts the intersecting face pairs found by the first pass.
     """
-    from repair.mend import crossings_after_change
+    from repair.rounding import crossings_after_change
 
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
@@ -190,10 +195,8 @@ class HullSplit:
 
 def _boundary_faces(faces: np.ndarray) -> np.ndarray:
     """Indices of faces with at least one edge used by no other face."""
-    e = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    _, inv, cnt = unique_rows(e, return_inverse=True, return_counts=True)
-    lone = cnt[inv.reshape(-1)] == 1
-    return np.unique(np.flatnonzero(lone) // 3)
+    eid, cnt = edge_ids(faces)
+    return np.unique(np.flatnonzero(cnt[eid] == 1) // 3)
 
 
 def _merge_cells_at_boundaries(cells: np.ndarray, faces: np.ndarray, n_cells: int) -> np.ndarray:
@@ -203,12 +206,7 @@ def _merge_cells_at_boundaries(cells: np.ndarray, faces: np.ndarray, n_cells: in
     bf = _boundary_faces(faces)
     if len(bf) == 0:
         return cells
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    a, b = cells[bf, 0], cells[bf, 1]
-    g = coo_matrix((np.ones(len(bf), dtype=np.int8), (a, b)), shape=(n_cells, n_cells))
-    _, label = connected_components(g, directed=False)
+    label = connected_labels(n_cells, cells[bf, 0], cells[bf, 1])
     # Relabel so that whatever merged with cell 0 is 0.
     label = np.where(label == label[0], 0, label + 1)
     return label[cells]
@@ -217,9 +215,7 @@ def _merge_cells_at_boundaries(cells: np.ndarray, faces: np.ndarray, n_cells: in
 def is_unorientable(faces: np.ndarray) -> bool:
     """True when some edge used by exactly two faces stays traversed twice the same way
     after :func:`repair.thicken.orient_patches` (a Klein bottle, a Moebius strip)."""
-    from repair.thicken import _orient_patches
-
-    _, cut, use = _orient_patches(np.asarray(faces, dtype=np.int64))
+    _, cut, use = orient_patches_with_edge_use(np.asarray(faces, dtype=np.int64))
     return bool(np.any(cut & (use == 2)))
 
 
@@ -273,15 +269,13 @@ def _encloses(
     the winding number of its solid outer hull (faces with the unbounded cell on one side,
     turned to face it -- a closed cycle) is 1 there and 0 outside. None when a number is
     not clearly an integer (a point too close to the hull for floating point)."""
-    from repair.check import _winding_numbers
-
     solid = pos_out ^ neg_out
     hull = faces[solid].copy()
     flip = neg_out[solid]
     hull[flip] = hull[flip][:, ::-1]
     if len(hull) == 0:
         return np.zeros(len(points), dtype=bool)
-    w = _winding_numbers(vertices, hull, points)
+    w = winding_numbers(vertices, hull, points)
     if np.any(np.abs(w - np.rint(w)) > 0.2):
         return None
     return np.rint(w) != 0
@@ -335,8 +329,6 @@ def outer_hull_split(vertices: np.ndarray, faces: np.ndarray) -> HullSplit:
         e = np.zeros((0, 3), dtype=np.int64)
         i = np.zeros(0, dtype=np.int64)
         return HullSplit(e, e, i, i, 0, 1)
-    from repair.thicken import orient_patches
-
     # libigl grows its patches across two-face edges assuming they agree in orientation.
     faces = orient_patches(faces)[0]
     sides = _outside_sides_by_parts(vertices, faces) if len(faces) >= 2000 else None

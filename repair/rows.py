@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["ranges", "unique_ints", "unique_rows"]
+__all__ = ["ranges", "sort_with_positions", "unique_ints", "unique_rows"]
 
 
 def unique_rows(
@@ -60,14 +60,11 @@ def unique_ints(
     argsort. Falls back to numpy when key range and positions do not fit in 62 bits."""
     key = np.asarray(key)
     n = len(key)
-    shift = max(int(n).bit_length(), 1)
     lo = int(key.min()) if n else 0
-    if n == 0 or key.ndim != 1 or int(key.max()) - lo >= (1 << (62 - shift)):
+    if n == 0 or key.ndim != 1 or not _packs(int(key.max()) - lo, n):
         return np.unique(key, return_index=return_index, return_inverse=return_inverse,
                          return_counts=return_counts)  # fmt: skip
-    packed = np.sort(((key.astype(np.int64) - lo) << shift) | np.arange(n, dtype=np.int64))
-    sk = packed >> shift
-    pos = packed & ((1 << shift) - 1)
+    pos, sk = sort_with_positions(key.astype(np.int64) - lo)
     first = np.empty(n, dtype=bool)
     first[0] = True
     np.not_equal(sk[1:], sk[:-1], out=first[1:])
@@ -92,3 +89,23 @@ def ranges(first: np.ndarray, count: np.ndarray) -> np.ndarray:
     return np.repeat(np.asarray(first, dtype=np.int64) - np.cumsum(count) + count, count) + (
         np.arange(total, dtype=np.int64)
     )
+
+
+def _packs(largest_key: int, n: int) -> bool:
+    """True when keys ``0..largest_key`` and positions ``0..n-1`` fit in 62 bits."""
+    return largest_key < (1 << (62 - max(int(n).bit_length(), 1)))
+
+
+def sort_with_positions(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(order, key[order])`` for a 1-D array of non-negative integer keys, ties in index
+    order (a stable argsort). When key and position fit together in 62 bits, one plain
+    (SIMD) sort of ``key << bits | position`` replaces the much slower argsort and the
+    gather after it."""
+    key = np.asarray(key, dtype=np.int64)
+    n = len(key)
+    if n and _packs(int(key.max()), n):
+        shift = max(int(n).bit_length(), 1)
+        packed = np.sort((key << shift) | np.arange(n, dtype=np.int64))
+        return packed & ((1 << shift) - 1), packed >> shift
+    order = np.argsort(key, kind="stable")
+    return order, key[order]

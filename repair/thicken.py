@@ -22,53 +22,25 @@ from __future__ import annotations
 
 import numpy as np
 
-from repair.rows import unique_ints, unique_rows
+from repair.topology import (
+    connected_labels,
+    edge_ids,
+    half_edges,
+    paired_half_edges,
+    split_vertex_fans,
+)
 
-__all__ = ["MITER_LIMIT", "face_prisms", "orient_patches", "region_prisms", "sheet_slabs"]
+__all__ = [
+    "MITER_LIMIT",
+    "face_prisms",
+    "orient_patches",
+    "orient_patches_with_edge_use",
+    "region_prisms",
+    "sheet_slabs",
+]
 
 #: Largest vertex offset, as a multiple of eps/2 (bounds Attene's deviation D by 0.55 eps).
 MITER_LIMIT = 1.1
-
-
-def _components(n: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    g = coo_matrix((np.ones(len(a), dtype=np.int8), (a, b)), shape=(n, n))
-    return connected_components(g, directed=False)[1]
-
-
-def _half_edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Directed half-edges (3m, 2) in face order (half-edge 3f+k runs from corner k to k+1),
-    and an id per undirected edge."""
-    he = np.stack([faces.reshape(-1), faces[:, [1, 2, 0]].reshape(-1)], axis=1)
-    if len(he) == 0:
-        return he, np.zeros(0, dtype=np.int64)
-    lo, hi = np.minimum(he[:, 0], he[:, 1]), np.maximum(he[:, 0], he[:, 1])
-    n = int(hi.max()) + 1
-    if n < 2**31:  # one key per undirected edge, numbered in (lo, hi) order
-        return he, unique_ints(lo * n + hi, return_inverse=True)[1]
-    _, eid = unique_rows(np.stack([lo, hi], axis=1), return_inverse=True)
-    return he, eid.reshape(-1)
-
-
-def _edge_pairs(eid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """For edges used by exactly two half-edges: the two half-edge indices.
-    Also returns the use count of each half-edge's edge."""
-    cnt = np.bincount(eid)
-    n = len(eid)
-    shift = max(n.bit_length(), 1)
-    if n and int(eid.max()) < (1 << (62 - shift)):  # one plain sort of (id, position)
-        packed = np.sort((eid.astype(np.int64) << shift) | np.arange(n, dtype=np.int64))
-        order, se = packed & ((1 << shift) - 1), packed >> shift
-    else:
-        order = np.argsort(eid, kind="stable")
-        se = eid[order]
-    two = cnt[se] == 2
-    first = np.r_[True, se[1:] != se[:-1]]
-    starts = order[first & two]
-    seconds = order[np.flatnonzero(first & two) + 1]
-    return starts, seconds, cnt[eid]
 
 
 def orient_patches(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -77,15 +49,17 @@ def orient_patches(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     Returns ``(faces, cut)`` where ``cut`` marks the half-edges (3f+k) whose edge must be
     cut: non-manifold edges, and the edges that stay inconsistent in unorientable patches.
     """
-    out, cut, _ = _orient_patches(faces)
+    out, cut, _ = orient_patches_with_edge_use(faces)
     return out, cut
 
 
-def _orient_patches(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def orient_patches_with_edge_use(
+    faces: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`orient_patches`, plus the use count of each returned half-edge's edge."""
     m = len(faces)
-    he, eid = _half_edges(faces)
-    h1, h2, use = _edge_pairs(eid)
+    he, eid = half_edges(faces), edge_ids(faces)[0]
+    h1, h2, use = paired_half_edges(eid)
     f1, f2 = h1 // 3, h2 // 3
     consistent = he[h1, 0] == he[h2, 1]  # opposite directions
     if consistent.all():  # already oriented (what the double cover would keep): cut
@@ -93,7 +67,7 @@ def _orient_patches(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarr
     # Double cover: node 2f+s is face f with flip s.
     a = np.r_[2 * f1, 2 * f1 + 1]
     b = np.r_[2 * f2 + np.where(consistent, 0, 1), 2 * f2 + np.where(consistent, 1, 0)]
-    lab = _components(2 * m, a, b)
+    lab = connected_labels(2 * m, a, b)
     l0, l1 = lab[0::2], lab[1::2]
     flip = l1 < l0
     unorientable = np.flatnonzero(l0 == l1)
@@ -109,8 +83,8 @@ def _orient_patches(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarr
     flip = _orient_by_tree(m, f1, f2, consistent, flip, unorientable)
     out[flip] = out[flip][:, ::-1]
     # Re-derive consistency after flipping; inconsistent manifold edges are cuts.
-    he2, eid2 = _half_edges(out)
-    g1, g2, use2 = _edge_pairs(eid2)
+    he2 = half_edges(out)
+    g1, g2, use2 = paired_half_edges(edge_ids(out)[0])
     bad = he2[g1, 0] != he2[g2, 1]
     cut = use2 > 2
     cut[g1[bad]] = True
@@ -129,14 +103,14 @@ def _orient_by_tree(
     """Orientation of unorientable patches along a spanning forest (the cut is then where
     non-tree edges disagree). Parity is propagated by pointer jumping, vectorised."""
     from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import breadth_first_tree, connected_components
+    from scipy.sparse.csgraph import breadth_first_tree
 
     sel = np.zeros(m, dtype=bool)
     sel[faces_sel] = True
     keep = sel[f1] & sel[f2]
     a, b, inc = f1[keep], f2[keep], (~consistent[keep]).astype(np.int8)
     g = coo_matrix((np.ones(len(a)), (a, b)), shape=(m, m)).tocsr()
-    _, lab = connected_components(g, directed=False)
+    lab = connected_labels(m, a, b)
     parent = np.arange(m)
     for comp in np.unique(lab[faces_sel]):
         root = int(faces_sel[lab[faces_sel] == comp][0])
@@ -158,26 +132,6 @@ def _orient_by_tree(
     out = flip.copy()
     out[faces_sel] = par[faces_sel].astype(bool)
     return out
-
-
-def _split_vertices(
-    faces: np.ndarray, cut: np.ndarray, eid: np.ndarray | None = None
-) -> np.ndarray:
-    """Give every manifold fan of corners its own vertex: corners (3f+k) of two faces are
-    merged across each uncut, consistently oriented edge (``eid``: an edge id per
-    half-edge, by default one per vertex pair). Returns the new vertex id per corner
-    (3m,) -- the slab's own faces are ``ids.reshape(-1, 3)``."""
-    m = len(faces)
-    he, own = _half_edges(faces)
-    eid = own if eid is None else eid
-    h1, h2, _ = _edge_pairs(eid)
-    ok = ~cut[h1] & ~cut[h2] & (he[h1, 0] == he[h2, 1])
-    h1, h2 = h1[ok], h2[ok]
-    nxt = np.array([1, 2, 0])
-    # h1 runs a->b in face f1 (corners k1, k1+1); h2 runs b->a in f2 (corners k2, k2+1).
-    c1a, c1b = h1, (h1 // 3) * 3 + nxt[h1 % 3]
-    c2b, c2a = h2, (h2 // 3) * 3 + nxt[h2 % 3]
-    return _components(3 * m, np.r_[c1a, c1b], np.r_[c2a, c2b])
 
 
 def face_prisms(
@@ -204,9 +158,8 @@ def face_prisms(
     )
     pf = (local[None] + 6 * np.arange(m)[:, None, None]).reshape(-1, 3)
     # Creases: edges shared by two of the faces whose normals differ.
-    he = np.stack([f.reshape(-1), f[:, [1, 2, 0]].reshape(-1)], axis=1)
-    _, eid = unique_rows(np.sort(he, axis=1), return_inverse=True)
-    eid = eid.reshape(-1)
+    he = half_edges(f)
+    eid = edge_ids(f)[0]
     order = np.argsort(eid, kind="stable")
     same = np.flatnonzero(eid[order][1:] == eid[order][:-1])
     h1, h2 = order[same], order[same + 1]
@@ -229,7 +182,7 @@ def sheet_slabs(
         return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
     v = np.asarray(vertices, dtype=np.float64)
     f, cut = orient_patches(faces)
-    ids = _split_vertices(f, cut)
+    ids = split_vertex_fans(f, cut)
     n = int(ids.max()) + 1
     fs = ids.reshape(-1, 3)
     pos = np.zeros((n, 3))
@@ -270,9 +223,9 @@ def sheet_slabs(
     top, bot = pos + d, pos - d
     out_v = np.vstack([top, bot])
     # Boundary half-edges of the slab's own faces: walls.
-    he = np.stack([fs.reshape(-1), fs[:, [1, 2, 0]].reshape(-1)], axis=1)
-    _, eid, cnt = unique_rows(np.sort(he, axis=1), return_inverse=True, return_counts=True)
-    is_bnd = cnt[eid.reshape(-1)] == 1
+    he = half_edges(fs)
+    eid, cnt = edge_ids(fs)
+    is_bnd = cnt[eid] == 1
     bnd = he[is_bnd]
     wall_face = np.flatnonzero(is_bnd) // 3
     a, b = bnd[:, 0], bnd[:, 1]
@@ -293,10 +246,10 @@ def _replace_bad_slabs(
     """Where a slab folds onto itself (sharp folds, slits left by cuts) it is not a valid
     solid: the sheet faces involved (and their vertex neighbours) get per-face prisms
     (:func:`face_prisms`) and the rest of the sheet is slabbed again without them."""
-    from repair.check import intersecting_face_pairs
+    from repair.intersections import intersecting_face_pairs
 
     m = len(f)
-    lab = _components(len(sv), np.r_[sf[:, 0], sf[:, 1]], np.r_[sf[:, 1], sf[:, 2]])
+    lab = connected_labels(len(sv), np.r_[sf[:, 0], sf[:, 1]], np.r_[sf[:, 1], sf[:, 2]])
     flab = lab[sf[:, 0]]
     pairs = intersecting_face_pairs(sv, sf)
     if len(pairs):

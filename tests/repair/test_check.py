@@ -10,14 +10,15 @@ import pytest
 import trimesh
 from mesh_helpers import concat, sphere
 
-import repair.check as check_mod
+import repair.intersections as intersections_mod
 from repair.check import (
     check_printable,
     degenerate_face_mask,
     round_to_float32,
-    weld_exact,
 )
 from repair.rows import unique_rows
+from repair.topology import weld_exact
+from repair.winding import winding_numbers
 
 
 def box(lo=(0.0, 0.0, 0.0), hi=(1.0, 1.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
@@ -246,27 +247,27 @@ def _crossing_spheres():
 @pytest.mark.skipif(not hasattr(os, "fork"), reason="slabs run in forked processes")
 def test_slabs_tested_side_by_side_find_the_pairs_one_test_finds():
     v, f = _crossing_spheres()
-    one = unique_rows(np.sort(check_mod._pairs(v, f), axis=1))
+    one = unique_rows(np.sort(intersections_mod._pairs(v, f), axis=1))
     assert len(one) > 100
     for k in (2, 3, 4):
-        slabs = unique_rows(np.sort(check_mod._pairs_in_slabs(v, f, k), axis=1))
+        slabs = unique_rows(np.sort(intersections_mod._pairs_in_slabs(v, f, k), axis=1))
         assert np.array_equal(slabs, one)
 
 
 @pytest.mark.skipif(not hasattr(os, "fork"), reason="slabs run in forked processes")
 def test_a_slab_whose_worker_dies_is_tested_again_in_the_parent(monkeypatch):
     v, f = _crossing_spheres()
-    one = unique_rows(np.sort(check_mod._pairs(v, f), axis=1))
+    one = unique_rows(np.sort(intersections_mod._pairs(v, f), axis=1))
     parent = os.getpid()
-    real = check_mod._pairs
+    real = intersections_mod._pairs
 
     def dies_in_children(vv, ff):
         if os.getpid() != parent:
             os.kill(os.getpid(), signal.SIGKILL)  # the worker dies (no core file)
         return real(vv, ff)
 
-    monkeypatch.setattr(check_mod, "_pairs", dies_in_children)
-    slabs = unique_rows(np.sort(check_mod._pairs_in_slabs(v, f, 3), axis=1))
+    monkeypatch.setattr(intersections_mod, "_pairs", dies_in_children)
+    slabs = unique_rows(np.sort(intersections_mod._pairs_in_slabs(v, f, 3), axis=1))
     assert np.array_equal(slabs, one)
 
 
@@ -277,9 +278,9 @@ def test_winding_numbers_agree_with_libigl():
     rng = np.random.default_rng(4)
     q = rng.normal(scale=9.0, size=(40, 3))
     want = igl.winding_number(v, f, q)
-    got = check_mod._winding_numbers(v, f, q)
+    got = winding_numbers(v, f, q)
     assert np.allclose(got, want, atol=1e-9)
-    inside = check_mod._winding_numbers(v, f[:, ::-1], np.zeros((1, 3)))
+    inside = winding_numbers(v, f[:, ::-1], np.zeros((1, 3)))
     assert np.isclose(inside[0], -1.0)
 
 
@@ -297,7 +298,7 @@ def test_one_shell_nested_among_many_is_found(n):
 
 @pytest.mark.parametrize("k", [2, 3, 4])
 def test_slab_cuts_give_every_slab_about_as_many_faces(k):
-    from repair.check import _even_cuts
+    from repair.intersections import _even_cuts
 
     rng = np.random.default_rng(k)
     lo = rng.normal(size=3000) * 10.0

@@ -8,8 +8,9 @@ import numpy as np
 from mesh_helpers import box, concat, sphere
 
 import repair.hull as hull
-from repair.check import intersecting_face_pairs, weld_exact
 from repair.hull import LOCAL_REMESH_MIN_FACES, _remesh
+from repair.intersections import intersecting_face_pairs
+from repair.topology import weld_exact
 
 
 def _triangles(v: np.ndarray, f: np.ndarray, birth: np.ndarray) -> list:
@@ -135,8 +136,9 @@ def test_later_resolve_rounds_test_only_near_the_new_faces_and_find_the_same():
 
     import pytest
 
-    from repair.clean import clean_soup, degenerate_mask, drop_unreferenced, unique_faces
+    from repair.clean import clean_soup, degenerate_mask, drop_unreferenced
     from repair.io import load_mesh
+    from repair.topology import unique_faces
 
     path = Path(__file__).resolve().parents[2] / ".." / "shared" / "corpus"
     path = path / "Ghostkeeper_extra_surface.stl"

@@ -7,18 +7,17 @@ import numpy as np
 import pytest
 from mesh_helpers import box, concat, signed_volume, sphere
 
-from repair.check import check_printable, intersecting_face_pairs, weld_exact
+from repair.check import check_printable
 from repair.clean import clean_soup, degenerate_mask, net_faces
-from repair.mend import (
-    FaceGrid,
+from repair.face_grid import FaceGrid
+from repair.intersections import intersecting_face_pairs
+from repair.mend import mend_intersections, separate_singular_edges, side_windings
+from repair.rounding import (
     crossings_after_change,
-    is_cycle,
-    mend_intersections,
     round_avoiding_crossings,
     round_finding_crossings,
-    separate_singular_edges,
-    side_windings,
 )
+from repair.topology import is_cycle, weld_exact
 
 
 def test_overlapping_cubes_become_their_exact_union():

@@ -236,7 +236,7 @@ def klein_bottle(n: int = 40, m: int = 20) -> tuple[np.ndarray, np.ndarray]:
 def test_klein_bottle_becomes_its_outer_hull():
     import igl.copyleft.cgal as cgal
 
-    from repair.pipeline import SINGULAR_EDGE_DIAMETER
+    from repair.finish import SINGULAR_EDGE_DIAMETER
 
     v, f = klein_bottle()
     res = repair_mesh(v, f, EPS)
@@ -371,7 +371,7 @@ CORPUS = Path(__file__).resolve().parents[2] / ".." / "shared" / "corpus"
 def test_a_failing_local_mend_falls_back_to_the_whole_outer_hull(monkeypatch):
     """Ten overlapping Thingiverse shells: their union's float32 rounding needs mending.
     If the local mend is refused (libigl raises), the whole outer hull is taken instead."""
-    import repair.pipeline as pipeline
+    import repair.finish as finish
     from repair.io import load_mesh
 
     calls = []
@@ -380,7 +380,7 @@ def test_a_failing_local_mend_falls_back_to_the_whole_outer_hull(monkeypatch):
         calls.append(1)
         raise RuntimeError("CGAL refused the subset")
 
-    monkeypatch.setattr(pipeline, "mend_intersections", refuse)
+    monkeypatch.setattr(finish, "mend_intersections", refuse)
     m = load_mesh(CORPUS / "DragonAceNL_1004825.stl")
     res = repair_mesh(m.vertices, m.faces, EPS)
     assert calls, "the mend was not reached: the case no longer tests the fallback"
@@ -391,10 +391,11 @@ def test_a_failing_local_mend_falls_back_to_the_whole_outer_hull(monkeypatch):
 def test_input_pairs_carried_past_cleaning_and_lids_are_those_a_whole_test_finds():
     import trimesh
 
-    from repair.check import check_printable_pairs, intersecting_face_pairs
+    from repair.check import check_printable_pairs
     from repair.clean import clean_soup
     from repair.holes import close_small_holes
-    from repair.pipeline import _carry_pairs
+    from repair.intersections import intersecting_face_pairs
+    from repair.provenance import carry_input_pairs
 
     a = trimesh.creation.icosphere(subdivisions=3, radius=10.0)
     b = trimesh.creation.icosphere(subdivisions=3, radius=8.0)
@@ -406,6 +407,6 @@ def test_input_pairs_carried_past_cleaning_and_lids_are_those_a_whole_test_finds
     c = clean_soup(v, f)
     cv, cf, holes = close_small_holes(c.vertices, c.faces)
     assert holes.count == 3 and c.duplicates_removed == 3
-    carried = _carry_pairs(v, f, pairs_in, cv, cf)
+    carried = carry_input_pairs(v, f, pairs_in, cv, cf)
     assert len(carried) > 0
     assert np.array_equal(carried, intersecting_face_pairs(cv, cf))

@@ -1,0 +1,291 @@
+"""Stage 5 of the repair: round to float32 (what a binary STL stores), verify with the
+exact check, and mend until the written mesh is printable.
+
+A closed surface is mended where it is damaged (:mod:`repair.mend`: exact local
+arrangement of the crossing faces, winding-number choice of the pieces); from the
+second round on, the shortest edge of each damaged face is first collapsed when it is
+at float32-rounding scale, so that rounding cannot keep re-creating the same slivers.
+Edges shared by more than two faces (parts touching along an edge) first get one
+copy per part, a few ulps apart (:func:`repair.mend.separate_singular_edges`); where
+that leaves more damage, they are thickened into thin prisms that fuse the parts. An
+open result takes the whole arrangement and outer hull again.
+
+Units are mm; vertices float64 (n, 3), faces int64 (m, 3).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from repair.check import (
+    Printability,
+    check_printable,
+    check_printable_pairs,
+    round_to_float32,
+    verdict_given_pairs,
+)
+from repair.clean import clean_soup, degenerate_mask, drop_unreferenced
+from repair.hull_and_thicken import hull_and_thicken
+from repair.intersections import intersecting_face_pairs
+from repair.mend import mend_intersections, separate_singular_edges
+from repair.meshes import concat_meshes
+from repair.provenance import carried_pairs, same_faces
+from repair.report import RepairTally
+from repair.rounding import crossings_after_change, round_finding_crossings
+from repair.rows import unique_ints, unique_rows
+from repair.topology import (
+    connected_labels,
+    edge_ids,
+    face_keys,
+    half_edges,
+    is_cycle,
+    undirected_edges,
+    weld_exact,
+)
+from repair.wires import cylinders
+
+__all__ = [
+    "COLLAPSE_FROM",
+    "MAX_FINISH_ROUNDS",
+    "SINGULAR_EDGE_DIAMETER",
+    "collapse_damaged",
+    "damaged_faces",
+    "finish",
+    "rounded_verdict",
+]
+
+#: Rounds of "round to float32, verify, resolve again" before giving up.
+MAX_FINISH_ROUNDS = 12
+#: From this finish round on, damaged faces first lose their float32-scale edges.
+COLLAPSE_FROM = 1
+#: Diameter of the prisms that fuse parts touching along an edge, as a fraction of eps.
+SINGULAR_EDGE_DIAMETER = 0.1
+
+#: A mesh, all of whose crossing face pairs are known: ``(vertices, faces, pairs)``.
+Checked = tuple[np.ndarray, np.ndarray, np.ndarray]
+
+
+def damaged_faces(v: np.ndarray, f: np.ndarray, pairs: np.ndarray | None = None) -> np.ndarray:
+    """Faces that are degenerate, duplicated, intersect another, or sit on an edge that is
+    open, non-manifold or traversed twice the same way. ``pairs``: the intersecting face
+    pairs of ``(v, f)`` if known (the test is pairwise: those among the faces not damaged
+    otherwise are the ones a test of those faces finds)."""
+    bad = degenerate_mask(v, f)
+    _, inv, cnt = unique_ints(face_keys(f), return_inverse=True, return_counts=True)
+    bad |= cnt[inv] > 1
+    he = half_edges(f)
+    eid, ecnt = edge_ids(f)
+    _, hinv, hcnt = unique_rows(he, return_inverse=True, return_counts=True)
+    bad_he = (ecnt[eid] != 2) | (hcnt[hinv.reshape(-1)] > 1)
+    bad |= bad_he.reshape(-1, 3).any(axis=1)
+    if pairs is None:
+        ok = np.flatnonzero(~bad)
+        pairs = ok[intersecting_face_pairs(v, f[ok])]
+    else:
+        pairs = pairs[~bad[pairs].any(axis=1)]
+    bad[pairs.reshape(-1)] = True
+    return np.flatnonzero(bad)
+
+
+def collapse_damaged(
+    v: np.ndarray, f: np.ndarray, reach: float = 2.0**-18, pairs: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Merge the endpoints of the shortest edge of every damaged face when that edge is
+    within float32 rounding scale (union-find over all such edges at once); the merged
+    vertex keeps one endpoint's position, so nothing moves by more than ~4 ulps x chain.
+    Returns ``(v, f)`` themselves when no edge is that short."""
+    bad = damaged_faces(v, f, pairs)
+    if len(bad) == 0:
+        return v, f
+    p = v[f[bad]]
+    ln = np.linalg.norm(p[:, [1, 2, 0]] - p, axis=2)
+    k = np.argmin(ln, axis=1)
+    # Only edges at the scale of float32 rounding: a few ulps of the largest coordinate.
+    tol = float(np.abs(v).max()) * reach
+    short = ln[np.arange(len(bad)), k] <= tol
+    a = f[bad[short], k[short]]
+    b = f[bad[short], (k[short] + 1) % 3]
+    if len(a) == 0:
+        return v, f
+    n = len(v)
+    lab = connected_labels(n, a, b)
+    # Representative: the lowest vertex index of each group keeps its position.
+    rep = np.full(lab.max() + 1, n, dtype=np.int64)
+    np.minimum.at(rep, lab, np.arange(n))
+    return v, rep[lab][f]
+
+
+def rounded_verdict(
+    v: np.ndarray,
+    f: np.ndarray,
+    before: Checked | None = None,
+) -> tuple[np.ndarray, np.ndarray, Printability, np.ndarray]:
+    """Round to float32 avoiding crossings, weld, and check: ``(v32, f32, verdict,
+    pairs)``. The crossings found while rounding are reused when the weld merged nothing
+    (same faces, same coordinates: the same test). ``before = (v, f, pairs)``: a checked
+    mesh this one was mended from, with all its crossing pairs; faces on the same points
+    as one of its faces keep their pairs, and only the region near the others is tested.
+    """
+    known = None
+    if before is not None:
+        match = same_faces(before[0], before[1], v, f)
+        known = carried_pairs(match, len(before[1]), before[2])
+    r, found = round_finding_crossings(v, f, known=known)
+    v32, f32 = weld_exact(r, f)
+    if len(v32) == len(r):
+        verdict, pairs = verdict_given_pairs(v32, f32, found)
+    else:
+        verdict, pairs = check_printable_pairs(v32, f32)
+    return v32, f32, verdict, pairs
+
+
+def finish(
+    v: np.ndarray,
+    f: np.ndarray,
+    eps: float,
+    tally: RepairTally,
+    before: Checked | None = None,
+) -> tuple[np.ndarray, np.ndarray, Printability]:
+    """Round to float32, verify, and mend until the written mesh is printable (see the
+    module docstring). Returns the float32-valued ``(vertices, faces)`` and their verdict,
+    which is not ``ok`` when the rounds ran out or the damage kept growing.
+
+    ``before = (v, f, pairs)``: a mesh whose crossing pairs are all known, on float32
+    points, that ``(v, f)`` was made from (a union of shells keeps most of their faces):
+    faces on the same points keep their pairs, only the region near the others is
+    tested. A mend passes its own on to the next round the same way.
+    """
+    verdict: Printability | None = None
+    tried_separation = False
+    worse = 0
+    last_damage = None
+    for round_ in range(MAX_FINISH_ROUNDS):
+        v32, f32, verdict, pairs = rounded_verdict(v, f, before)
+        before = None
+        if verdict.ok:
+            return v32, f32, verdict
+        damage = verdict.intersecting_pairs + verdict.degenerate_faces + verdict.nonmanifold_edges
+        grew = last_damage is not None and damage > last_damage
+        if grew:
+            worse += 1
+            if worse >= 4:  # diverging: give up rather than grow without bound
+                break
+        last_damage = damage
+        if len(f32) == 0:
+            break
+        tally.passes += 1
+        # Mend locally while that shrinks the damage; where rounding keeps re-creating it
+        # (crossing thin slabs), take the whole arrangement and outer hull again instead.
+        local = is_cycle(f32) and not grew
+        v32, f32, pairs = _collapse_short_edges(v32, f32, pairs, verdict, round_, local, tally)
+        extra: list[tuple[np.ndarray, np.ndarray]] = []
+        touching = verdict.nonmanifold_edges and not (
+            verdict.intersecting_pairs or verdict.degenerate_faces
+        )
+        if touching and not tried_separation and not verdict.boundary_edges:
+            tried_separation = True
+            separated = _separate_if_better(v32, f32, pairs, verdict)
+            if separated is not None:
+                (v, f, tally.separated), tried = separated
+                if tried[2].ok:  # what the next round would find: done
+                    return tried[0], tried[1], tried[2]
+                continue
+        if touching:
+            extra.append(_singular_edge_prisms(v32, f32, eps, tally))
+            pairs = None
+        if local and is_cycle(f32):
+            mended = _mend_locally(v32, f32, extra, pairs)
+            if mended is not None:
+                v, f, before = mended
+                continue
+        c = clean_soup(*concat_meshes([(v32, f32), *extra]), solid=True)
+        v, f, _, _ = hull_and_thicken(c.vertices, c.faces, eps, tally, solid=True)
+    assert verdict is not None
+    v32, f32 = weld_exact(round_to_float32(v), f)
+    return v32, f32, check_printable(v32, f32)
+
+
+def _collapse_short_edges(
+    v32: np.ndarray,
+    f32: np.ndarray,
+    pairs: np.ndarray | None,
+    verdict: Printability,
+    round_: int,
+    local: bool,
+    tally: RepairTally,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """From round :data:`COLLAPSE_FROM` on (or when not mending locally), collapse the
+    float32-scale edges of damaged faces; from the second round on, drop the faces left
+    with a repeated corner and unused vertices. Returns the mesh and its crossing pairs,
+    kept up to date when they were known."""
+    changed = None  # faces whose corners a collapse moved (pairs known for the rest)
+    if (round_ >= COLLAPSE_FROM or not local) and (
+        verdict.intersecting_pairs or verdict.degenerate_faces
+    ):
+        # Growing reach (still far below a nozzle) when damage keeps coming back.
+        reach = 2.0 ** (-18 + min(max(round_ - COLLAPSE_FROM, 0), 6))
+        collapsed = collapse_damaged(v32, f32, reach, pairs)
+        tally.collapsed += 1
+        if collapsed[1] is not f32:
+            changed = np.any(collapsed[1] != f32, axis=1)
+        v32, f32 = collapsed
+    if verdict.duplicate_faces or round_ >= 1:
+        # Drop faces a collapse left with a repeated corner, and unused vertices (a
+        # closed cycle stays one; coincident copies are merged by weight in the mend).
+        keep = (f32[:, 0] != f32[:, 1]) & (f32[:, 1] != f32[:, 2]) & (f32[:, 2] != f32[:, 0])
+        if pairs is not None and not keep.all():
+            pairs = np.cumsum(keep)[pairs[keep[pairs].all(axis=1)]] - 1
+            changed = changed[keep] if changed is not None else None
+        v32, f32 = drop_unreferenced(v32, f32[keep])
+    if pairs is not None and changed is not None:
+        # The pairs of faces the collapse left alone stand; test near the others.
+        pairs = crossings_after_change(v32, f32, pairs[~changed[pairs].any(axis=1)], changed)
+    return v32, f32, pairs
+
+
+def _separate_if_better(
+    v32: np.ndarray, f32: np.ndarray, pairs: np.ndarray | None, verdict: Printability
+) -> tuple[tuple[np.ndarray, np.ndarray, int], tuple] | None:
+    """Parts that touch along an edge: give each its own copy of the edge, a few ulps
+    apart (exact elsewhere). Kept -- ``(separated mesh and edge count, its rounded
+    verdict)`` -- if that leaves less damage once rounded (a copy may cross a face close
+    by); else None, and the edges are fused instead."""
+    step = float(np.abs(v32).max()) * 2.0**-17
+    sep = separate_singular_edges(v32, f32, step)
+    if sep is None:
+        return None
+    tried = rounded_verdict(*sep[:2], None if pairs is None else (v32, f32, pairs))
+    trial = tried[2]
+    left = trial.intersecting_pairs + trial.degenerate_faces
+    if left + trial.nonmanifold_edges < verdict.nonmanifold_edges:
+        return sep, tried
+    return None
+
+
+def _singular_edge_prisms(
+    v32: np.ndarray, f32: np.ndarray, eps: float, tally: RepairTally
+) -> tuple[np.ndarray, np.ndarray]:
+    """Thin prisms along the edges shared by more than two faces, so the parts touching
+    there fuse."""
+    edges, uses = undirected_edges(f32)
+    singular = edges[uses > 2]
+    tally.singular_edges += len(singular)
+    return cylinders(v32[singular], eps * SINGULAR_EDGE_DIAMETER)
+
+
+def _mend_locally(
+    v32: np.ndarray,
+    f32: np.ndarray,
+    extra: list[tuple[np.ndarray, np.ndarray]],
+    pairs: np.ndarray | None,
+) -> tuple[np.ndarray, np.ndarray, Checked | None] | None:
+    """The mended surface and, when its crossing pairs were all known, the checked mesh
+    it was mended from (for the next round); None when libigl refuses the subset (the
+    caller then takes the whole outer hull)."""
+    mv, mf = concat_meshes([(v32, f32), *extra])
+    try:
+        md = mend_intersections(mv, mf, pairs)
+    except (RuntimeError, ValueError, IndexError):
+        return None
+    before = (mv, mf, pairs) if pairs is not None and not extra else None
+    return md.vertices, md.faces, before

@@ -1,0 +1,109 @@
+"""Exact self-intersection test of triangle meshes: CGAL's exact predicates through
+libigl (``igl.copyleft.cgal.remesh_self_intersections(..., detect_only=True)``), on
+large meshes in slabs tested side by side in forked processes.
+
+Faces that share a vertex or an edge and otherwise only touch along it are not
+intersecting; any other contact (crossing, touching at a point, coplanar overlap) is.
+Units are mm; vertices float64 (n, 3), faces int64 (m, 3).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from repair.rows import unique_rows
+
+__all__ = ["PARALLEL_MIN_FACES", "intersecting_face_pairs"]
+
+
+#: Meshes with at least this many faces are tested in slabs, one per CPU (forked workers).
+PARALLEL_MIN_FACES = 8_000
+
+
+def intersecting_face_pairs(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Unordered pairs (k, 2) of faces that intersect, by CGAL's exact predicates.
+
+    Faces must be non-degenerate and not combinatorial duplicates (libigl skips those).
+    Faces sharing a vertex/edge count only if they meet beyond the shared element.
+    Pairs are sorted (i < j) and unique, as indices into ``faces``.
+
+    libigl's test runs on one core; a large mesh is cut into slabs along its longest axis,
+    tested side by side in forked processes (see :func:`_pairs_in_slabs`).
+    """
+    if len(faces) < 2:
+        return np.zeros((0, 2), dtype=np.int64)
+    v = np.ascontiguousarray(vertices, dtype=np.float64)
+    f = np.ascontiguousarray(faces, dtype=np.int64)
+    from repair.workers import cpu_workers
+
+    workers = cpu_workers()
+    if len(f) >= PARALLEL_MIN_FACES and workers > 1:
+        pairs = _pairs_in_slabs(v, f, workers)
+    else:
+        pairs = _pairs(v, f)
+    if len(pairs) == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    return unique_rows(np.sort(pairs, axis=1))
+
+
+def _pairs(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """libigl's detection on all of ``f``: pairs (k, 2), unsorted, maybe repeated."""
+    import igl.copyleft.cgal as cgal
+
+    pairs = cgal.remesh_self_intersections(v, f, detect_only=True)[2]
+    return np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+
+
+def _pairs_in_slabs(v: np.ndarray, f: np.ndarray, k: int) -> np.ndarray:
+    """The pairs of ``f``, found slab by slab, ``k`` slabs tested at once.
+
+    Slab ``i`` is ``[c_i, c_i+1)`` along the longest axis (cuts at quantiles of the face
+    centres); it holds every face whose extent along that axis meets it. Two faces that
+    intersect share a point, which lies in some slab, and both faces meet that slab, so
+    each pair is found in at least one slab. Each slab is tested on all vertices with the
+    faces' own indices, so adjacency (shared vertices) reads the same as in one test.
+    Slabs 1.. run in forked children (:func:`repair.workers.map_forked`).
+    """
+    from repair.workers import map_forked
+
+    p = v[f]
+    axis = int(np.argmax(np.ptp(v, axis=0)))
+    x = p[:, :, axis]
+    lo, hi = x.min(axis=1), x.max(axis=1)
+    edges = np.r_[-np.inf, _even_cuts(lo, hi, k), np.inf]
+    slabs = [np.flatnonzero((lo < edges[i + 1]) & (hi >= edges[i])) for i in range(k)]
+
+    def test(idx: np.ndarray) -> tuple[np.ndarray]:
+        return (idx[_pairs(v, f[idx])],)
+
+    found = map_forked(test, slabs, [[i] for i in range(k)])
+    return np.vstack([r[0].reshape(-1, 2) for r in found])
+
+
+def _even_cuts(lo: np.ndarray, hi: np.ndarray, k: int) -> np.ndarray:
+    """``k - 1`` cuts along an axis so that the ``k`` slabs ``[c_i, c_i+1)`` hold about
+    as many faces each (extents ``[lo, hi]``; a face spanning a cut is in both slabs).
+
+    Slab ``[a, b)`` holds ``#(lo < b) - #(hi < a)`` faces, so for a target ``t`` each
+    cut is the low end of rank ``t + #(hi < previous cut)``; ``t`` is bisected until the
+    last slab holds about ``t`` too."""
+    sl, sh = np.sort(lo), np.sort(hi)
+    m = len(lo)
+
+    def cuts_for(t: int) -> tuple[list[float], int]:
+        out, prev = [], -np.inf
+        for _ in range(k - 1):
+            below = int(np.searchsorted(sh, prev, side="left"))
+            c = float(sl[min(t + below, m - 1)])
+            out.append(c)
+            prev = c
+        return out, m - int(np.searchsorted(sh, prev, side="left"))
+
+    a, b = (m + k - 1) // k, m
+    while a < b:  # the smallest target whose last slab is no larger than it
+        t = (a + b) // 2
+        if cuts_for(t)[1] <= t:
+            b = t
+        else:
+            a = t + 1
+    return np.asarray(cuts_for(a)[0])

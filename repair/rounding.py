@@ -1,0 +1,169 @@
+"""Rounding to float32 (what a binary STL stores) without making faces cross, and the
+crossing pairs of a mesh of which only a few faces changed.
+
+Each coordinate not exactly representable in float32 has two float32 neighbours; where
+the nearest ones make faces cross, the vertices of those faces try the others, and only
+the region near the moved faces (:class:`repair.face_grid.FaceGrid`) is tested again by
+the exact predicate (:func:`repair.intersections.intersecting_face_pairs`).
+
+Units are mm; vertices float64 (n, 3), faces int64 (m, 3).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from repair.check import Printability, check_printable_pairs, round_to_float32
+from repair.clean import degenerate_mask
+from repair.face_grid import FaceGrid
+from repair.intersections import intersecting_face_pairs
+from repair.rows import unique_rows
+
+__all__ = [
+    "RoundedInput",
+    "crossings_after_change",
+    "round_avoiding_crossings",
+    "round_finding_crossings",
+    "round_input",
+]
+
+
+def round_avoiding_crossings(
+    vertices: np.ndarray, faces: np.ndarray, max_tries: int = 8
+) -> tuple[np.ndarray, int]:
+    """Round vertices to float32 (what a binary STL stores) so that rounding itself makes
+    no two faces cross. Returns ``(vertices float64, crossing pairs left)``; see
+    :func:`round_finding_crossings`."""
+    out, pairs = round_finding_crossings(vertices, faces, max_tries)
+    return out, int(len(pairs))
+
+
+def round_finding_crossings(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    max_tries: int = 8,
+    known: tuple[np.ndarray, np.ndarray] | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Round vertices to float32 (what a binary STL stores) so that rounding itself makes
+    no two faces cross.
+
+    Each coordinate not exactly representable has two float32 neighbours; the nearest is
+    tried first. Where faces cross after rounding, every vertex of the crossing faces that
+    rounding moved takes the next of its (up to 8) corner choices, and the faces near the
+    moved ones are tested again -- a few rounds of exact tests on the damaged region only.
+    No vertex moves by more than one float32 ulp.
+
+    Returns ``(vertices float64, pairs)``: ``pairs`` (k, 2) are all the crossing face
+    pairs (i < j) among the non-degenerate faces at the returned coordinates, exactly as
+    :func:`repair.check.intersecting_face_pairs` finds them (a pair of untouched faces
+    cannot change; every pair with a moved face is re-tested, the last choices too), so a
+    caller need not test the whole mesh again.
+
+    ``known = (same, pairs)``: ``same`` (bool per face) marks faces whose corners are
+    float32 values already, with ``pairs`` all the crossing pairs among them (a mesh
+    mended after an earlier check: its untouched faces). Only the faces near the others
+    are tested then.
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    r = v.astype(np.float32)
+    up = np.nextafter(r, np.float32(np.inf))
+    down = np.nextafter(r, np.float32(-np.inf))
+    other = np.where(v > r.astype(np.float64), up, down)
+    exact = r.astype(np.float64) == v
+    other[exact] = r[exact]
+    choice = np.zeros(len(v), dtype=np.int64)  # bit k set: coordinate k takes "other"
+    out = r.astype(np.float64)
+    moved = ~exact.all(axis=1)
+    pairs = np.zeros((0, 2), dtype=np.int64)
+    deg_faces = np.zeros(0, dtype=np.int64)
+    region = np.arange(len(f))  # faces to test: all at first, then near the moved ones
+    grid = None  # built on the first rounding; choices move vertices far less than its pad
+    changed = np.ones(len(f), dtype=bool)
+    if known is not None:
+        same = np.asarray(known[0], dtype=bool)
+        # Their corners do not round: their pairs stand (worth it where few changed).
+        if np.count_nonzero(~same) <= len(f) // 5 and np.all(exact[f[same]]):
+            changed = ~same
+            pairs = np.asarray(known[1], dtype=np.int64).reshape(-1, 2)
+            deg_faces = np.flatnonzero(same & degenerate_mask(out, f))
+            grid = FaceGrid(out, f)
+            region = grid.near(np.flatnonzero(changed)) if np.any(changed) else region[:0]
+    for attempt in range(max_tries + 1):
+        fr = f[region]
+        deg = degenerate_mask(out, fr)
+        ok = np.flatnonzero(~deg)
+        found = region[ok[intersecting_face_pairs(out, fr[ok])]]
+        # Keep what involves no moved face; take the rest from this test.
+        pairs = np.vstack([pairs[~changed[pairs].any(axis=1)], found[changed[found].any(axis=1)]])
+        pairs = unique_rows(np.sort(pairs, axis=1)) if len(pairs) else pairs
+        rd = region[deg]
+        deg_faces = np.union1d(deg_faces[~changed[deg_faces]], rd[changed[rd]])
+        hit = np.r_[pairs.reshape(-1), deg_faces]
+        bad_v = np.unique(f[hit].reshape(-1))
+        bad_v = bad_v[moved[bad_v]]
+        if len(bad_v) == 0 or attempt == max_tries:
+            break  # the last choices were tested too: the pairs are all known
+        choice[bad_v] += 1
+        bits = (choice[bad_v, None] >> np.arange(3)) & 1
+        out[bad_v] = np.where(bits == 1, other[bad_v], r[bad_v]).astype(np.float64)
+        touched = np.zeros(len(v), dtype=bool)
+        touched[bad_v] = True
+        changed = touched[f].any(axis=1)
+        if grid is None:
+            grid = FaceGrid(out, f)
+        region = grid.near(np.flatnonzero(changed))
+    return out, pairs
+
+
+def crossings_after_change(
+    v: np.ndarray, f: np.ndarray, kept: np.ndarray, changed: np.ndarray
+) -> np.ndarray:
+    """All crossing face pairs of ``(v, f)`` (as :func:`repair.check.intersecting_face_pairs`
+    finds them among the non-degenerate faces), given ``kept``: every crossing pair of
+    two faces not marked in ``changed`` (bool per face). Only the region near the changed
+    faces is tested again. Copies of a face each get their pairs (libigl's test is
+    pairwise and never pairs two copies)."""
+    which = np.flatnonzero(changed)
+    if len(which) == 0:
+        return kept
+    region = FaceGrid(v, f).near(which)
+    fr = f[region]
+    ok = np.flatnonzero(~degenerate_mask(v, fr))
+    found = region[ok[intersecting_face_pairs(v, fr[ok])]]
+    found = found[changed[found].any(axis=1)]
+    both = np.vstack([np.asarray(kept, dtype=np.int64).reshape(-1, 2), found])
+    return unique_rows(np.sort(both, axis=1)) if len(both) else both
+
+
+@dataclass(frozen=True)
+class RoundedInput:
+    """The input rounded to float32 (what a binary STL stores, what the repair writes):
+    ``vertices`` (float64, float32 values) and ``faces``; ``rounding``, the largest
+    distance (mm) a vertex moved; the check of exactly that mesh (``verdict``) and its
+    intersecting face ``pairs`` (indices into ``faces``)."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    rounding: float
+    verdict: Printability
+    pairs: np.ndarray
+
+    def edge_census(self) -> tuple[int, int, int, int, np.ndarray | None]:
+        """:func:`repair.topology.edge_stats` of ``faces``, from the check."""
+        p = self.verdict
+        return (p.boundary_edges, p.nonmanifold_edges, p.misoriented_edges, p.components,
+                p.shells)  # fmt: skip
+
+
+def round_input(vertices: np.ndarray, faces: np.ndarray) -> RoundedInput:
+    """Round the input to float32 and check it. Solid parts come out on their rounded
+    corners either way; rounding the input first (as an STL input already is) keeps the
+    arrangement from having to round twice."""
+    v32 = round_to_float32(vertices)
+    moved = v32 - vertices
+    rounding = float(np.sqrt(np.max(np.einsum("ij,ij->i", moved, moved))))
+    verdict, pairs = check_printable_pairs(v32, faces, as_float32=True)
+    return RoundedInput(v32, faces, rounding, verdict, pairs)

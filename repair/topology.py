@@ -1,0 +1,287 @@
+"""Combinatorial topology of triangle meshes: exact vertex welds, edges and half-edges,
+edge census, faces on the same vertex set, and connected components.
+
+Conventions used throughout repair:
+
+- ``faces`` is (m, 3) int64. Half-edge ``3f + k`` runs from corner ``k`` of face ``f``
+  to corner ``k + 1`` (mod 3); :func:`half_edges` gives them as a (3m, 2) array.
+- An *edge id* numbers the undirected edges ``(lo, hi)`` in lexicographic order; each
+  half-edge gets the id of its edge (:func:`edge_ids`).
+- Components are labelled ``0..k-1`` in the order of their lowest member (what
+  ``scipy.sparse.csgraph.connected_components`` gives), so any two ways of building the
+  same partition give the same labels.
+
+Everything is vectorised numpy/scipy (measured faster than the equivalent
+``trimesh.grouping`` / ``trimesh.graph`` functions on a 1M-face mesh). Units: mm.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from repair.rows import sort_with_positions, unique_rows
+
+__all__ = [
+    "connected_labels",
+    "count_duplicate_faces",
+    "edge_components",
+    "edge_ids",
+    "edge_neighbours",
+    "edge_stats",
+    "face_keys",
+    "half_edges",
+    "is_cycle",
+    "paired_half_edges",
+    "split_vertex_fans",
+    "undirected_edges",
+    "unique_faces",
+    "weld_exact",
+]
+
+
+# --------------------------------------------------------------------------- vertex weld
+
+
+def weld_exact(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Merge vertices with exactly equal coordinates; faces are re-indexed, not dropped.
+
+    ``vertices`` may be float64 or float32 (compared in their own precision, which is
+    faster for STL data). Returns ``(unique_vertices float64, faces int64)``; the order of
+    the unique vertices is unspecified. Units unchanged. ``-0.0`` and ``+0.0`` are the
+    same coordinate.
+    """
+    src = np.asarray(vertices)
+    dtype = np.float32 if src.dtype == np.float32 else np.float64
+    # +0.0 and -0.0 are the same point: normalise (x + 0.0), then compare bit patterns.
+    v = np.ascontiguousarray(src, dtype=dtype).reshape(-1, 3) + dtype(0.0)
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    if len(v) == 0:
+        return v.astype(np.float64), f
+    bits = v.view(np.uint32 if dtype == np.float32 else np.uint64)
+    order, same_row = _rows_in_hash_order(bits, dtype == np.float32)
+    new_group = np.r_[True, ~same_row]
+    ids = np.cumsum(new_group) - 1
+    remap = np.empty(len(v), dtype=np.int64)
+    remap[order] = ids
+    return v[order[new_group]].astype(np.float64), remap[f]
+
+
+def _rows_in_hash_order(bits: np.ndarray, is_float32: bool) -> tuple[np.ndarray, np.ndarray]:
+    """An order of the coordinate rows (their bit patterns, (n, 3)) in which equal rows are
+    neighbours, and for each neighbour pair whether the rows are equal."""
+    # Sort by a 64-bit hash of the three coordinates (one sort instead of a lexsort),
+    # then verify: rows with equal hashes must be bit-identical, else fall back.
+    b0, b1, b2 = (bits[:, i].astype(np.uint64) for i in range(3))
+    h = b0 * np.uint64(0x9E3779B97F4A7C15)
+    h ^= b1 * np.uint64(0xC2B2AE3D27D4EB4F) + (h >> np.uint64(29))
+    h ^= b2 * np.uint64(0x165667B19E3779F9) + (h >> np.uint64(31))
+    # Columns to verify equal hashes with (1-D gathers are much cheaper than 2-D ones).
+    cols = ((b0 << np.uint64(32)) | b1, b2) if is_float32 else (b0, b1, b2)
+    del b0, b1, b2
+    # One plain sort of (hash high bits | index) instead of an argsort: several times
+    # faster; a collision of the shortened hash only costs the exact fallback below.
+    n = len(bits)
+    shift = np.uint64(max(int(n).bit_length(), 1))
+    packed = np.sort(((h >> shift) << shift) | np.arange(n, dtype=np.uint64))
+    order = (packed & ((np.uint64(1) << shift) - np.uint64(1))).astype(np.int64)
+    hs = packed >> shift
+    del packed
+    same_hash = hs[1:] == hs[:-1]
+    del hs
+    # Equal neighbours in hash order, compared exactly on all bits. Equal rows have equal
+    # hashes, so they are neighbours unless a different row with the same hash sits
+    # between them: then (equal hash, different row) shows up somewhere -> fall back.
+    same_row = np.ones(n - 1, dtype=bool)
+    for c in cols:
+        cs = c[order]
+        same_row &= cs[1:] == cs[:-1]
+    del cols
+    if np.any(same_hash & ~same_row):
+        order = np.lexsort((bits[:, 2], bits[:, 1], bits[:, 0]))
+        sb = bits[order]
+        same_row = np.all(sb[1:] == sb[:-1], axis=1)
+    return order, same_row
+
+
+# --------------------------------------------------------------------------- edges
+
+
+def half_edges(faces: np.ndarray) -> np.ndarray:
+    """Directed half-edges (3m, 2) in face order: half-edge ``3f + k`` runs from corner
+    ``k`` of face ``f`` to corner ``k + 1``."""
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    return np.stack([f.reshape(-1), f[:, [1, 2, 0]].reshape(-1)], axis=1)
+
+
+def _sorted_edge_keys(
+    faces: np.ndarray, n_vertices: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(a, b, order, first, counts)``: each half-edge's start and end (3m,), the
+    half-edges sorted by undirected edge (ties in half-edge order), where each edge's run
+    starts in that order, and the run lengths (use count of each edge, in id order)."""
+    a = faces.reshape(-1)
+    b = faces[:, [1, 2, 0]].reshape(-1)
+    key = np.minimum(a, b) * np.int64(max(n_vertices, 1)) + np.maximum(a, b)
+    order, skey = sort_with_positions(key)
+    first = np.r_[True, skey[1:] != skey[:-1]]
+    counts = np.diff(np.r_[np.flatnonzero(first), len(skey)])
+    return a, b, order, first, counts
+
+
+def edge_ids(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The undirected edge id of each half-edge (3m,) -- edges numbered in ``(lo, hi)``
+    order -- and each edge's use count (how many faces use it)."""
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    if len(f) == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    _, _, order, first, counts = _sorted_edge_keys(f, int(f.max()) + 1)
+    eid = np.empty(len(order), dtype=np.int64)
+    eid[order] = np.cumsum(first) - 1
+    return eid, counts
+
+
+def undirected_edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The undirected edges (k, 2) ``lo < hi`` in lexicographic order and how many faces
+    use each (``np.unique`` of the sorted half-edges, with counts)."""
+    he = np.sort(half_edges(faces), axis=1)
+    eid, counts = edge_ids(faces)
+    edges = np.empty((len(counts), 2), dtype=np.int64)
+    edges[eid] = he
+    return edges, counts
+
+
+def paired_half_edges(eid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For the edges used by exactly two half-edges (``eid``: an edge id per half-edge):
+    the first and the second of the two, in half-edge order. Also the use count of each
+    half-edge's edge (3m,)."""
+    eid = np.asarray(eid, dtype=np.int64)
+    cnt = np.bincount(eid)
+    order, se = sort_with_positions(eid)
+    two = cnt[se] == 2
+    first = np.r_[True, se[1:] != se[:-1]]
+    starts = order[first & two]
+    seconds = order[np.flatnonzero(first & two) + 1]
+    return starts, seconds, cnt[eid]
+
+
+def edge_stats(faces: np.ndarray) -> tuple[int, int, int, int, np.ndarray]:
+    """``(boundary, nonmanifold, misoriented, shells, labels)``: undirected edges used by
+    one face, by more than two, by two in the same direction; the number of
+    edge-connected components (shells) and the label (int64, 0..k-1) of each face's."""
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    if len(f) == 0:
+        return 0, 0, 0, 0, np.zeros(0, dtype=np.int64)
+    a, b, order, first, counts = _sorted_edge_keys(f, int(f.max()) + 1)
+    fwd = np.add.reduceat((a < b)[order].astype(np.int64), np.flatnonzero(first))
+    boundary = int(np.count_nonzero(counts == 1))
+    nonmanifold = int(np.count_nonzero(counts > 2))
+    misoriented = int(np.count_nonzero((counts == 2) & (fwd != 1)))
+    # Edge-connected components: link each half-edge's face to the next use of the same
+    # undirected edge (consecutive in the sorted order), then label the face graph.
+    link = np.flatnonzero(~first)
+    labels = connected_labels(len(f), order[link - 1] // 3, order[link] // 3)
+    return boundary, nonmanifold, misoriented, int(labels.max()) + 1, labels
+
+
+def edge_components(faces: np.ndarray, eid: np.ndarray | None = None) -> np.ndarray:
+    """Label (int64, 0..k-1) of the edge-connected component (shell) of each face: faces
+    sharing an undirected edge, however many use it, are in one component. ``eid``: the
+    :func:`edge_ids` of ``faces`` if known (then no sort is needed)."""
+    if eid is None:
+        return edge_stats(faces)[4]
+    m = len(eid) // 3
+    n_edges = int(eid.max()) + 1 if len(eid) else 0
+    # Bipartite face-edge graph: faces 0..m-1, edges m..m+n_edges-1.
+    return connected_labels(m + n_edges, np.repeat(np.arange(m), 3), m + eid)[:m]
+
+
+def edge_neighbours(faces: np.ndarray, which: np.ndarray) -> np.ndarray:
+    """Sorted indices of the faces sharing an edge with a face in ``which`` (those
+    included)."""
+    eid, counts = edge_ids(faces)
+    eid = eid.reshape(-1, 3)
+    hit = np.zeros(len(counts), dtype=bool)
+    hit[eid[which].reshape(-1)] = True
+    return np.flatnonzero(hit[eid].any(axis=1))
+
+
+def is_cycle(faces: np.ndarray) -> bool:
+    """True when every undirected edge is traversed as often in one direction as in the
+    other: the faces bound a region (a closed surface, perhaps touching itself), so
+    winding numbers are well defined off it."""
+    he = half_edges(faces)
+    he = he[he[:, 0] != he[:, 1]]  # a face with a repeated corner adds nothing
+    if len(he) == 0:
+        return True
+    _, inv = unique_rows(np.sort(he, axis=1), return_inverse=True)
+    sign = np.where(he[:, 0] < he[:, 1], 1, -1)
+    return bool(np.all(np.bincount(inv, weights=sign) == 0))
+
+
+def split_vertex_fans(
+    faces: np.ndarray, cut: np.ndarray, eid: np.ndarray | None = None
+) -> np.ndarray:
+    """Give every manifold fan of corners its own vertex: corners (3f+k) of two faces are
+    merged across each edge not ``cut`` (bool per half-edge) that two consistently
+    oriented faces share (``eid``: an edge id per half-edge, by default
+    :func:`edge_ids`). Returns the new vertex id per corner (3m,) -- the split faces are
+    ``ids.reshape(-1, 3)``."""
+    m = len(faces)
+    he = half_edges(faces)
+    eid = edge_ids(faces)[0] if eid is None else eid
+    h1, h2, _ = paired_half_edges(eid)
+    ok = ~cut[h1] & ~cut[h2] & (he[h1, 0] == he[h2, 1])
+    h1, h2 = h1[ok], h2[ok]
+    nxt = np.array([1, 2, 0])
+    # h1 runs a->b in face f1 (corners k1, k1+1); h2 runs b->a in f2 (corners k2, k2+1).
+    c1a, c1b = h1, (h1 // 3) * 3 + nxt[h1 % 3]
+    c2b, c2a = h2, (h2 // 3) * 3 + nxt[h2 % 3]
+    return connected_labels(3 * m, np.r_[c1a, c1b], np.r_[c2a, c2b])
+
+
+# --------------------------------------------------------------------------- faces
+
+
+def face_keys(faces: np.ndarray) -> np.ndarray:
+    """One sortable key per face, equal for faces on the same vertex set (any order)."""
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    if len(f) == 0:
+        return np.zeros(0, dtype=np.int64)
+    s = np.sort(f, axis=1)
+    n = int(s[:, 2].max()) + 1
+    if n < 2**21:  # n**3 < 2**63
+        return (s[:, 0] * n + s[:, 1]) * n + s[:, 2]
+    return unique_rows(s, return_inverse=True)[1].reshape(-1).astype(np.int64)
+
+
+def unique_faces(faces: np.ndarray) -> np.ndarray:
+    """Sorted indices of the first face of each vertex set (either orientation).
+
+    Keeping these leaves one *layer* of the soup (Attene Def. 3.1).
+    """
+    if len(faces) < 2:
+        return np.arange(len(faces))
+    order, sk = sort_with_positions(face_keys(faces))
+    return np.sort(order[np.r_[True, sk[1:] != sk[:-1]]])
+
+
+def count_duplicate_faces(faces: np.ndarray) -> int:
+    """Faces on the same vertex set as an earlier face (any orientation)."""
+    if len(faces) < 2:
+        return 0
+    sk = np.sort(face_keys(faces))
+    return int(np.count_nonzero(sk[1:] == sk[:-1]))
+
+
+# --------------------------------------------------------------------------- components
+
+
+def connected_labels(n: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Component label (int64, 0..k-1, in order of each component's lowest node) of the
+    nodes ``0..n-1`` of the undirected graph with edges ``a[i] -- b[i]``."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    a = np.asarray(a, dtype=np.int64)
+    graph = coo_matrix((np.ones(len(a), dtype=np.int8), (a, np.asarray(b))), shape=(n, n))
+    return connected_components(graph, directed=False)[1].astype(np.int64)
