@@ -175,6 +175,27 @@ def flap_faces(
     return flap & (area <= 4.0 * np.median(area))
 
 
+def _lid(
+    v: np.ndarray, loop: np.ndarray, perim: float, centre_index: int
+) -> tuple[np.ndarray, np.ndarray | None, float, float]:
+    """The lid of a hole (``loop``: its vertices in lid order, ``perim`` mm round it):
+    one triangle for three vertices, else a fan from the loop's centroid, which becomes
+    vertex ``centre_index``. Returns ``(triangles, centroid or None, area mm², radius)``;
+    every lid point lies within ``radius`` mm of the rim."""
+    p = v[loop]
+    if len(loop) == 3:
+        area = 0.5 * float(np.linalg.norm(np.cross(p[1] - p[0], p[2] - p[0])))
+        # Any point of a triangle lies within its inradius (2 area / perimeter) of an edge.
+        radius = float(np.linalg.norm(np.cross(p[1] - p[0], p[2] - p[0]))) / perim
+        return loop[None, :], None, area, radius
+    centre = p.mean(axis=0)
+    k = len(loop)
+    tris = np.stack([loop, np.roll(loop, -1), np.full(k, centre_index)], axis=1)
+    radius = float(np.linalg.norm(p - centre, axis=1).max())
+    cr = np.cross(p - centre, np.roll(p, -1, axis=0) - centre)
+    return tris, centre, 0.5 * float(np.linalg.norm(cr, axis=1).sum()), radius
+
+
 def close_small_holes(
     vertices: np.ndarray,
     faces: np.ndarray,
@@ -220,43 +241,23 @@ def close_small_holes(
     new_v: list[np.ndarray] = []
     new_f: list[np.ndarray] = []
     closed_in: list[int] = []
-    count = lid_tris = 0
     area = max_perim = max_radius = 0.0
-    nv = len(v)
     for loop, c, perim in zip(loops, labels.tolist(), perims.tolist(), strict=True):
         if not closable[c]:
             continue
-        p = v[loop]
-        if len(loop) == 3:
-            tris = loop[None, :]
-            pts = p
-            # Any point of a triangle lies within its inradius (2 area / perimeter) of an edge.
-            radius = float(np.linalg.norm(np.cross(p[1] - p[0], p[2] - p[0]))) / perim
-        else:
-            centre = p.mean(axis=0)
+        tris, centre, lid_area, radius = _lid(v, loop, perim, len(v) + len(new_v))
+        if centre is not None:
             new_v.append(centre[None, :])
-            k = len(loop)
-            tris = np.stack([loop, np.roll(loop, -1), np.full(k, nv)], axis=1)
-            nv += 1
-            pts = np.vstack([p, centre[None, :]])
-            radius = float(np.linalg.norm(p - centre, axis=1).max())
-        if len(loop) == 3:
-            area += 0.5 * float(np.linalg.norm(np.cross(p[1] - p[0], p[2] - p[0])))
-        else:
-            c0 = pts[-1]
-            cr = np.cross(p - c0, np.roll(p, -1, axis=0) - c0)
-            area += 0.5 * float(np.linalg.norm(cr, axis=1).sum())
+        area += lid_area
         new_f.append(tris)
         closed_in.append(c)
-        count += 1
-        lid_tris += len(tris)
         max_perim = max(max_perim, perim)
         max_radius = max(max_radius, radius)
+    count, lid_tris = len(new_f), sum(len(t) for t in new_f)
     # A flap stays removed only when its shell had holes closed (the shell is a scan with
     # holes, its flaps scanner noise next to them); the others go back (fins are sheets).
     gone = np.zeros(len(flap_f), dtype=bool)
     if len(flap_f) and new_f:
-        comp, _, _, _ = _shells(v, f, max_boundary_fraction)
         lidded = np.zeros(len(v), dtype=bool)
         lidded[f[np.isin(comp, np.asarray(closed_in, dtype=np.int64))].reshape(-1)] = True
         gone = lidded[flap_f].any(axis=1)

@@ -23,35 +23,15 @@ def bead_area(width: float, height: float) -> float:
     return height * bead_spacing(width, height)
 
 
-def _mix64(x: np.ndarray) -> np.ndarray:
-    """splitmix64 finaliser: every input bit affects every output bit."""
-    with np.errstate(over="ignore"):
-        x = x ^ (x >> np.uint64(30))
-        x = x * np.uint64(0xBF58476D1CE4E5B9)
-        x = x ^ (x >> np.uint64(27))
-        x = x * np.uint64(0x94D049BB133111EB)
-        return x ^ (x >> np.uint64(31))
-
-
 def merge_vertices(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Weld bit-identical vertices (STL soup → indexed mesh); drops degenerate faces.
+    """Weld bit-identical vertices (STL soup → indexed mesh, ``-0.0`` = ``+0.0``) with the
+    repair's exact weld (:func:`repair.topology.weld_exact`), then drop the faces left
+    with a repeated vertex."""
+    from repair.topology import weld_exact
 
-    Rows are keyed by a 64-bit hash of their exact bits (one 1-D sort); the grouping is
-    verified bit for bit and falls back to a row-wise unique in the (unlikely) event of a
-    hash collision.
-    """
-    v = np.ascontiguousarray(vertices, dtype=np.float64) + 0.0  # -0.0 → +0.0
-    bits = v.view(np.uint64).reshape(-1, 3)
-    key = _mix64(bits[:, 0])
-    key = _mix64(key ^ bits[:, 1])
-    key = _mix64(key ^ bits[:, 2])
-    _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
-    uniq = v[first]
-    if not np.array_equal(uniq[inverse], v):
-        uniq, inverse = np.unique(v, axis=0, return_inverse=True)
-    f = inverse.reshape(-1)[faces]
+    v, f = weld_exact(np.asarray(vertices, dtype=np.float64), faces)
     keep = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])
-    return uniq, f[keep]
+    return v, f[keep]
 
 
 def place_on_bed(
