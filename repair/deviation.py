@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from repair.rows import ranges, unique_ints, unique_rows
+from repair.topology import face_keys
 
 __all__ = ["max_deviation"]
 
@@ -82,10 +83,8 @@ def _new_faces(
     n = len(iv)
     if n >= 2**21:
         return np.ones(len(of), dtype=bool), 0.0
-    a = np.sort(fid[known], axis=1)
-    b = np.sort(inf, axis=1)
-    kin = (b[:, 0] * n + b[:, 1]) * n + b[:, 2]
-    kout = (a[:, 0] * n + a[:, 1]) * n + a[:, 2]
+    kin = face_keys(inf, n)
+    kout = face_keys(fid[known], n)
     same = np.zeros(len(of), dtype=bool)
     same[np.flatnonzero(known)] = np.isin(kout, kin)
     bound = float(moved[of[same]].max()) if np.any(same) else 0.0

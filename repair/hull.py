@@ -22,13 +22,14 @@ import numpy as np
 
 from repair.clean import cancel_opposite_faces, degenerate_mask, drop_unreferenced
 from repair.intersections import intersecting_face_pairs
-from repair.rows import unique_rows
+from repair.rows import unique_ints
 from repair.thicken import orient_patches, orient_patches_with_edge_use
 from repair.topology import (
     connected_labels,
     count_duplicate_faces,
     edge_components,
     edge_ids,
+    face_keys,
     unique_faces,
     weld_exact,
 )
@@ -236,9 +237,7 @@ def unorientable_outer_hull(
     hv = np.asarray(hv, dtype=np.float64)
     hf = np.asarray(hf, dtype=np.int64)
     birth = np.asarray(birth, dtype=np.int64)
-    srt = np.sort(hf, axis=1)
-    _, inv, cnt = unique_rows(srt, return_inverse=True, return_counts=True)
-    inv = inv.reshape(-1)
+    _, inv, cnt = unique_ints(face_keys(hf), return_inverse=True, return_counts=True)
     both = cnt[inv] > 1
     _, first = np.unique(inv[both], return_index=True)
     sheet_rows = np.flatnonzero(both)[first]

@@ -143,11 +143,12 @@ def edge_ids(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def undirected_edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The undirected edges (k, 2) ``lo < hi`` in lexicographic order and how many faces
     use each (``np.unique`` of the sorted half-edges, with counts)."""
-    he = np.sort(half_edges(faces), axis=1)
-    eid, counts = edge_ids(faces)
-    edges = np.empty((len(counts), 2), dtype=np.int64)
-    edges[eid] = he
-    return edges, counts
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    if len(f) == 0:
+        return np.zeros((0, 2), dtype=np.int64), np.zeros(0, dtype=np.int64)
+    a, b, order, first, counts = _sorted_edge_keys(f, int(f.max()) + 1)
+    one = order[first]  # one half-edge of each edge, in edge id order
+    return np.stack([np.minimum(a[one], b[one]), np.maximum(a[one], b[one])], axis=1), counts
 
 
 def paired_half_edges(eid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -242,13 +243,15 @@ def split_vertex_fans(
 # --------------------------------------------------------------------------- faces
 
 
-def face_keys(faces: np.ndarray) -> np.ndarray:
-    """One sortable key per face, equal for faces on the same vertex set (any order)."""
+def face_keys(faces: np.ndarray, n_vertices: int | None = None) -> np.ndarray:
+    """One sortable key per face, equal for faces on the same vertex set (any order).
+    Keys of two face lists are comparable when both give the same ``n_vertices`` (more
+    than any index, less than ``2**21``)."""
     f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     if len(f) == 0:
         return np.zeros(0, dtype=np.int64)
     s = np.sort(f, axis=1)
-    n = int(s[:, 2].max()) + 1
+    n = int(s[:, 2].max()) + 1 if n_vertices is None else int(n_vertices)
     if n < 2**21:  # n**3 < 2**63
         return (s[:, 0] * n + s[:, 1]) * n + s[:, 2]
     return unique_rows(s, return_inverse=True)[1].reshape(-1).astype(np.int64)
