@@ -105,18 +105,14 @@ def union_of_shells(
     if n == 1 and len(pairs) == 0:  # one closed shell, crossing nothing: it is the union
         uv, uf = drop_unreferenced(v, f)
         return ShellUnion(uv, uf, np.arange(len(uf)), labels)
-    import manifold3d as m3d
-
     try:
         parts = _manifolds_of(v, f, labels, keep_faces=True)
         if not parts:
             return None
-        out = m3d.Manifold.batch_boolean(parts, m3d.OpType.Add) if len(parts) > 1 else parts[0]
-        res = out.to_mesh64()
+        res = _sum_of(parts).to_mesh64()
     except Exception:  # noqa: BLE001 - any failure means: take the exact path
         return None
-    rv = np.asarray(res.vert_properties, dtype=np.float64)[:, :3]
-    rf = np.asarray(res.tri_verts, dtype=np.int64)
+    rv, rf = _arrays_of(res)
     if len(rf) == 0:
         return None
     source = np.asarray(res.face_id, dtype=np.int64).reshape(-1)
@@ -132,8 +128,6 @@ def manifold_union(
     sheet slabs, ledge prisms and wire cylinders (each already an indexed closed solid)
     -- by manifold3d's robust booleans; None if manifold3d rejects a piece. The result
     is verified (and resolved exactly if need be) by the caller's float32 check."""
-    import manifold3d as m3d
-
     solids = []
     try:
         for i, (v, f) in enumerate(parts):
@@ -147,15 +141,27 @@ def manifold_union(
             solids.extend(pieces)
         if not solids:
             return None
-        out = m3d.Manifold.batch_boolean(solids, m3d.OpType.Add) if len(solids) > 1 else solids[0]
+        out = _sum_of(solids)
         # Collapse what float32 cannot hold apart anyway: slivers and sub-ulp features.
         size = max(float(np.abs(np.asarray(p[0])).max()) for p in parts if len(p[1]))
         out = out.simplify(size * 2.0**-17)
         res = out.to_mesh()
     except Exception:  # noqa: BLE001 - any failure means: take the exact path
         return None
-    rv = np.asarray(res.vert_properties, dtype=np.float64)[:, :3]
-    rf = np.asarray(res.tri_verts, dtype=np.int64)
+    rv, rf = _arrays_of(res)
     if len(rf) == 0:
         return None
     return weld_exact(rv, rf)
+
+
+def _sum_of(solids: list):
+    """The boolean union of manifold3d solids (at least one)."""
+    import manifold3d as m3d
+
+    return m3d.Manifold.batch_boolean(solids, m3d.OpType.Add) if len(solids) > 1 else solids[0]
+
+
+def _arrays_of(mesh) -> tuple[np.ndarray, np.ndarray]:
+    """``(vertices float64 (n, 3), faces int64 (m, 3))`` of a manifold3d mesh."""
+    verts = np.asarray(mesh.vert_properties, dtype=np.float64)[:, :3]
+    return verts, np.asarray(mesh.tri_verts, dtype=np.int64)
