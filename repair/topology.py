@@ -11,8 +11,10 @@ Conventions used throughout repair:
   ``scipy.sparse.csgraph.connected_components`` gives), so any two ways of building the
   same partition give the same labels.
 
-Everything is vectorised numpy/scipy (measured faster than the equivalent
-``trimesh.grouping`` / ``trimesh.graph`` functions on a 1M-face mesh). Units: mm.
+Everything is vectorised numpy/scipy. ``trimesh.grouping`` / ``trimesh.graph`` were
+measured against it on a 1M-face torus: they are no faster (edge ids and face grouping
+within noise, components and the exact weld slower) and number edges and groups in hash
+order, where the repair's results depend on this module's defined orders. Units: mm.
 """
 
 from __future__ import annotations
