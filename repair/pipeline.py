@@ -124,6 +124,15 @@ def _checked_mesh(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, 
     return v, f
 
 
+@dataclass(frozen=True)
+class _Lidded:
+    """The cleaned input with its small holes closed, and all its crossing face pairs."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    pairs: np.ndarray
+
+
 def _unchanged(rounded: RoundedInput) -> RepairOutcome:
     """The check proved these very float32 coordinates: no weld, no copy; D is how far
     rounding to them moved the input (0 for an STL)."""
@@ -139,15 +148,16 @@ def _solidify(
         raise RepairError(
             f"nothing printable: all {len(rounded.faces)} triangles collapse to a single point"
         )
-    cv, cf, holes = close_small_holes(cleaned.vertices, cleaned.faces)
+    lidded_v, lidded_f, holes = close_small_holes(cleaned.vertices, cleaned.faces)
     clock.lap("holes", 0.25)
-    known = carry_input_pairs(rounded.vertices, rounded.faces, rounded.pairs, cv, cf)
+    pairs = carry_input_pairs(rounded.vertices, rounded.faces, rounded.pairs, lidded_v, lidded_f)
+    lidded = _Lidded(lidded_v, lidded_f, pairs)
     tally = RepairTally()
-    united = _union_path(rounded, cleaned, (cv, cf, known), eps, tally, clock)
+    united = _union_path(rounded, cleaned, lidded, eps, tally, clock)
     if united is not None:
         out, hint = united
     else:
-        out, hint = _exact_path(cleaned, (cv, cf, known), eps, tally, clock), None
+        out, hint = _exact_path(cleaned, lidded, eps, tally, clock), None
     out.holes = holes
     out.degenerate_removed = cleaned.degenerate_removed
     out.duplicates_removed = cleaned.duplicates_removed
@@ -164,66 +174,66 @@ def _solidify(
 def _union_path(
     rounded: RoundedInput,
     cleaned: Cleaned,
-    lidded: tuple[np.ndarray, np.ndarray, np.ndarray],
+    lidded: _Lidded,
     eps: float,
     tally: RepairTally,
     clock: StageClock,
 ) -> tuple[RepairOutcome, np.ndarray] | None:
     """The union of closed shells, finished; with, per written face, the input face it
     is believed to be a piece of (or -1). None when the path does not apply or its
-    result does not pass the check. ``lidded``: the cleaned input with lids, and its
-    crossing pairs."""
-    cv, cf, known = lidded
+    result does not pass the check."""
+    v, f = lidded.vertices, lidded.faces
     union = None
     if len(cleaned.segments) == 0:
         # The input check's edge census holds for the same faces (cleaning and lids
         # changed nothing); else the union takes its own.
-        same = len(cf) == len(rounded.faces) and starts_with_faces(
-            rounded.vertices, rounded.faces, cv, cf
+        same = len(f) == len(rounded.faces) and starts_with_faces(
+            rounded.vertices, rounded.faces, v, f
         )
-        union = union_of_shells(cv, cf, known, rounded.edge_census() if same else None)
+        union = union_of_shells(v, f, lidded.pairs, rounded.edge_census() if same else None)
     clock.lap("union", 0.4)
     if union is None:
         return None
     # A shell that is its own union keeps the crossings found on it (none): only its
     # lids' corners round. (Where the union cut faces, the cut ones and those near them
     # are a large part of the mesh: a whole test is cheaper.)
-    whole = len(union.faces) == len(cf) and np.array_equal(union.source, np.arange(len(cf)))
-    fv, ff, verdict = finish(union.vertices, union.faces, eps, tally,
-                             (cv, cf, known) if whole else None)  # fmt: skip
+    whole = len(union.faces) == len(f) and np.array_equal(union.source, np.arange(len(f)))
+    out_v, out_f, verdict = finish(union.vertices, union.faces, eps, tally,
+                                   (v, f, lidded.pairs) if whole else None)  # fmt: skip
     clock.lap("finish", 0.7)
     if not verdict.ok:
         return None
     # The input face each written face is a piece of, where finishing kept it (its
     # corners rounded to nearest): D bounds those without samples.
-    hint = union_face_sources(cleaned.vertices, cleaned.faces, cv, cf, union, fv, ff)
+    hint = union_face_sources(cleaned.vertices, cleaned.faces, v, f, union, out_v, out_f)
     tally.intersecting_pairs = rounded.verdict.intersecting_pairs
     # Lids close holes of a shell and make no shell of their own.
-    out = RepairOutcome(fv, ff, verdict, "union", 0.0, tally, HolesClosed(),
+    out = RepairOutcome(out_v, out_f, verdict, "union", 0.0, tally, HolesClosed(),
                         dropped_components=union.shells_dropped())  # fmt: skip
     return out, hint
 
 
 def _exact_path(
     cleaned: Cleaned,
-    lidded: tuple[np.ndarray, np.ndarray, np.ndarray],
+    lidded: _Lidded,
     eps: float,
     tally: RepairTally,
     clock: StageClock,
 ) -> RepairOutcome:
     """Exact arrangement, outer hull, thickening, finished; raises :class:`RepairError`
     when nothing can be reached from outside or the result cannot be made printable."""
-    cv, cf, known = lidded
-    sv, sf, _, hull_birth = hull_and_thicken(cv, cf, eps, tally, cleaned.segments, pairs=known)
+    hull_v, hull_f, _, hull_birth = hull_and_thicken(
+        lidded.vertices, lidded.faces, eps, tally, cleaned.segments, pairs=lidded.pairs
+    )
     clock.lap("hull_and_thicken", 0.6)
     dropped = 0
-    if len(cf):
-        shell_in = edge_components(cf)
+    if len(lidded.faces):
+        shell_in = edge_components(lidded.faces)
         seen = np.unique(shell_in[hull_birth]) if len(hull_birth) else []
         dropped = int(shell_in.max()) + 1 - len(seen)
-    if len(sf) == 0:
+    if len(hull_f) == 0:
         raise RepairError("nothing printable: no part of the model can be reached from outside")
-    out_v, out_f, verdict = finish(sv, sf, eps, tally)
+    out_v, out_f, verdict = finish(hull_v, hull_f, eps, tally)
     clock.lap("finish", 0.8)
     if not verdict.ok:
         raise RepairError("could not make the model printable: " + "; ".join(verdict.failures()))

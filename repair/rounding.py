@@ -1,5 +1,7 @@
-"""Rounding to float32 (what a binary STL stores) without making faces cross, and the
-crossing pairs of a mesh of which only a few faces changed.
+"""Rounding to float32 (what a binary STL stores): the input's, checked before anything
+else (:func:`round_input`, stage 1 of the repair); the result's, without making faces
+cross (:func:`round_finding_crossings`); and the crossing pairs of a mesh of which only
+a few faces changed (:func:`crossings_after_change`).
 
 Each coordinate not exactly representable in float32 has two float32 neighbours; where
 the nearest ones make faces cross, the vertices of those faces try the others, and only
