@@ -276,7 +276,7 @@ def verdict_given_pairs(
     """:func:`check_printable_pairs` (``as_float32=False``) on float32-valued vertices
     whose intersecting face pairs are already known: ``pairs`` must be every pair that
     :func:`intersecting_face_pairs` finds among the non-degenerate faces at exactly these
-    coordinates (e.g. from :func:`repair.mend.round_finding_crossings`); copies of a face
+    coordinates (e.g. from :func:`repair.rounding.round_finding_crossings`); copies of a face
     may be in them (libigl's test is pairwise and never pairs two copies), the verdict
     counts those of the first copies, as a test of its own would."""
     v = np.asarray(vertices, dtype=np.float64)

@@ -227,7 +227,7 @@ def mend_intersections(
     """Resolve the self-intersections of a closed, oriented surface locally.
 
     ``pairs`` (k, 2) are the intersecting face pairs if already known (else computed with
-    :func:`repair.check.intersecting_face_pairs`). Returns the mended surface: exact
+    :func:`repair.intersections.intersecting_face_pairs`). Returns the mended surface: exact
     intersection points in float64 (round and check again before writing), faces not
     involved unchanged.
     """

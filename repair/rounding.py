@@ -59,7 +59,7 @@ def round_finding_crossings(
 
     Returns ``(vertices float64, pairs)``: ``pairs`` (k, 2) are all the crossing face
     pairs (i < j) among the non-degenerate faces at the returned coordinates, exactly as
-    :func:`repair.check.intersecting_face_pairs` finds them (a pair of untouched faces
+    :func:`repair.intersections.intersecting_face_pairs` finds them (a pair of untouched faces
     cannot change; every pair with a moved face is re-tested, the last choices too), so a
     caller need not test the whole mesh again.
 
@@ -123,8 +123,9 @@ def round_finding_crossings(
 def crossings_after_change(
     v: np.ndarray, f: np.ndarray, kept: np.ndarray, changed: np.ndarray
 ) -> np.ndarray:
-    """All crossing face pairs of ``(v, f)`` (as :func:`repair.check.intersecting_face_pairs`
-    finds them among the non-degenerate faces), given ``kept``: every crossing pair of
+    """All crossing face pairs of ``(v, f)`` (as
+    :func:`repair.intersections.intersecting_face_pairs` finds them among the
+    non-degenerate faces), given ``kept``: every crossing pair of
     two faces not marked in ``changed`` (bool per face). Only the region near the changed
     faces is tested again. Copies of a face each get their pairs (libigl's test is
     pairwise and never pairs two copies)."""
