@@ -28,6 +28,7 @@ from repair.topology import (
     half_edges,
     paired_half_edges,
     split_vertex_fans,
+    vertex_components,
 )
 
 __all__ = [
@@ -249,7 +250,7 @@ def _replace_bad_slabs(
     from repair.intersections import intersecting_face_pairs
 
     m = len(f)
-    lab = connected_labels(len(sv), np.r_[sf[:, 0], sf[:, 1]], np.r_[sf[:, 1], sf[:, 2]])
+    lab = vertex_components(len(sv), sf)
     flab = lab[sf[:, 0]]
     pairs = intersecting_face_pairs(sv, sf)
     if len(pairs):

@@ -37,6 +37,7 @@ __all__ = [
     "split_vertex_fans",
     "undirected_edges",
     "unique_faces",
+    "vertex_components",
     "weld_exact",
 ]
 
@@ -290,3 +291,10 @@ def connected_labels(n: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     a = np.asarray(a, dtype=np.int64)
     graph = coo_matrix((np.ones(len(a), dtype=np.int8), (a, np.asarray(b))), shape=(n, n))
     return connected_components(graph, directed=False)[1].astype(np.int64)
+
+
+def vertex_components(n_vertices: int, faces: np.ndarray) -> np.ndarray:
+    """Label (int64) of each vertex's component: vertices joined by the faces' edges
+    (an unused vertex is a component of its own)."""
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    return connected_labels(n_vertices, np.r_[f[:, 0], f[:, 1]], np.r_[f[:, 1], f[:, 2]])
