@@ -18,12 +18,13 @@ from repair.io.base import (
     MeshReadError,
 )
 from repair.io.read import load_mesh
-from repair.io.write import face_normals32, write_atomic, write_stl
+from repair.io.write import atomic_path, face_normals32, write_atomic, write_stl
 
 __all__ = [
     "DEFAULT_MAX_3MF_DECOMPRESSED",
     "SUPPORTED_SUFFIXES",
     "Mesh",
+    "atomic_path",
     "MeshReadError",
     "face_normals32",
     "load_mesh",
