@@ -30,8 +30,23 @@ _MAGIC: tuple[tuple[bytes, str], ...] = (
 )
 
 
+#: A refusal longer than this is cut (with an ellipsis): it is read by a person.
+MAX_MESSAGE = 300
+
+
 class MeshReadError(ValueError):
-    """A mesh file could not be read; ``str(err)`` is one human-readable line."""
+    """A mesh file could not be read; ``str(err)`` is one human-readable line.
+
+    The line is enforced here, for every reader: line breaks become spaces and a message
+    carrying file content (a parser's error quoting bytes, an attribute value) is cut
+    to ``MAX_MESSAGE`` characters.
+    """
+
+    def __init__(self, message: str) -> None:
+        line = " ".join(str(message).split())
+        if len(line) > MAX_MESSAGE:
+            line = line[: MAX_MESSAGE - 1].rstrip() + "\u2026"
+        super().__init__(line)
 
 
 @dataclass(frozen=True, eq=False)

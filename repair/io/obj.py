@@ -50,6 +50,8 @@ def _obj_indices(
         flat = parse_floats(text)
     if flat is None or len(flat) != n_tokens or not np.all(flat == np.round(flat)):
         raise MeshReadError(f"{name}: malformed OBJ: unreadable face indices")
+    if len(flat) and np.abs(flat).max() > 2**53:  # beyond any file; not exact in int64
+        raise MeshReadError(f"{name}: malformed OBJ: a face refers to a missing vertex")
     idx = flat.astype(np.int64)
     if np.any(idx == 0):
         raise MeshReadError(f"{name}: malformed OBJ: vertex index 0 (OBJ counts from 1)")
@@ -120,7 +122,7 @@ def read_obj(data: bytes, name: str, max_triangles: int | None) -> Mesh:
         is_seg[np.cumsum(l_counts) - 1] = False  # the last point of a polyline starts none
         a = np.flatnonzero(is_seg)
         tris.append(np.stack([l_idx[a], l_idx[a + 1], l_idx[a + 1]], 1))
-    if not tris:
+    if not any(len(t) for t in tris):  # a one-point polyline has no segment
         raise MeshReadError(f"{name}: not a mesh: the OBJ file has no faces")
     faces = np.vstack(tris)
     check_triangle_cap(len(faces), max_triangles, name)

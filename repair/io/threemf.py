@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import zipfile
+import zlib
 from pathlib import Path
 from typing import IO
 from xml.parsers import expat
@@ -32,6 +33,11 @@ _NS_CORE = "http://schemas.microsoft.com/3dmanufacturing/core/2015/02"
 _NS_PROD = "http://schemas.microsoft.com/3dmanufacturing/production/2015/06"
 _NS_RELS = "http://schemas.openxmlformats.org/package/2006/relationships"
 _REL_MODEL = "http://schemas.microsoft.com/3dmanufacturing/2013/01/3dmodel"
+#: What a damaged zip raises while being opened or inflated: a bad structure, a corrupt
+#: deflate stream, an unsupported compression method, an encrypted entry (RuntimeError),
+#: a non-UTF-8 name flagged as UTF-8, or a seek outside the file.
+_ZIP_ERRORS = (zipfile.BadZipFile, zlib.error, OSError, EOFError, RuntimeError,
+               NotImplementedError, UnicodeDecodeError)
 _SEP = " "  # expat's namespace separator
 _T_VERTEX, _T_TRIANGLE, _T_OBJECT, _T_MESH, _T_COMPONENT, _T_ITEM, _T_MODEL = (
     _NS_CORE + _SEP + tag
@@ -180,6 +186,7 @@ class _ModelParser:
                 or len(v) != len(self.vals_v)
                 or len(f) != len(self.vals_t)
                 or not np.all(f == np.round(f))
+                or (len(f) and np.abs(f).max() > 2**53)  # also inf: not an index
             ):
                 raise MeshReadError(
                     f"{self.name}: malformed 3MF: unreadable vertices or triangles in object {oid}"
@@ -251,7 +258,11 @@ def _model_targets(data: bytes, name: str) -> list[str]:
 def _root_model_part(zf: zipfile.ZipFile, budget: _Budget, name: str) -> str:
     names = set(zf.namelist())
     if "_rels/.rels" in names:
-        for target in _model_targets(_read_zip_entry(zf, "_rels/.rels", budget), name):
+        try:
+            rels = _read_zip_entry(zf, "_rels/.rels", budget)
+        except _ZIP_ERRORS as exc:
+            raise MeshReadError(f"{name}: corrupt 3MF archive: {exc}") from None
+        for target in _model_targets(rels, name):
             if target in names:
                 return "/" + target
     for cand in ("3D/3dmodel.model",):
@@ -263,9 +274,9 @@ def _root_model_part(zf: zipfile.ZipFile, budget: _Budget, name: str) -> str:
     raise MeshReadError(f"{name}: not a 3MF file: no 3D model part in the archive")
 
 
-#: Most component instances one file may expand to. Nesting multiplies instances
-#: (two components per level, 32 levels: 4 billion), so the count is capped, not just depth.
-MAX_3MF_INSTANCES = 1 << 16
+#: Most component instances one file may expand to. Nesting multiplies instances (two
+#: components per level, 32 levels: 4 billion instances), so the count is capped too.
+MAX_3MF_INSTANCES = 1 << 14
 _MAX_DEPTH = 32
 
 
@@ -302,7 +313,7 @@ class _Assembly:
             with self.zf.open(info) as raw:
                 reader = io.BufferedReader(_LimitedReader(raw, self.budget))
                 model.parse(reader, self.triangles_read, self.max_triangles)
-        except (zipfile.BadZipFile, OSError, EOFError) as exc:
+        except _ZIP_ERRORS as exc:
             raise MeshReadError(f"{name}: corrupt 3MF archive: {exc}") from None
         self.triangles_read += model.done
         self.parts[part] = model
@@ -348,7 +359,7 @@ def read_3mf(path: Path, name: str, max_triangles: int | None, max_decompressed:
     budget = _Budget(max_decompressed, name)
     try:
         zf = zipfile.ZipFile(path)
-    except (zipfile.BadZipFile, OSError) as exc:
+    except _ZIP_ERRORS as exc:
         raise MeshReadError(f"{name}: not a 3MF file (not a valid zip archive: {exc})") from None
     with zf:
         assembly = _Assembly(zf, budget, name, max_triangles)

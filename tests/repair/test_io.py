@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import struct
 import tracemalloc
+import warnings
 import zipfile
 from pathlib import Path
 
@@ -603,3 +604,104 @@ def test_3mf_malformed(tmp_path):
         zf.writestr("readme.txt", "no model here")
     with pytest.raises(MeshReadError, match="no 3D model"):
         load_mesh(p)
+
+
+# --------------------------------------------------------------------------- fuzz finds
+# Inputs the mesh fuzzer (tests/fuzz/targets_mesh.py) found that ended in an exception
+# other than MeshReadError, or in a hang; each must now be a one-line refusal.
+
+FUZZ_DATA = DATA / "fuzz"
+
+
+def _refusal(path: Path, match: str) -> str:
+    with pytest.raises(MeshReadError, match=match) as err:
+        load_mesh(path, max_bytes=1 << 20, max_triangles=2_000_000)
+    message = str(err.value)
+    assert "\n" not in message and len(message) <= 300
+    return message
+
+
+def test_fuzz_obj_one_point_polyline(tmp_path):
+    # numpy's min() of the empty face list raised ValueError
+    p = tmp_path / "line.obj"
+    p.write_bytes(b"v 0.0 0.0 0.0\nl 1\n")
+    _refusal(p, "no faces")
+
+
+def test_fuzz_obj_index_beyond_int64(tmp_path):
+    # the float -> int64 cast overflowed (RuntimeWarning) and produced an arbitrary index
+    p = tmp_path / "huge.obj"
+    p.write_bytes(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9223372036854775807\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        _refusal(p, "missing vertex")
+
+
+@pytest.mark.parametrize("name, match", [
+    ("rels_seek_einval.3mf", "corrupt 3MF"),  # OSError EINVAL escaped from .rels
+    ("rels_bad_crc.3mf", "corrupt 3MF"),  # BadZipFile escaped from .rels
+    ("model_invalid_deflate_block.3mf", "corrupt 3MF"),  # zlib.error escaped
+])
+def test_fuzz_damaged_3mf_archives(name, match):
+    _refusal(FUZZ_DATA / name, match)
+
+
+def test_fuzz_3mf_error_quoting_file_bytes_stays_one_short_line(tmp_path):
+    # a local header whose name length is 256 too long: zipfile's error quoted 272 bytes
+    # of the archive, a refusal of 825 characters
+    p = tmp_path / "cube.3mf"
+    write_3mf(p, *cube())
+    data = bytearray(p.read_bytes())
+    at = data.index(b"PK\x03\x04", data.index(b"3D/3dmodel.model") - 40)
+    data[at + 27] += 1  # high byte of the file-name length
+    p.write_bytes(bytes(data))
+    message = _refusal(p, "corrupt 3MF archive: File name in directory")
+    assert message.endswith("\u2026")  # cut, not 825 characters
+
+
+def _components_3mf(path: Path, objects: str, build: str) -> None:
+    ns = "http://schemas.microsoft.com/3dmanufacturing/core/2015/02"
+    tri = ('<object id="1"><mesh><vertices><vertex x="0" y="0" z="0"/><vertex x="1" y="0" '
+           'z="0"/><vertex x="0" y="1" z="0"/></vertices><triangles><triangle v1="0" v2="1" '
+           'v3="2"/></triangles></mesh></object>')
+    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        zf.writestr("3D/3dmodel.model", f'<model xmlns="{ns}"><resources>{tri}{objects}'
+                                        f"</resources><build>{build}</build></model>")
+
+
+def test_fuzz_3mf_component_fan_out_is_capped(tmp_path):
+    # 30 levels of two components each: 2**30 instances of the triangle; this hung
+    levels = "".join(
+        f'<object id="{k}"><components><component objectid="{k - 1}"/>'
+        f'<component objectid="{k - 1}"/></components></object>' for k in range(2, 32))
+    p = tmp_path / "fan.3mf"
+    _components_3mf(p, levels, '<item objectid="31"/>')
+    _refusal(p, "more than 16384 object instances")
+
+
+def test_fuzz_3mf_component_cycle(tmp_path):
+    p = tmp_path / "cycle.3mf"
+    _components_3mf(p, '<object id="2"><components><component objectid="3"/></components>'
+                       '</object><object id="3"><components><component objectid="2"/>'
+                       "</components></object>", '<item objectid="2"/>')
+    _refusal(p, "contains itself")
+
+
+@pytest.mark.parametrize("doctype", [
+    '<!DOCTYPE model [<!ENTITY a "aaaaaaaaaa"><!ENTITY b "&a;&a;&a;&a;&a;&a;&a;&a;&a;&a;">'
+    '<!ENTITY c "&b;&b;&b;&b;&b;&b;&b;&b;&b;&b;"><!ENTITY d "&c;&c;&c;&c;&c;&c;&c;&c;&c;&c;">]>',
+    '<!DOCTYPE model [<!ENTITY ext SYSTEM "file:///etc/passwd">]>',
+])
+def test_3mf_with_a_dtd_is_refused(tmp_path, doctype):
+    """Entity expansion and external entities never reach the parser's expansion: 3MF
+    (an OPC package) forbids DTDs, so any DTD is refused."""
+    ns = "http://schemas.microsoft.com/3dmanufacturing/core/2015/02"
+    p = tmp_path / "dtd.3mf"
+    with zipfile.ZipFile(p, "w") as zf:
+        zf.writestr("3D/3dmodel.model", f'<?xml version="1.0"?>{doctype}<model xmlns="{ns}">'
+                                        "<metadata>&d;&ext;</metadata></model>")
+    _refusal(p, "DTD")
+    with zipfile.ZipFile(p, "w") as zf:
+        zf.writestr("_rels/.rels", f"<?xml version='1.0'?>{doctype}<Relationships/>")
+        zf.writestr("3D/3dmodel.model", "<model/>")
+    _refusal(p, "DTD")
