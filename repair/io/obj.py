@@ -119,7 +119,8 @@ def read_obj(data: bytes, name: str, max_triangles: int | None) -> Mesh:
     if len(l_counts):
         # Polylines become degenerate triangles (a, b, b): the repair inflates them.
         is_seg = np.ones(len(l_idx), bool)
-        is_seg[np.cumsum(l_counts) - 1] = False  # the last point of a polyline starts none
+        # The last point of a polyline starts no segment (an empty ``l`` record has none).
+        is_seg[(np.cumsum(l_counts) - 1)[l_counts > 0]] = False
         a = np.flatnonzero(is_seg)
         tris.append(np.stack([l_idx[a], l_idx[a + 1], l_idx[a + 1]], 1))
     if not any(len(t) for t in tris):  # a one-point polyline has no segment

@@ -354,6 +354,16 @@ def test_fuzz_obj_one_point_polyline(tmp_path):
     assert_refused(p, "no faces")
 
 
+def test_fuzz_obj_empty_polyline_record(tmp_path):
+    # an ``l`` with no points: the segment mask was indexed at -1 of an empty array
+    p = tmp_path / "empty_l.obj"
+    p.write_bytes(b"v 99.0 inf 0.0\nv -64.1342544555664 -0.0 -64.1342544555664\n"
+                  b"v 17.244144439697266 0.0 -inf\nv -inf 1e+300 0.0\nv -inf 16.0 1e+300\nl ")
+    assert_refused(p, "no faces")
+    p.write_bytes(b"v 0 0 0\nv 1 0 0\nl\t\nl 1 2\n")  # an empty record beside a real one
+    assert load_mesh(p).faces.tolist() == [[0, 1, 1]]
+
+
 def test_fuzz_obj_index_beyond_int64(tmp_path):
     # the float -> int64 cast overflowed (RuntimeWarning) and produced an arbitrary index
     p = tmp_path / "huge.obj"
