@@ -181,19 +181,19 @@ def threemf_model(draw) -> str:
 
 @st.composite
 def threemf_file(draw) -> bytes:
-    """A 3MF zip: the model part, optionally a highly compressible padding part (zip bomb
+    """A 3MF zip: the model part, optionally padded with highly compressible blanks (zip bomb
     shape) or many tiny entries, and sometimes no relationships part."""
     model = draw(threemf_model())
-    padding = draw(st.sampled_from([0, 0, 0, 1 << 20, 24 << 20]))
+    padding = draw(st.sampled_from([0, 0, 0, 0, 1 << 20, 22 << 20]))
     if padding:  # the padding sits inside the model, where the parser has to read it
         model = model.replace("<resources>", "<resources>" + " " * padding, 1)
     buffer = io.BytesIO()
     with zipfile.ZipFile(buffer, "w", compression=zipfile.ZIP_DEFLATED) as archive:
         if draw(st.booleans()):
             archive.writestr("_rels/.rels", _RELS)
-        archive.writestr("3D/3dmodel.model", model)
-        for k in range(draw(st.sampled_from([0, 0, 2000]))):
-            archive.writestr(f"Metadata/{k}.txt", b"")
+        archive.writestr("3D/3dmodel.model", model, compresslevel=1 if padding else None)
+        for k in range(draw(st.sampled_from([0, 0, 0, 500]))):
+            archive.writestr(f"Metadata/{k}.txt", b"", compress_type=zipfile.ZIP_STORED)
     return buffer.getvalue()
 
 

@@ -10,8 +10,8 @@ from hypothesis import strategies as st
 from targets_mesh import TARGETS
 
 #: Examples per target; the six targets together take about half a minute on one core.
-EXAMPLES = {"mesh-3mf": 120, "mesh-random-bytes": 300}
-DEFAULT_EXAMPLES = 200
+EXAMPLES = {"mesh-3mf": 300, "mesh-random-bytes": 600}
+DEFAULT_EXAMPLES = 300
 
 
 @pytest.mark.parametrize("target", TARGETS, ids=lambda target: target.name)
