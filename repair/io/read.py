@@ -44,14 +44,7 @@ def load_mesh(
             f"{name}: unsupported file type {suffix or '(no extension)'!r}; "
             f"expected one of {', '.join(SUPPORTED_SUFFIXES)}"
         )
-    try:
-        size = p.stat().st_size
-        if p.is_dir():
-            raise MeshReadError(f"{name}: is a directory, not a mesh file")
-    except FileNotFoundError:
-        raise MeshReadError(f"{name}: no such file") from None
-    except PermissionError:
-        raise MeshReadError(f"{name}: permission denied") from None
+    size = _file_size(p, name)
     if size == 0:
         raise MeshReadError(f"{name}: the file is empty")
     if max_bytes is not None and size > max_bytes:
@@ -65,8 +58,11 @@ def load_mesh(
                 if max_bytes is not None
                 else DEFAULT_MAX_3MF_DECOMPRESSED
             )
-        with open(p, "rb") as fh:
-            head = fh.read(4)
+        try:
+            with open(p, "rb") as fh:
+                head = fh.read(4)
+        except OSError as exc:
+            raise MeshReadError(f"{name}: cannot read: {exc.strerror or exc}") from None
         if head != b"PK\x03\x04":
             foreign = sniff_foreign(head)
             raise MeshReadError(
@@ -90,3 +86,19 @@ def load_mesh(
         return read_obj(data, name, max_triangles)
     return read_ply(data, name, max_triangles)
 
+
+
+def _file_size(p: Path, name: str) -> int:
+    """Size of the mesh file; every way it cannot be one is a refusal, not an OSError
+    (missing, a folder, no permission, a name too long, a symlink loop, an I/O error)."""
+    try:
+        size = p.stat().st_size
+        if p.is_dir():
+            raise MeshReadError(f"{name}: is a directory, not a mesh file")
+    except FileNotFoundError:
+        raise MeshReadError(f"{name}: no such file") from None
+    except PermissionError:
+        raise MeshReadError(f"{name}: permission denied") from None
+    except OSError as exc:
+        raise MeshReadError(f"{name}: cannot read: {exc.strerror or exc}") from None
+    return size

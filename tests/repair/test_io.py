@@ -354,6 +354,16 @@ def test_fuzz_obj_one_point_polyline(tmp_path):
     assert_refused(p, "no faces")
 
 
+def test_every_os_error_is_a_refusal(tmp_path):
+    """load_mesh's only error is MeshReadError, also for paths the OS cannot stat: a
+    symlink loop (ELOOP) and a name too long (ENAMETOOLONG) escaped as OSError."""
+    loop = tmp_path / "loop.stl"
+    loop.symlink_to(loop)
+    assert_refused(loop, "loop.stl: cannot read: Too many levels of symbolic links")
+    long_name = tmp_path / ("x" * 252 + ".3mf")  # one over NAME_MAX (255)
+    assert_refused(long_name, "cannot read: File name too long")
+
+
 def test_fuzz_obj_empty_polyline_record(tmp_path):
     # an ``l`` with no points: the segment mask was indexed at -1 of an empty array
     p = tmp_path / "empty_l.obj"
