@@ -92,7 +92,7 @@ def write_atomic(path: str | os.PathLike[str], chunks: Chunks) -> None:
     itself survives a crash. On any error the temporary file is removed and the old
     ``path`` is left as it was.
     """
-    if isinstance(chunks, bytes | str):
+    if isinstance(chunks, bytes | bytearray | memoryview | str):  # one value, not a list
         chunks = [chunks]
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -36,6 +36,8 @@ def test_bytes_str_and_mixed_chunks(tmp_path):
     assert target.read_text(encoding="utf-8") == "text alone, \u00e9"
     write_atomic(target, (part for part in [b"a", b"b"]))  # any iterable
     assert target.read_bytes() == b"ab"
+    write_atomic(target, bytearray(b"a bytearray"))
+    assert target.read_bytes() == b"a bytearray"
     assert sorted(p.name for p in target.parent.iterdir()) == ["out.txt"]
 
 
