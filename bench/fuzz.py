@@ -75,14 +75,15 @@ def run_child(module: str, target: str, args: argparse.Namespace) -> dict[str, A
         summary = json.loads(lines[-1])
     else:
         tail = (res.stderr.strip().splitlines() or ["(no output)"])[-1]
-        summary = {"target": target, "executions": 0, "coverage": {}, "peak_rss_mb": 0,
+        summary = {"target": target, "executions": 0, "coverage": {}, "missing": {},
+                   "peak_rss_mb": 0,
                    "failures": [{"error": f"child exited with {res.returncode}: {tail}",
                                  "input": ""}]}
     summary["seconds"] = time.monotonic() - started
     return summary
 
 
-def print_table(results: list[dict[str, Any]]) -> None:
+def print_table(results: list[dict[str, Any]], show_missing: bool) -> None:
     print()
     print(f"{'target':<24} {'execs':>8} {'fail':>5} {'secs':>6} {'RSS MB':>8}  coverage")
     for r in results:
@@ -91,6 +92,9 @@ def print_table(results: list[dict[str, Any]]) -> None:
                           for mod, pct in r["coverage"].items())
         print(f"{r['target']:<24} {r['executions']:>8} {len(r['failures']):>5} "
               f"{r['seconds']:>6.0f} {r['peak_rss_mb']:>6.0f}{flag:<2}  {cover}")
+    for r in results if show_missing else []:
+        for module, lines in r["missing"].items():
+            print(f"{r['target']}: {module} lines not reached: {lines or '-'}")
     for r in results:
         for failure in r["failures"]:
             print(f"\nFAILURE in {r['target']}: {failure['error']}\n  input: {failure['input']}")
@@ -110,7 +114,7 @@ def parent_main(args: argparse.Namespace) -> int:
         r = results[-1]
         print(f"  {r['executions']} executions, {len(r['failures'])} failures, "
               f"{r['seconds']:.0f} s", flush=True)
-    print_table(results)
+    print_table(results, args.show_missing)
     bad = any(r["failures"] or r["peak_rss_mb"] > MEMORY_FLAG_MB for r in results)
     return 1 if bad else 0
 
@@ -216,13 +220,14 @@ def child_main(module_name: str, target_name: str, args: argparse.Namespace) -> 
     executions, failures = fuzz_target(target, tracer, args)
     data = cov.get_data()
     data.add_lines({f: lines for f, lines in tracer.all_lines.items() if lines})
-    percent = {}
+    percent, missed = {}, {}
     for name, filename in files.items():
-        _, statements, _, missing, _ = cov.analysis2(filename)
+        _, statements, _, missing, missing_text = cov.analysis2(filename)
         percent[name] = 100.0 * (len(statements) - len(missing)) / max(len(statements), 1)
+        missed[name] = missing_text
     rss_kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     print(json.dumps({"target": target_name, "executions": executions, "failures": failures,
-                      "coverage": percent, "peak_rss_mb": rss_kb / 1024}))
+                      "coverage": percent, "missing": missed, "peak_rss_mb": rss_kb / 1024}))
     return 0
 
 
@@ -234,6 +239,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="stop each target after this many seconds")
     parser.add_argument("--area", help="only tests/fuzz/targets_<AREA>.py")
     parser.add_argument("--target", action="append", help="only this target (repeatable)")
+    parser.add_argument("--show-missing", action="store_true",
+                        help="list the product lines each target never reached")
     parser.add_argument("--child", nargs=2, metavar=("MODULE", "TARGET"), help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.child:

@@ -123,6 +123,7 @@ def ply_file(draw) -> bytes:
 # --------------------------------------------------------------------------- 3MF
 
 _NS = "http://schemas.microsoft.com/3dmanufacturing/core/2015/02"
+_NS_PROD = "http://schemas.microsoft.com/3dmanufacturing/production/2015/06"
 _RELS = (
     '<?xml version="1.0" encoding="UTF-8"?>\n'
     '<Relationships xmlns="http://schemas.openxmlformats.org/package/2006/relationships">'
@@ -138,15 +139,33 @@ _BILLION_LAUGHS = (
 _EXTERNAL_ENTITY = '<!DOCTYPE model [<!ENTITY ext SYSTEM "file:///etc/passwd">]>'
 
 
-def _mesh_object(object_id: int, tri: np.ndarray, refs: list[list[int]]) -> str:
+def _attributes(names: tuple[str, ...], values: list, order: list[int]) -> str:
+    """XML attributes in the drawn order; an order longer than the names adds a stray
+    attribute, a shorter one leaves some out."""
+    pairs = [(names[k], values[k]) if k < len(names) else ("color", "#fff") for k in order]
+    return " ".join(f'{key}="{value}"' for key, value in pairs)
+
+
+def _mesh_object(object_id: int, tri: np.ndarray, refs: list[list[int]],
+                 order: list[int]) -> str:
     corners = tri.reshape(-1, 3)
     vertices = "".join(
-        f'<vertex x="{_text_number(x)}" y="{_text_number(y)}" z="{_text_number(z)}"/>'
-        for x, y, z in corners.tolist()
+        f"<vertex {_attributes(('x', 'y', 'z'), list(map(_text_number, c)), order)}/>"
+        for c in corners.tolist()
     )
-    faces = "".join(f'<triangle v1="{a}" v2="{b}" v3="{c}"/>' for a, b, c in refs)
+    faces = "".join(f"<triangle {_attributes(('v1', 'v2', 'v3'), r, order)}/>" for r in refs)
     return (f'<object id="{object_id}" type="model"><mesh><vertices>{vertices}</vertices>'
             f"<triangles>{faces}</triangles></mesh></object>")
+
+
+#: Attribute orders: the usual one (the parser's fast path), shuffled, one stray extra,
+#: one missing.
+attribute_orders = st.sampled_from([[0, 1, 2], [0, 1, 2], [2, 0, 1], [0, 1, 2, 3], [0, 1]])
+#: Component and item transforms: none, a valid one, non-finite, too short, not numbers.
+transforms = st.sampled_from(["", ' transform="1 0 0 0 1 0 0 0 1 5 5 5"',
+                              ' transform="0 1 0 -1 0 0 0 0 2 0 0 0"',
+                              ' transform="nan 0 0 0 1 0 0 0 1 0 0 0"',
+                              ' transform="1 2 3"', ' transform="a b c"'])
 
 
 @st.composite
@@ -157,41 +176,58 @@ def threemf_model(draw) -> str:
     n_corners = 3 * len(tri)
     refs = draw(st.lists(st.lists(st.one_of(st.integers(0, n_corners - 1), indices),
                                   min_size=3, max_size=3), min_size=1, max_size=4))
-    objects = [_mesh_object(1, tri, refs)]
+    objects = [_mesh_object(1, tri, refs, draw(attribute_orders))]
     depth = draw(st.sampled_from([0, 1, 3, 40]))
     for object_id in range(2, depth + 2):
         fan_out = draw(st.integers(1, 3))
         children = draw(st.lists(st.integers(1, depth + 2), min_size=fan_out, max_size=fan_out))
-        transform = draw(st.sampled_from(["", ' transform="1 0 0 0 1 0 0 0 1 5 5 5"',
-                                          ' transform="nan 0 0 0 1 0 0 0 1 0 0 0"',
-                                          ' transform="1 2 3"']))
-        objects.append(f'<object id="{object_id}" type="model"><components>'
-                       + "".join(f'<component objectid="{c}"{transform}/>' for c in children)
+        transform = draw(transforms)
+        path = draw(st.sampled_from(["", "", ' p:path="/3D/other.model"', ' p:path="/nowhere"']))
+        object_attrs = f'id="{object_id}"' if draw(st.integers(0, 20)) else 'name="no id"'
+        objects.append(f'<object {object_attrs} type="model"><components>'
+                       + "".join(f'<component objectid="{c}"{path}{transform}/>'
+                                 for c in children)
                        + "</components></object>")
     unit = draw(st.sampled_from(["millimeter", "inch", "parsec", "micron"]))
     doctype = draw(st.sampled_from(["", "", _BILLION_LAUGHS, _EXTERNAL_ENTITY]))
     text_entity = {_BILLION_LAUGHS: "&lol9;", _EXTERNAL_ENTITY: "&ext;"}.get(doctype, "")
-    build = f'<item objectid="{depth + 1}"/>' if draw(st.booleans()) or not depth else ""
+    item_transform = draw(transforms)
+    build = (f'<item objectid="{depth + 1}"{item_transform}/>'
+             if draw(st.booleans()) or not depth else "")
     build += "".join(f'<item objectid="{i}"/>' for i in draw(st.lists(st.integers(0, 3),
                                                                        max_size=2)))
     return (f'<?xml version="1.0" encoding="UTF-8"?>\n{doctype}<model unit="{unit}" '
-            f'xmlns="{_NS}"><metadata name="Title">{text_entity}</metadata>'
+            f'xmlns="{_NS}" xmlns:p="{_NS_PROD}"><metadata name="Title">{text_entity}</metadata>'
             f"<resources>{''.join(objects)}</resources><build>{build}</build></model>")
+
+
+#: Relationship parts: none, the usual one, pointing nowhere, with a DTD, not XML.
+_RELS_VARIANTS = [None, _RELS, _RELS.replace("/3D/3dmodel.model", "/3D/missing.model"),
+                  _RELS.replace("<Relationships", _EXTERNAL_ENTITY + "<Relationships"),
+                  "<Relationships><unclosed"]
 
 
 @st.composite
 def threemf_file(draw) -> bytes:
-    """A 3MF zip: the model part, optionally padded with highly compressible blanks (zip bomb
-    shape) or many tiny entries, and sometimes no relationships part."""
-    model = draw(threemf_model())
+    """A 3MF zip: the model part (sometimes edited at the XML text level, sometimes under
+    an unusual name), optionally padded with highly compressible blanks (zip bomb shape),
+    a second model part for production-extension paths, many tiny entries, and one of
+    several relationship parts."""
+    model = draw(threemf_model()).encode()
+    if draw(st.integers(0, 3)) == 0:
+        model = draw(mutated(st.just(model)))
     padding = draw(st.sampled_from([0, 0, 0, 0, 1 << 20, 22 << 20]))
     if padding:  # the padding sits inside the model, where the parser has to read it
-        model = model.replace("<resources>", "<resources>" + " " * padding, 1)
+        model = model.replace(b"<resources>", b"<resources>" + b" " * padding, 1)
     buffer = io.BytesIO()
     with zipfile.ZipFile(buffer, "w", compression=zipfile.ZIP_DEFLATED) as archive:
+        rels = draw(st.sampled_from(_RELS_VARIANTS))
+        if rels is not None:
+            archive.writestr("_rels/.rels", rels)
+        part = draw(st.sampled_from(["3D/3dmodel.model", "3D/3dmodel.model", "3D/Other.MODEL"]))
+        archive.writestr(part, model, compresslevel=1 if padding else None)
         if draw(st.booleans()):
-            archive.writestr("_rels/.rels", _RELS)
-        archive.writestr("3D/3dmodel.model", model, compresslevel=1 if padding else None)
+            archive.writestr("3D/other.model", draw(threemf_model()))
         for k in range(draw(st.sampled_from([0, 0, 0, 500]))):
             archive.writestr(f"Metadata/{k}.txt", b"", compress_type=zipfile.ZIP_STORED)
     return buffer.getvalue()
