@@ -56,7 +56,11 @@ def discover(area: str | None) -> list[tuple[str, str]]:
     for path in sorted(FUZZ_DIR.glob("targets_*.py")):
         if area and path.stem != f"targets_{area}":
             continue
-        module = importlib.import_module(path.stem)
+        try:
+            module = importlib.import_module(path.stem)
+        except Exception as exc:  # noqa: BLE001 - one broken area must not stop the others
+            print(f"skipping {path.name}: {type(exc).__name__}: {exc}", file=sys.stderr)
+            continue
         found += [(path.stem, target.name) for target in module.TARGETS]
     return found
 
