@@ -4,16 +4,16 @@ from __future__ import annotations
 
 import csv
 import struct
-import tracemalloc
-import zipfile
+import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
 import trimesh
+from io_files import ascii_stl, assert_refused, cube, same_triangles, write_3mf
 
 from repair.check import check_printable, round_to_float32
-from repair.io import Mesh, MeshReadError, load_mesh, write_stl
+from repair.io import MeshReadError, load_mesh, write_stl
 
 REPO = Path(__file__).resolve().parents[2]
 CORPUS = REPO.parent / "shared" / "corpus"
@@ -29,81 +29,6 @@ def _corpus_rows() -> list[dict[str, str]]:
 
 
 # --------------------------------------------------------------------------- helpers
-
-
-def write_3mf(
-    path: Path,
-    vertices: np.ndarray,
-    faces: np.ndarray,
-    *,
-    unit: str = "millimeter",
-    item_transform: str | None = None,
-    component_transform: str | None = None,
-) -> None:
-    """Write a minimal 3MF package (core spec): one mesh object, optionally wrapped in a
-    components object, one build item. Transforms are 12 numbers, 3MF row-vector order."""
-    vs = "\n".join(f'<vertex x="{x!r}" y="{y!r}" z="{z!r}"/>' for x, y, z in vertices.tolist())
-    ts = "\n".join(f'<triangle v1="{a}" v2="{b}" v3="{c}"/>' for a, b, c in faces.tolist())
-    objects = (
-        f'<object id="1" type="model"><mesh><vertices>\n{vs}\n</vertices>'
-        f"<triangles>\n{ts}\n</triangles></mesh></object>"
-    )
-    build_id = "1"
-    if component_transform is not None:
-        objects += (
-            '<object id="2" type="model"><components>'
-            f'<component objectid="1" transform="{component_transform}"/>'
-            "</components></object>"
-        )
-        build_id = "2"
-    item_attr = f' transform="{item_transform}"' if item_transform else ""
-    model = (
-        '<?xml version="1.0" encoding="UTF-8"?>\n'
-        f'<model unit="{unit}" xml:lang="en-US" '
-        'xmlns="http://schemas.microsoft.com/3dmanufacturing/core/2015/02">\n'
-        f"<resources>{objects}</resources>\n"
-        f'<build><item objectid="{build_id}"{item_attr}/></build>\n</model>\n'
-    )
-    rels = (
-        '<?xml version="1.0" encoding="UTF-8"?>\n'
-        '<Relationships xmlns="http://schemas.openxmlformats.org/package/2006/relationships">'
-        '<Relationship Target="/3D/3dmodel.model" Id="rel0" '
-        'Type="http://schemas.microsoft.com/3dmanufacturing/2013/01/3dmodel"/>'
-        "</Relationships>\n"
-    )
-    types = (
-        '<?xml version="1.0" encoding="UTF-8"?>\n'
-        '<Types xmlns="http://schemas.openxmlformats.org/package/2006/content-types">'
-        '<Default Extension="rels" '
-        'ContentType="application/vnd.openxmlformats-package.relationships+xml"/>'
-        '<Default Extension="model" '
-        'ContentType="application/vnd.ms-package.3dmanufacturing-3dmodel+xml"/>'
-        "</Types>\n"
-    )
-    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED) as zf:
-        zf.writestr("[Content_Types].xml", types)
-        zf.writestr("_rels/.rels", rels)
-        zf.writestr("3D/3dmodel.model", model)
-
-
-def cube(size: float = 20.0) -> tuple[np.ndarray, np.ndarray]:
-    m = trimesh.creation.box(bounds=[[0, 0, 0], [size, size, size]])
-    return np.asarray(m.vertices, float), np.asarray(m.faces, np.int64)
-
-
-def ascii_stl(vertices: np.ndarray, faces: np.ndarray, name: str = "part") -> bytes:
-    out = [f"solid {name}"]
-    for tri in vertices[faces]:
-        out.append("  facet normal 0 0 0\n    outer loop")
-        out += [f"      vertex {x!r} {y!r} {z!r}" for x, y, z in tri.tolist()]
-        out.append("    endloop\n  endfacet")
-    out.append(f"endsolid {name}\n")
-    return "\n".join(out).encode()
-
-
-def same_triangles(a: Mesh, vertices: np.ndarray, faces: np.ndarray) -> bool:
-    """Same triangle soup (corner coordinates, in order) regardless of vertex indexing."""
-    return np.array_equal(a.vertices[a.faces], np.asarray(vertices, float)[faces])
 
 
 # --------------------------------------------------------------------------- corpus
@@ -418,188 +343,41 @@ def test_obj_comments_and_mixed_index_styles(tmp_path):
     assert check_printable(m.vertices, m.faces).ok
 
 
-# --------------------------------------------------------------------------- 3MF
+# --------------------------------------------------------------------------- fuzz finds
+# Inputs the mesh fuzzer (tests/fuzz/targets_mesh.py) found that ended in an exception
+# other than MeshReadError, or in a hang; each must now be a one-line refusal.
+
+def test_fuzz_obj_one_point_polyline(tmp_path):
+    # numpy's min() of the empty face list raised ValueError
+    p = tmp_path / "line.obj"
+    p.write_bytes(b"v 0.0 0.0 0.0\nl 1\n")
+    assert_refused(p, "no faces")
 
 
-def test_3mf_attribute_order_extra_attributes_and_two_objects(tmp_path):
-    v, f = cube(1.0)
-    # vertices with attributes in another order, triangles with colour properties
-    vs = "".join(f'<vertex z="{z}" y="{y}" x="{x}"/>' for x, y, z in v.tolist())
-    ts = "".join(f'<triangle v1="{a}" v2="{b}" v3="{c}" pid="2" p1="0"/>' for a, b, c in f.tolist())
-    ts_reordered = "".join(f'<triangle v3="{c}" v1="{a}" v2="{b}"/>' for a, b, c in f.tolist())
-    core = "http://schemas.microsoft.com/3dmanufacturing/core/2015/02"
-    model = (
-        f'<?xml version="1.0"?><model unit="millimeter" xmlns="{core}"><resources>'
-        f'<object id="1" type="model"><mesh><vertices>{vs}</vertices>'
-        f"<triangles>{ts}</triangles></mesh></object>"
-        f'<object id="2" type="model"><mesh><vertices>{vs}</vertices>'
-        f"<triangles>{ts_reordered}</triangles></mesh></object></resources>"
-        '<build><item objectid="1"/><item objectid="2" transform="1 0 0 0 1 0 0 0 1 3 0 0"/>'
-        "</build></model>"
-    )
-    p = tmp_path / "two.3mf"
-    with zipfile.ZipFile(p, "w", zipfile.ZIP_DEFLATED) as zf:
-        zf.writestr("3D/3dmodel.model", model)
-    m = load_mesh(p)
-    assert m.triangles == 24
-    assert np.allclose(m.vertices[m.faces[:12]], v[f])
-    assert np.allclose(m.vertices[m.faces[12:]], v[f] + [3, 0, 0])
-    assert check_printable(m.vertices, m.faces).ok
-    with pytest.raises(MeshReadError, match="limit"):
-        load_mesh(p, max_triangles=20)
+def test_every_os_error_is_a_refusal(tmp_path):
+    """load_mesh's only error is MeshReadError, also for paths the OS cannot stat: a
+    symlink loop (ELOOP) and a name too long (ENAMETOOLONG) escaped as OSError."""
+    loop = tmp_path / "loop.stl"
+    loop.symlink_to(loop)
+    assert_refused(loop, "loop.stl: cannot read: Too many levels of symbolic links")
+    long_name = tmp_path / ("x" * 252 + ".3mf")  # one over NAME_MAX (255)
+    assert_refused(long_name, "cannot read: File name too long")
 
 
-def test_3mf_production_extension_parts(tmp_path):
-    # Slicer project files keep meshes in separate model parts referenced by p:path.
-    v, f = cube(5.0)
-    vs = "".join(f'<vertex x="{x}" y="{y}" z="{z}"/>' for x, y, z in v.tolist())
-    ts = "".join(f'<triangle v1="{a}" v2="{b}" v3="{c}"/>' for a, b, c in f.tolist())
-    core = "http://schemas.microsoft.com/3dmanufacturing/core/2015/02"
-    prod = "http://schemas.microsoft.com/3dmanufacturing/production/2015/06"
-    part = (
-        f'<?xml version="1.0"?><model unit="millimeter" xmlns="{core}"><resources>'
-        f'<object id="7" type="model"><mesh><vertices>{vs}</vertices>'
-        f"<triangles>{ts}</triangles></mesh></object></resources><build/></model>"
-    )
-    root = (
-        f'<?xml version="1.0"?><model unit="centimeter" xmlns="{core}" xmlns:p="{prod}">'
-        '<resources><object id="1" type="model"><components>'
-        '<component p:path="/3D/Objects/part.model" objectid="7"/>'
-        '<component p:path="/3D/Objects/part.model" objectid="7" '
-        'transform="1 0 0 0 1 0 0 0 1 10 0 0"/>'
-        '</components></object></resources><build><item objectid="1"/></build></model>'
-    )
-    p = tmp_path / "project.3mf"
-    with zipfile.ZipFile(p, "w", zipfile.ZIP_DEFLATED) as zf:
-        zf.writestr("3D/3dmodel.model", root)
-        zf.writestr("3D/Objects/part.model", part)
-    m = load_mesh(p)
-    assert m.triangles == 24 and m.unit_scale == 10.0
-    assert np.allclose(m.vertices.min(axis=0), 0) and np.allclose(
-        m.vertices.max(axis=0), [150, 50, 50]
-    )
-    assert check_printable(m.vertices, m.faces).ok
+def test_fuzz_obj_empty_polyline_record(tmp_path):
+    # an ``l`` with no points: the segment mask was indexed at -1 of an empty array
+    p = tmp_path / "empty_l.obj"
+    p.write_bytes(b"v 99.0 inf 0.0\nv -64.1342544555664 -0.0 -64.1342544555664\n"
+                  b"v 17.244144439697266 0.0 -inf\nv -inf 1e+300 0.0\nv -inf 16.0 1e+300\nl ")
+    assert_refused(p, "no faces")
+    p.write_bytes(b"v 0 0 0\nv 1 0 0\nl\t\nl 1 2\n")  # an empty record beside a real one
+    assert load_mesh(p).faces.tolist() == [[0, 1, 1]]
 
 
-@pytest.mark.parametrize(
-    "unit,scale",
-    [("micron", 0.001), ("millimeter", 1.0), ("centimeter", 10.0), ("inch", 25.4),
-     ("foot", 304.8), ("meter", 1000.0)],
-)  # fmt: skip
-def test_3mf_units(tmp_path, unit, scale):
-    v, f = cube(1.0)
-    p = tmp_path / f"{unit}.3mf"
-    write_3mf(p, v, f, unit=unit)
-    m = load_mesh(p)
-    assert m.source_format == "3mf" and m.unit_scale == scale
-    assert np.allclose(m.vertices[m.faces], v[f] * scale)
-    assert check_printable(m.vertices, m.faces).volume == pytest.approx(scale**3)
-
-
-def test_3mf_inch_cube_is_scaled(tmp_path):
-    v, f = cube(1.0)
-    p = tmp_path / "inch.3mf"
-    write_3mf(p, v, f, unit="inch")
-    m = load_mesh(p)
-    assert m.unit_scale == 25.4
-    assert np.allclose(m.vertices.max(axis=0) - m.vertices.min(axis=0), 25.4)
-
-
-def test_3mf_transforms(tmp_path):
-    v, f = cube(2.0)
-    # component: rotate 90° about z (x -> y, y -> -x), then item: translate (10, 20, 30).
-    rot = "0 1 0 -1 0 0 0 0 1 0 0 0"
-    p = tmp_path / "t.3mf"
-    write_3mf(p, v, f, component_transform=rot, item_transform="1 0 0 0 1 0 0 0 1 10 20 30")
-    m = load_mesh(p)
-    expected = np.c_[-v[:, 1], v[:, 0], v[:, 2]] + [10, 20, 30]
-    assert np.allclose(m.vertices[m.faces], expected[f])
-    # a mirroring transform keeps the file's winding: the loader does not "fix" it
-    write_3mf(p, v, f, item_transform="-1 0 0 0 1 0 0 0 1 0 0 0")
-    assert check_printable(load_mesh(p).vertices, load_mesh(p).faces).volume < 0
-
-
-def _bomb_3mf(path: Path, padding: int) -> None:
-    """A valid 20 mm cube 3MF whose model XML carries ``padding`` bytes of whitespace
-    (which deflate compresses about 1000:1)."""
-    v, f = cube()
-    write_3mf(path, v, f)
-    with zipfile.ZipFile(path) as zf:
-        entries = [(i.filename, zf.read(i)) for i in zf.infolist()]
-    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED) as zf:
-        for fname, body in entries:
-            if fname != "3D/3dmodel.model":
-                zf.writestr(fname, body)
-                continue
-            head, tail = body.split(b"<resources>")
-            with zf.open(fname, "w", force_zip64=True) as fh:
-                fh.write(head + b"<resources>")
-                block = b" " * (1 << 20)
-                for _ in range(padding >> 20):
-                    fh.write(block)
-                fh.write(tail)
-
-
-def test_3mf_zip_bomb_is_refused_without_exhausting_memory(tmp_path):
-    p = tmp_path / "bomb.3mf"
-    _bomb_3mf(p, 256 << 20)  # 256 MiB of XML in a file of ~250 KiB
-    assert p.stat().st_size < 2 << 20
-    tracemalloc.start()
-    try:
-        with pytest.raises(MeshReadError, match="zip bomb"):
-            load_mesh(p, max_bytes=4 << 20)  # cap: 20 x 4 MiB = 80 MiB decompressed
-        peak = tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
-    assert peak < 64 << 20
-
-
-def test_3mf_zip_bomb_with_a_lying_size_header(tmp_path):
-    # Declared uncompressed size patched down to 1000 bytes: the declared-size check
-    # passes, inflation must still stop (Python's zipfile stops at the declared size and
-    # the CRC no longer matches) and be reported in one line, with memory bounded.
-    p = tmp_path / "liar.3mf"
-    _bomb_3mf(p, 64 << 20)
-    data = bytearray(p.read_bytes())
-    name = b"3D/3dmodel.model"
-    patched = 0
-    for sig, size_off, name_off in ((b"PK\x01\x02", 24, 46), (b"PK\x03\x04", 22, 30)):
-        start = 0
-        while (i := data.find(sig, start)) >= 0:
-            start = i + 4
-            if data[i + name_off : i + name_off + len(name)] == name:
-                size = struct.unpack_from("<I", data, i + size_off)[0]
-                if size != 0xFFFFFFFF:
-                    struct.pack_into("<I", data, i + size_off, 1000)
-                    patched += 1
-    p.write_bytes(bytes(data))
-    assert patched >= 1
-    tracemalloc.start()
-    try:
-        with pytest.raises(MeshReadError) as err:
-            load_mesh(p, max_decompressed=8 << 20)
-        peak = tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
-    assert "\n" not in str(err.value)
-    assert peak < 64 << 20
-
-
-def test_3mf_padded_but_honest_file_loads_under_the_cap(tmp_path):
-    p = tmp_path / "padded.3mf"
-    _bomb_3mf(p, 8 << 20)
-    assert load_mesh(p).triangles == 12  # default cap is 1 GiB
-    with pytest.raises(MeshReadError, match="zip bomb"):
-        load_mesh(p, max_decompressed=4 << 20)
-
-
-def test_3mf_malformed(tmp_path):
-    p = tmp_path / "bad.3mf"
-    with zipfile.ZipFile(p, "w") as zf:
-        zf.writestr("3D/3dmodel.model", "<model><resources><object id='1'>")
-    with pytest.raises(MeshReadError, match="3MF"):
-        load_mesh(p)
-    with zipfile.ZipFile(p, "w") as zf:
-        zf.writestr("readme.txt", "no model here")
-    with pytest.raises(MeshReadError, match="no 3D model"):
-        load_mesh(p)
+def test_fuzz_obj_index_beyond_int64(tmp_path):
+    # the float -> int64 cast overflowed (RuntimeWarning) and produced an arbitrary index
+    p = tmp_path / "huge.obj"
+    p.write_bytes(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9223372036854775807\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert_refused(p, "missing vertex")
