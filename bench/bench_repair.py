@@ -14,7 +14,7 @@ overlapping cubes (24 triangles), so that per-file rows time the repair rather t
 one-time library set-up; the ``cli:`` rows time a cold process, start-up included.
 
 The memory column is the parent's peak RSS, plus ``+Nw``: the largest peak RSS of a
-forked intersection-test worker (see ``repair.check.intersecting_face_pairs``).
+forked intersection-test worker (see ``repair.intersections.intersecting_face_pairs``).
 
 Rows ``cli:...`` time the whole process ``preflight repair IN -o OUT.stl`` (start-up,
 load, repair, write) on a clean mesh written to a temporary binary STL (preflight only).

@@ -6,7 +6,7 @@ import re
 
 import numpy as np
 
-from repair.check import weld_exact
+from repair.topology import weld_exact
 from repair.io.base import (
     STL_DTYPE,
     Mesh,
