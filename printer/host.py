@@ -52,6 +52,7 @@ from printer.errors import (
     StreamCancelled,
     WrongBaud,
 )
+from printer.firmware import family_of
 from printer.gcode import clean_lines, command_word, frame
 from printer.info import PrinterInfo
 
@@ -94,22 +95,6 @@ class _Hangup:
 
 
 _EOL = (9, 10, 13)
-
-
-def flavour_of(firmware_name: str) -> str:
-    """marlin / prusa / buddy / klipper / rrf / unknown from a FIRMWARE_NAME value."""
-    low = firmware_name.lower()
-    if "klipper" in low:
-        return "klipper"
-    if "reprapfirmware" in low:
-        return "rrf"
-    if "prusa-firmware-buddy" in low:
-        return "buddy"
-    if "prusa-firmware" in low:
-        return "prusa"
-    if "marlin" in low:
-        return "marlin"
-    return "unknown"
 
 
 def _printable_ratio(line: str) -> float:
@@ -404,7 +389,7 @@ class PrinterHost:
             if "FIRMWARE_NAME" in fields:
                 self.fields = fields
         self.firmware = self.fields.get("FIRMWARE_NAME", "")
-        self.flavour = flavour_of(self.firmware)
+        self.flavour = family_of(self.firmware)
         if self.capabilities.get("ADVANCED_OK"):
             self.advanced_ok = True
 
