@@ -30,6 +30,9 @@ from dataclasses import dataclass
 #: Commands whose argument is free text (a message or a file name), not parameters.
 STRING_ARGUMENT_CODES = frozenset({"M23", "M28", "M30", "M32", "M33", "M117", "M118", "M928"})
 
+#: The range of a C ``long`` on the 32-bit boards printers run on (what strtol returns).
+LONG_MIN, LONG_MAX = -(2**31), 2**31 - 1
+
 _PAREN_COMMENT = re.compile(r"\([^)]*(?:\)|$)")
 _LINE_NUMBER = re.compile(r"\s*N([-+]?\d+)\s*")
 _CHECKSUM_VALUE = re.compile(r"\s*([-+]?\d+)")
@@ -75,6 +78,17 @@ class GcodeLine:
         return any(name == letter for name, _ in self.params)
 
 
+def firmware_int(digits: str) -> int:
+    """An optionally signed decimal integer read as a firmware's ``strtol`` does, saturating
+    at the 32-bit ``long`` range (a number of any length: never Python's digit limit)."""
+    negative = digits.startswith("-")
+    magnitude = digits.lstrip("+-").lstrip("0")
+    if len(magnitude) > 10:
+        return LONG_MIN if negative else LONG_MAX
+    value = -int(magnitude or "0") if negative else int(magnitude or "0")
+    return min(max(value, LONG_MIN), LONG_MAX)
+
+
 def strip_comments(raw: str) -> str:
     """``raw`` without its ``;`` comment and its ``( )`` comments."""
     code = raw.split(";", 1)[0]
@@ -91,9 +105,9 @@ def _word_and_arguments(command: str) -> tuple[str | None, tuple, str]:
             return None, (), ""
         return other.group(1).upper(), (), command[other.end():]
     letter, code, subcode = standard.groups()
-    word = f"{letter.upper()}{int(code)}"
+    word = f"{letter.upper()}{firmware_int(code)}"
     if subcode:
-        word += f".{int(subcode)}"
+        word += f".{firmware_int(subcode)}"
     rest = command[standard.end():]
     if word in STRING_ARGUMENT_CODES:
         return word, (), rest
@@ -113,13 +127,14 @@ def _frame_parts(raw: str) -> tuple[int | None, str, int | None, str]:
     if star >= 0:
         body = code[:star]
         digits = _CHECKSUM_VALUE.match(code, star + 1)
-        checksum_value = int(digits.group(1)) if digits else 0
+        checksum_value = firmware_int(digits.group(1)) if digits else 0
     if "N" not in body:
         return None, body.strip(), checksum_value, body
     line_number = _LINE_NUMBER.match(body)
     if line_number is None:
         return None, body.strip(), checksum_value, body
-    return int(line_number.group(1)), body[line_number.end():].strip(), checksum_value, body
+    number = firmware_int(line_number.group(1))
+    return number, body[line_number.end():].strip(), checksum_value, body
 
 
 def lex(raw: str) -> GcodeLine:
