@@ -126,6 +126,11 @@ class GcodeCheck:
                 "extents_max": self.extents_max}
 
 
+def _mm(value: float) -> str:
+    """A coordinate for a message: 0.1 mm, or 3 significant digits when it is absurd."""
+    return f"{value:.1f}" if abs(value) < 1e6 else f"{value:.3g}"
+
+
 def check_gcode(lines: Sequence[str], *, forbidden: Iterable[str], allow_firmware: bool,
                 build_volume: Sequence[float] | None) -> GcodeCheck:
     """Refuse forbidden commands and moves outside the build volume (mm, origin at 0,0,0).
@@ -182,8 +187,8 @@ def check_gcode(lines: Sequence[str], *, forbidden: Iterable[str], allow_firmwar
         for k, axis in enumerate("XYZ"):
             if lo[k] < -BUILD_VOLUME_MARGIN or hi[k] > bv[k] + BUILD_VOLUME_MARGIN:
                 raise UnsafeEntry(
-                    f"refused: the G-code moves {axis} from {lo[k]:.1f} to {hi[k]:.1f} mm, outside "
-                    f"the printer's build volume {bv[0]:g} x {bv[1]:g} x {bv[2]:g} mm")
+                    f"refused: the G-code moves {axis} from {_mm(lo[k])} to {_mm(hi[k])} mm, "
+                    f"outside the printer's build volume {bv[0]:g} x {bv[1]:g} x {bv[2]:g} mm")
     return GcodeCheck(len(lines), (lo[0], lo[1], lo[2]), (hi[0], hi[1], hi[2]))
 
 

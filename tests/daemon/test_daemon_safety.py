@@ -142,3 +142,15 @@ def test_build_volume():
     shifted = strip_gcode(["G1 X100", "G92 X0", "G1 X150"])
     with pytest.raises(UnsafeEntry, match="outside"):
         check_gcode(shifted, forbidden=(), allow_firmware=False, build_volume=[200, 200, 200])
+
+
+@pytest.mark.parametrize("line", ["G1 X" + "9" * 201, "G1 X" + "9" * 6000,
+                                  "N" + "9" * 5000 + " M502"])
+def test_absurd_numbers_are_refused_in_one_short_line(line):
+    """Fuzz regressions: a 200-digit coordinate made a 503-character refusal; 5000 digits
+    in a line number raised ValueError instead of a refusal."""
+    with pytest.raises(UnsafeEntry) as refusal:
+        check_gcode(strip_gcode([line]), forbidden=DEFAULT_FORBIDDEN_GCODES, allow_firmware=False,
+                    build_volume=[250, 210, 220])
+    message = str(refusal.value)
+    assert len(message) <= 200 and "\n" not in message

@@ -110,3 +110,13 @@ def test_clean_lines_drop_file_line_numbers_and_checksums():
 def test_command_word():
     assert command_word("m862.1 q") == "M862.1"
     assert command_word("   ") is None
+
+
+@pytest.mark.parametrize("line", ["N" + "9" * 5000 + " G1", "G1." + "9" * 5000,
+                                  "M" + "9" * 4301, "G1 X1*" + "9" * 5000, "N-" + "9" * 5000])
+def test_numbers_of_any_length_saturate_as_strtol(line):
+    """Fuzz regression: int() of more than 4300 digits raised ValueError in the lexer."""
+    lexed = lex(line)
+    assert lexed.number in (None, 2**31 - 1, -(2**31))
+    assert lexed.checksum in (None, 2**31 - 1)
+    assert lexed.word is None or len(lexed.word) < 20
