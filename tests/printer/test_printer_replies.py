@@ -210,3 +210,15 @@ def test_nozzle_replies(line, expected):
 )
 def test_unknown_command(line, command):
     assert replies.unknown_command_of(line) == command
+
+
+@pytest.mark.parametrize(("line", "kind"), [
+    ("Resend: " + "9" * 4301, "resend"),
+    ("Error:Line Number is not Last Line Number+1, Last Line: " + "9" * 4301, "line_error"),
+    ("ok N" + "9" * 5000 + " P15 B3", "ok"),
+])
+def test_huge_numbers_in_replies_saturate(line, kind):
+    """Fuzz regression: int() of more than 4300 digits raised ValueError in parse_reply."""
+    reply = replies.parse_reply(line)
+    assert reply.kind == kind
+    assert reply.number == 2**31 - 1
