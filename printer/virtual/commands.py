@@ -49,15 +49,15 @@ def _motion(model: FirmwareModel, word: str, params: dict[str, float], state: di
     """Moves, dwells, homing and positioning modes; False for any other command."""
     motion = model.motion
     if word in ("G0", "G1", "G2", "G3"):
-        state["move"] = motion.move_seconds(params, model.speedup)
+        state["move"] = motion.move_seconds(params, model.settings.speedup)
     elif word == "G4":
         seconds = params.get("P", 0.0) / 1000.0 + params.get("S", 0.0)
-        state["until"] = now + seconds / model.speedup
+        state["until"] = now + seconds / model.settings.speedup
         state["drain"] = True
     elif word in ("G28", "G29"):
         state["drain"] = True
         state["until"] = None
-        state["busy_for"] = model.faults.busy_seconds or 5.0 / model.speedup
+        state["busy_for"] = model.faults.busy_seconds or 5.0 / model.settings.speedup
         if word == "G28":
             for axis in "XYZ":
                 motion.position[axis] = 0.0
@@ -97,7 +97,7 @@ def _report(model: FirmwareModel, word: str, lexed: GcodeLine,
             params: dict[str, float]) -> list[str] | None:
     """The reply lines of a query, or None when ``word`` is not one this firmware answers."""
     firmware = model.firmware
-    x, y, z = model.build_volume
+    x, y, z = model.settings.build_volume
     if word == "M105":
         return []  # the report rides on the ok
     if word == "M114":
@@ -119,11 +119,11 @@ def _report(model: FirmwareModel, word: str, lexed: GcodeLine,
         return ["echo:; Filament settings (Disabled):",
                 f"echo:  M200 S0 D{model.filament_diameter:.2f}"]
     if word == "M862.1" and firmware == "prusa":
-        return [f"{model.nozzle:.2f}"] if lexed.has("Q") else []
+        return [f"{model.settings.nozzle:.2f}"] if lexed.has("Q") else []
     if word == "M862.1" and firmware == "buddy":
-        return [f"echo:  M862.1 T0 P{model.nozzle:.2f} A0 F0"] if lexed.has("Q") else []
-    if firmware == "klipper" and word == model.nozzle_macro:
-        return [f"// nozzle_diameter: {model.nozzle:.3f}"]
+        return [f"echo:  M862.1 T0 P{model.settings.nozzle:.2f} A0 F0"] if lexed.has("Q") else []
+    if firmware == "klipper" and word == model.settings.nozzle_macro:
+        return [f"// nozzle_diameter: {model.settings.nozzle:.3f}"]
     return None
 
 
@@ -151,6 +151,6 @@ def unknown_reply(model: FirmwareModel, command: str, word: str) -> str:
 
 def area_line(model: FirmwareModel) -> str:
     """Marlin's M115 ``area:`` report of the build volume."""
-    x, y, z = model.build_volume
+    x, y, z = model.settings.build_volume
     box = f"min:{{x:0.00,y:0.00,z:0.00}},max:{{x:{x:.2f},y:{y:.2f},z:{z:.2f}}}"
     return f"area:{{full:{{{box}}},work:{{{box}}}}}"

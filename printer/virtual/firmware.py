@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import random
 from collections import deque
+from dataclasses import dataclass
 from typing import Protocol
 
 from printer.gcode import checksum, command_word, lex
@@ -32,27 +33,35 @@ class Wire(Protocol):
     def reset_wire(self) -> None: ...
 
 
+@dataclass(frozen=True)
+class MachineSettings:
+    """What does not change while the printer runs. nozzle: mm. speedup: simulated time
+    runs this many times faster. queue_size: commands the firmware buffers (BUFSIZE).
+    advanced_ok: ``ok N P B``. build_volume: (x, y, z) mm. keepalive: real seconds
+    between busy / heating keepalives. nozzle_macro: Klipper macro naming the nozzle."""
+
+    nozzle: float
+    speedup: float
+    queue_size: int
+    advanced_ok: bool
+    build_volume: tuple[float, float, float]
+    keepalive: float
+    nozzle_macro: str
+
+
 class FirmwareModel:
     """One printer's firmware state; every method runs under the link's lock."""
 
     def __init__(self, profile: FirmwareProfile, wire: Wire, rng: random.Random, stats: dict,
-                 *, nozzle: float, speedup: float, faults: Faults, queue_size: int,
-                 advanced_ok: bool, build_volume: tuple[float, float, float],
-                 filament_diameter: float, keepalive: float, nozzle_macro: str) -> None:
+                 settings: MachineSettings, faults: Faults, filament_diameter: float) -> None:
         self.profile = profile
         self.firmware = profile.name
         self.wire = wire
         self.rng = rng
         self.stats = stats
-        self.nozzle = nozzle
-        self.speedup = speedup
+        self.settings = settings
         self.faults = faults
-        self.queue_size = queue_size
-        self.advanced_ok = advanced_ok
-        self.build_volume = build_volume
         self.filament_diameter = filament_diameter
-        self.keepalive = keepalive
-        self.nozzle_macro = nozzle_macro
         self.executed_numbered: list[tuple[int | None, str]] = []
         #: Line numbers of lines accepted although noise changed their command (an XOR
         #: checksum collision): a limit of the firmware protocol, reported, never hidden.
@@ -84,8 +93,8 @@ class FirmwareModel:
             self.send(f"ok {extra}".rstrip())
             return
         text = "ok"
-        if self.advanced_ok and not extra:
-            queue_free = self.queue_size - len(self.queue)
+        if self.settings.advanced_ok and not extra:
+            queue_free = self.settings.queue_size - len(self.queue)
             text = f"ok N{self.last_n} P{self.motion.free_blocks()} B{queue_free}"
         self.send(f"{text} {extra}".rstrip())
 
@@ -94,11 +103,11 @@ class FirmwareModel:
 
     def has_room(self) -> bool:
         """True while the command queue can take another line."""
-        return len(self.queue) < self.queue_size
+        return len(self.queue) < self.settings.queue_size
 
     def tick(self, now: float) -> None:
         """Heaters, the auto-report and executing what is due."""
-        self.heaters.tick(now, self.speedup)
+        self.heaters.tick(now, self.settings.speedup)
         if self.halted:
             return
         self.execute(now)
@@ -258,18 +267,18 @@ class FirmwareModel:
             return False
         if "busy_for" in state:
             state["until"] = now + state.pop("busy_for")
-            state["next_keepalive"] = now + self.keepalive
+            state["next_keepalive"] = now + self.settings.keepalive
         if "heat" in state:
             if self.heaters.settled(state["heat"]):
                 return True
             if now >= state.get("next_keepalive", 0.0):
-                state["next_keepalive"] = now + min(self.keepalive, 1.0)
+                state["next_keepalive"] = now + min(self.settings.keepalive, 1.0)
                 self.send(self.temperatures() + " W:?")
             return False
         until = state.get("until")
         if until is not None and now < until:
             if "next_keepalive" in state and now >= state["next_keepalive"]:
-                state["next_keepalive"] = now + self.keepalive
+                state["next_keepalive"] = now + self.settings.keepalive
                 if self.firmware in ("marlin", "prusa", "buddy"):
                     self.send("echo:busy: processing")
             return False

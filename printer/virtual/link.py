@@ -21,7 +21,7 @@ from collections import deque
 
 from printer.gcode import lex
 from printer.virtual.faults import Faults
-from printer.virtual.firmware import FirmwareModel
+from printer.virtual.firmware import FirmwareModel, MachineSettings
 from printer.virtual.profiles import FIRMWARES, PROFILES
 
 _BAUD_CONSTANTS = {
@@ -78,13 +78,13 @@ class VirtualPrinter:
             "disconnects": 0,
         }
         self._rng = random.Random(faults.seed)
-        self.machine = FirmwareModel(
-            profile, self, self._rng, self.stats, nozzle=float(nozzle), speedup=float(speedup),
-            faults=faults, queue_size=int(queue_size),
+        settings = MachineSettings(
+            nozzle=float(nozzle), speedup=float(speedup), queue_size=int(queue_size),
             advanced_ok=profile.advanced_ok if advanced_ok is None else advanced_ok,
-            build_volume=tuple(float(v) for v in build_volume),
-            filament_diameter=float(filament_diameter), keepalive=float(keepalive),
+            build_volume=tuple(float(v) for v in build_volume), keepalive=float(keepalive),
             nozzle_macro=nozzle_macro.upper())
+        self.machine = FirmwareModel(profile, self, self._rng, self.stats, settings, faults,
+                                     float(filament_diameter))
         self._baud_checked_at = -1.0
         self._baud_wrong = False
         self._lock = threading.Lock()
@@ -126,11 +126,11 @@ class VirtualPrinter:
 
     @property
     def nozzle(self) -> float:
-        return self.machine.nozzle
+        return self.machine.settings.nozzle
 
     @property
     def build_volume(self) -> tuple[float, float, float]:
-        return self.machine.build_volume
+        return self.machine.settings.build_volume
 
     def start(self) -> str:
         """Open the pty and start the serving thread; return the pty slave path.
@@ -342,7 +342,7 @@ class VirtualPrinter:
         if byte in (10, 13):
             line = self._em_line.decode("ascii", "replace")
             self._em_line.clear()
-            if lex(line).word == "M112":
+            if "112" in line and lex(line).word == "M112":
                 self.machine.halt("M112")
         elif len(self._em_line) < _MAX_LINE:
             self._em_line.append(byte)
@@ -359,7 +359,7 @@ class VirtualPrinter:
                 if self._line:
                     raw = self._line.decode("latin-1")  # byte for byte: noise stays noise
                     sent = self._line_orig.decode("latin-1")
-                    changed = lex(raw).command != lex(sent).command
+                    changed = raw != sent and lex(raw).command != lex(sent).command
                     self._line.clear()
                     self._line_orig.clear()
                     machine.receive_line(raw.strip(), changed)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from harness import Target
 from hypothesis import strategies as st
+from text_lines import mutated, with_long_numbers
 
 from daemon.config import DEFAULT_FORBIDDEN_GCODES
 from daemon.safety import UnsafeEntry, check_gcode, strip_gcode
@@ -30,21 +31,7 @@ REAL_LINES = (
 _ALPHABET = "GMTNXYZEFSPIJQRgmtnxyz0123456789.+-* ;()\t\"/:="
 
 
-@st.composite
-def mutated_line(draw) -> str:
-    """A real line with a few characters inserted, deleted or replaced."""
-    line = list(draw(st.sampled_from(REAL_LINES)))
-    for _ in range(draw(st.integers(1, 4))):
-        where = draw(st.integers(0, len(line)))
-        char = draw(st.sampled_from(_ALPHABET) | st.characters())
-        action = draw(st.sampled_from(("insert", "delete", "replace")))
-        if action == "insert" or not line:
-            line.insert(where, char)
-        elif action == "delete":
-            del line[min(where, len(line) - 1)]
-        else:
-            line[min(where, len(line) - 1)] = char
-    return "".join(line)
+mutated_line = mutated(REAL_LINES, _ALPHABET)
 
 
 #: Very long numbers in every position a number can take (a file's line can be long).
@@ -57,10 +44,11 @@ long_numbers = st.builds(lambda prefix, digits: prefix + "9" * digits,
 def _any_line() -> st.SearchStrategy:
     return st.one_of(
         long_numbers,
+        with_long_numbers(REAL_LINES),
         st.text(max_size=120),
         st.binary(max_size=120).map(lambda data: data.decode("latin-1")),
         st.text(alphabet=_ALPHABET, max_size=80),
-        mutated_line(),
+        mutated_line,
         st.sampled_from(REAL_LINES),
     )
 
@@ -82,8 +70,9 @@ def run_policy(lines: list[str]) -> object:
 
 TARGETS = [
     Target("gcode-lexer", _any_line(), run_lexer, (), ("printer.gcode",)),
-    Target("gcode-policy", st.lists(st.one_of(st.sampled_from(REAL_LINES), mutated_line(),
+    Target("gcode-policy", st.lists(st.one_of(st.sampled_from(REAL_LINES), mutated_line,
                                               long_numbers,
+        with_long_numbers(REAL_LINES),
                                               st.text(alphabet=_ALPHABET, max_size=40)),
                                     max_size=12),
            run_policy, (UnsafeEntry,), ("daemon.safety", "printer.gcode")),

@@ -9,11 +9,11 @@ decodes them, and mutations of the real reply strings in the reply tests.
 from __future__ import annotations
 
 import ast
-import re
 from pathlib import Path
 
 from harness import Target
 from hypothesis import strategies as st
+from text_lines import mutated, with_long_numbers
 
 from printer import replies
 
@@ -31,38 +31,14 @@ REAL_REPLIES = _real_replies()
 _ALPHABET = "okNPBTRrsesendErro:,/.-+0123456789 \t!@WCAXYZ{}\"'_"
 
 
-@st.composite
-def mutated_reply(draw) -> str:
-    """A real reply with characters inserted, deleted or replaced, or digits lengthened."""
-    line = list(draw(st.sampled_from(REAL_REPLIES)))
-    for _ in range(draw(st.integers(1, 4))):
-        where = draw(st.integers(0, len(line)))
-        action = draw(st.sampled_from(("insert", "delete", "replace", "digits")))
-        char = draw(st.sampled_from(_ALPHABET) | st.characters())
-        if action == "digits":
-            line.insert(where, "9" * draw(st.integers(1, 20) | st.integers(4200, 6000)))
-        elif action == "insert" or not line:
-            line.insert(where, char)
-        elif action == "delete":
-            del line[min(where, len(line) - 1)]
-        else:
-            line[min(where, len(line) - 1)] = char
-    return "".join(line)
-
-
-#: Real replies with every number made very long (a noisy line can be 4 kB of digits).
-long_numbers = st.builds(lambda line, digits: re.sub(r"\d+", "9" * digits, line),
-                         st.sampled_from(REAL_REPLIES), st.integers(4200, 6000))
-
-
 def _reply_line() -> st.SearchStrategy:
     return st.one_of(
-        long_numbers,
+        with_long_numbers(REAL_REPLIES),
         st.text(max_size=200),
         # what the host's reader makes of raw bytes
         st.binary(max_size=200).map(lambda data: data.decode("ascii", "replace")),
         st.text(alphabet=_ALPHABET, max_size=120),
-        mutated_reply(),
+        mutated(REAL_REPLIES, _ALPHABET),
         st.sampled_from(REAL_REPLIES),
     )
 
