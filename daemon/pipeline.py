@@ -54,12 +54,10 @@ def epsilon_from(info: dict[str, Any], cfg: Config) -> tuple[float, str]:
 
 
 def flavour_from(info: dict[str, Any]) -> str:
-    fw = str((info or {}).get("firmware") or "").lower()
-    if "klipper" in fw:
-        return "klipper"
-    if "reprap" in fw or "rrf" in fw:
-        return "reprapfirmware"
-    return "marlin"
+    """The G-code flavour the slicer writes for the printer ``info`` describes."""
+    from printer.firmware import slicer_flavour_for_firmware
+
+    return slicer_flavour_for_firmware(str((info or {}).get("firmware") or ""))
 
 
 class Spool:

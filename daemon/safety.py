@@ -20,6 +20,8 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from printer.gcode import clean_lines, lex
+
 MESH_SUFFIXES = frozenset({".stl", ".obj", ".ply", ".3mf"})
 GCODE_SUFFIXES = frozenset({".gcode", ".gco", ".g"})
 ACCEPTED_SUFFIXES = MESH_SUFFIXES | GCODE_SUFFIXES
@@ -107,28 +109,9 @@ def check_spool_entry(spool: Path, path: Path) -> os.stat_result:
 
 # --- G-code -----------------------------------------------------------------------------
 
-_WORD = re.compile(r"^\s*(?:N\d+\s+)?([A-Za-z_][A-Za-z0-9_.]*)")
-_PARAM = re.compile(r"([XYZEF])\s*(-?\d*\.?\d+(?:[eE][-+]?\d+)?)")
-
-
-def gcode_command(line: str) -> str | None:
-    """The command word of a G-code line, normalised (``m0502`` -> ``M502``), or None."""
-    code = line.split(";", 1)[0]
-    m = _WORD.match(code)
-    if not m:
-        return None
-    word = m.group(1).upper()
-    mm = re.fullmatch(r"([GMT])0*(\d+)(\.\d+)?", word)
-    if mm:
-        return mm.group(1) + mm.group(2) + (mm.group(3) or "")
-    return word
-
-
 def strip_gcode(lines: Iterable[str]) -> list[str]:
     """The commands exactly as the printer host streams them (comments ``;`` and ``( )``,
     checksums and blank lines removed), so the policy checks what is really sent."""
-    from printer.gcode import clean_lines
-
     return clean_lines(lines)
 
 
@@ -143,6 +126,11 @@ class GcodeCheck:
                 "extents_max": self.extents_max}
 
 
+def _mm(value: float) -> str:
+    """A coordinate for a message: 0.1 mm, or 3 significant digits when it is absurd."""
+    return f"{value:.1f}" if abs(value) < 1e6 else f"{value:.3g}"
+
+
 def check_gcode(lines: Sequence[str], *, forbidden: Iterable[str], allow_firmware: bool,
                 build_volume: Sequence[float] | None) -> GcodeCheck:
     """Refuse forbidden commands and moves outside the build volume (mm, origin at 0,0,0).
@@ -150,7 +138,7 @@ def check_gcode(lines: Sequence[str], *, forbidden: Iterable[str], allow_firmwar
     ``lines`` are stripped commands (see :func:`strip_gcode`). Positions follow
     G90/G91 and G92; only X/Y/Z of G0-G3 moves are checked.
     """
-    forb = {gcode_command(f) or f.upper() for f in forbidden}
+    forbidden_words = {lex(f).word or f.upper() for f in forbidden}
     absolute = True
     pos = [0.0, 0.0, 0.0]
     offset = [0.0, 0.0, 0.0]
@@ -158,10 +146,11 @@ def check_gcode(lines: Sequence[str], *, forbidden: Iterable[str], allow_firmwar
     hi = [float("-inf")] * 3
     moved = False
     for i, line in enumerate(lines, 1):
-        cmd = gcode_command(line)
+        lexed = lex(line)
+        cmd = lexed.word
         if cmd is None:
             continue
-        if not allow_firmware and cmd in forb:
+        if not allow_firmware and cmd in forbidden_words:
             raise UnsafeEntry(f"refused: line {i} `{line.strip()[:40]}` is a firmware-altering "
                               f"command ({cmd}); set [safety] allow_firmware_commands = true "
                               "to allow it")
@@ -170,18 +159,17 @@ def check_gcode(lines: Sequence[str], *, forbidden: Iterable[str], allow_firmwar
         elif cmd == "G91":
             absolute = False
         elif cmd == "G92":
-            for axis, val in _PARAM.findall(line.upper()):
+            for axis, val in lexed.params:
                 k = "XYZ".find(axis)
-                if k >= 0:
-                    offset[k] = pos[k] + offset[k] - float(val)
-                    pos[k] = float(val)
+                if k >= 0 and val is not None:
+                    offset[k] = pos[k] + offset[k] - val
+                    pos[k] = val
         elif cmd in ("G0", "G1", "G2", "G3"):
-            for axis, val in _PARAM.findall(line.upper()):
+            for axis, val in lexed.params:
                 k = "XYZ".find(axis)
-                if k < 0:
+                if k < 0 or val is None:
                     continue
-                v = float(val)
-                pos[k] = v if absolute else pos[k] + v
+                pos[k] = val if absolute else pos[k] + val
                 moved = True
             for k in range(3):
                 m = pos[k] + offset[k]
@@ -199,8 +187,8 @@ def check_gcode(lines: Sequence[str], *, forbidden: Iterable[str], allow_firmwar
         for k, axis in enumerate("XYZ"):
             if lo[k] < -BUILD_VOLUME_MARGIN or hi[k] > bv[k] + BUILD_VOLUME_MARGIN:
                 raise UnsafeEntry(
-                    f"refused: the G-code moves {axis} from {lo[k]:.1f} to {hi[k]:.1f} mm, outside "
-                    f"the printer's build volume {bv[0]:g} x {bv[1]:g} x {bv[2]:g} mm")
+                    f"refused: the G-code moves {axis} from {_mm(lo[k])} to {_mm(hi[k])} mm, "
+                    f"outside the printer's build volume {bv[0]:g} x {bv[1]:g} x {bv[2]:g} mm")
     return GcodeCheck(len(lines), (lo[0], lo[1], lo[2]), (hi[0], hi[1], hi[2]))
 
 

@@ -11,6 +11,8 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, field
 
+from printer.gcode import firmware_int
+
 _NUM = r"-?\d+(?:\.\d+)?"
 
 # Fatal conditions: the firmware has stopped and will not take more commands.
@@ -87,15 +89,15 @@ def parse_reply(line: str) -> Reply:
         if not temps:
             for letter, value in _ADV_RE.findall(rest):
                 if letter == "N":
-                    number = int(value)
+                    number = firmware_int(value)
                 elif letter == "P":
-                    planner = int(value)
+                    planner = firmware_int(value)
                 else:
-                    queue = int(value)
+                    queue = firmware_int(value)
         return Reply("ok", text, number, planner, queue, temps)
     m = _RESEND_RE.match(text)
     if m:
-        return Reply("resend", text, int(m.group(1)))
+        return Reply("resend", text, firmware_int(m.group(1)))
     if low == "start":
         return Reply("start", text)
     if low.startswith("!!"):
@@ -109,7 +111,7 @@ def parse_reply(line: str) -> Reply:
             return Reply("fatal", text)
         m = _LAST_LINE_RE.search(text)
         if any(reason in low for reason in _LINE_ERRORS):
-            return Reply("line_error", text, int(m.group(1)) if m else None)
+            return Reply("line_error", text, firmware_int(m.group(1)) if m else None)
         return Reply("error", text)
     if any(marker in low for marker in ("printer halted", "kill() called")):
         return Reply("fatal", text)

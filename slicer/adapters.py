@@ -24,6 +24,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from printer.gcode import lex
+from repair.io import write_atomic
 from slicer.errors import SliceError
 from slicer.profile import Profile
 
@@ -243,30 +245,23 @@ def gcode_summary(text: str, profile: Profile) -> dict[str, Any]:
     rel = False
     e = 0.0
     total = 0.0
-    zs: set[float] = set()
-    word = re.compile(r"([XYZEF])(-?\d*\.?\d+)")
     for raw in text.splitlines():
-        line = raw.split(";", 1)[0].strip()
-        if not line:
-            continue
-        head = line.split(None, 1)[0].upper()
+        lexed = lex(raw)
+        head = lexed.word
         if head in ("G0", "G1"):
-            w = dict(word.findall(line))
-            if "E" in w:
-                val = float(w["E"])
+            val = lexed.value("E")
+            if val is not None:
                 de = val if rel else val - e
                 e = e + val if rel else val
                 total += de
-            if "Z" in w:
-                zs.add(round(float(w["Z"]), 4))
         elif head == "M83":
             rel = True
         elif head == "M82":
             rel = False
         elif head == "G92":
-            w = dict(word.findall(line))
-            if "E" in w:
-                e = float(w["E"])
+            val = lexed.value("E")
+            if val is not None:
+                e = val
     seconds = None
     m = re.search(r"estimated printing time \(normal mode\) = (.+)", text)
     if m:
@@ -317,14 +312,15 @@ def slice_external(name: str, in_path: str | os.PathLike, out_path: str | os.Pat
             res = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
         except subprocess.TimeoutExpired:
             raise SliceError(f"{BINARIES[name]} did not finish within {timeout:.0f} s") from None
-        text = tmp.read_text(errors="replace") if tmp.exists() else ""
+        data = tmp.read_bytes() if tmp.exists() else b""
+        text = data.decode("utf-8", errors="replace")
         if res.returncode != 0 or not text.strip():
             raise SliceError(_error_line(res.stderr + "\n" + res.stdout, BINARIES[name],
                                          res.returncode))
         if name == "cura" and "[ERROR]" in res.stderr:
             bad = [ln for ln in res.stderr.splitlines() if "[ERROR]" in ln]
             raise SliceError(f"CuraEngine: {bad[0].replace('[ERROR]', '').strip()[:300]}")
-        os.replace(tmp, dst)
+        write_atomic(dst, [data])
     finally:
         if tmp.exists():
             tmp.unlink()

@@ -16,10 +16,9 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
-FLAVOURS = ("marlin", "klipper", "reprapfirmware")
-#: firmware names a printer may report, mapped onto the G-code dialect they accept
-FLAVOUR_ALIASES = {"rrf": "reprapfirmware", "reprap": "reprapfirmware", "prusa": "marlin",
-                   "buddy": "marlin", "marlin2": "marlin", "unknown": "marlin", "": "marlin"}
+from printer.firmware import SLICER_FLAVOURS, slicer_flavour
+
+FLAVOURS = SLICER_FLAVOURS
 INFILL_PATTERNS = ("rectilinear", "grid")
 SEAM_POSITIONS = ("rear", "nearest")
 
@@ -188,11 +187,10 @@ class Profile:
             raise ProfileError(
                 f"nozzle_diameter must be a positive number, got {nozzle_diameter!r}"
             )
-        flavour = str(flavour or "").strip().lower()
         kwargs: dict[str, Any] = dict(
             nozzle_diameter=n,
             filament_diameter=float(filament_diameter),
-            flavour=FLAVOUR_ALIASES.get(flavour, flavour),
+            flavour=slicer_flavour(flavour) or str(flavour),
             layer_height=round(0.5 * n, 4),
             first_layer_height=round(0.5 * n, 4),
             line_width=round(1.125 * n, 4),

@@ -10,11 +10,11 @@ from daemon.safety import (
     check_gcode,
     check_name,
     check_spool_entry,
-    gcode_command,
     is_partial_name,
     sanitise_name,
     strip_gcode,
 )
+from printer.gcode import command_word
 
 
 @pytest.mark.parametrize("name", ["../x.stl", "..\\..\\evil.stl", "a/b.stl", "a\x00.stl",
@@ -74,10 +74,36 @@ def test_spool_entries(tmp_path):
 
 
 def test_gcode_command_normalises():
-    assert gcode_command("N12 m0502 ; reset") == "M502"
-    assert gcode_command("G1 X1") == "G1"
-    assert gcode_command("; only a comment") is None
-    assert gcode_command("M862.1 Q") == "M862.1"
+    assert command_word("N12 m0502 ; reset") == "M502"
+    assert command_word("G1 X1") == "G1"
+    assert command_word("; only a comment") is None
+    assert command_word("M862.1 Q") == "M862.1"
+    assert command_word("M 502") == "M502"
+
+
+@pytest.mark.parametrize("cmd", ["M 502", "m 0502", "N7 M 500", "M502X", "M 997 ; update"])
+def test_spellings_marlin_reads_as_a_forbidden_command_are_refused(cmd):
+    """Marlin skips spaces between the letter and the number: ``M 502`` is M502."""
+    lines = strip_gcode(["G28", cmd])
+    with pytest.raises(UnsafeEntry, match="firmware-altering"):
+        check_gcode(lines, forbidden=DEFAULT_FORBIDDEN_GCODES, allow_firmware=False,
+                    build_volume=None)
+
+
+@pytest.mark.parametrize("move", ["G1 X+900", "G1 X 900", "G1X900", "g1 x900", "G0 Y+.5 X+300.",
+                                  "G1 Z+500"])
+def test_moves_marlin_reads_outside_the_volume_are_refused(move):
+    """Signs, spaces after the letter, no space before it, lower case: all are moves."""
+    lines = strip_gcode(["G28", "G1 X10 Y10", move])
+    with pytest.raises(UnsafeEntry, match="outside"):
+        check_gcode(lines, forbidden=(), allow_firmware=False, build_volume=[250, 210, 220])
+
+
+def test_a_number_stops_at_e_as_in_marlin():
+    # "X1E5" is X1 and E5 to Marlin, not X=100000: a move to X1, inside the volume
+    res = check_gcode(strip_gcode(["G1 X1E5"]), forbidden=(), allow_firmware=False,
+                      build_volume=[250, 210, 220])
+    assert res.extents_max[0] == 1.0
 
 
 @pytest.mark.parametrize("cmd", ["M500", "M501", "M502", "M997", "M552 S1", "M587 S\"net\"",
@@ -116,3 +142,15 @@ def test_build_volume():
     shifted = strip_gcode(["G1 X100", "G92 X0", "G1 X150"])
     with pytest.raises(UnsafeEntry, match="outside"):
         check_gcode(shifted, forbidden=(), allow_firmware=False, build_volume=[200, 200, 200])
+
+
+@pytest.mark.parametrize("line", ["G1 X" + "9" * 201, "G1 X" + "9" * 6000,
+                                  "N" + "9" * 5000 + " M502"])
+def test_absurd_numbers_are_refused_in_one_short_line(line):
+    """Fuzz regressions: a 200-digit coordinate made a 503-character refusal; 5000 digits
+    in a line number raised ValueError instead of a refusal."""
+    with pytest.raises(UnsafeEntry) as refusal:
+        check_gcode(strip_gcode([line]), forbidden=DEFAULT_FORBIDDEN_GCODES, allow_firmware=False,
+                    build_volume=[250, 210, 220])
+    message = str(refusal.value)
+    assert len(message) <= 200 and "\n" not in message

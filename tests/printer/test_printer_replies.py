@@ -2,7 +2,7 @@
 
 import pytest
 
-from printer import replies as R
+from printer import replies
 from printer.gcode import checksum, clean_line, frame
 
 
@@ -63,19 +63,19 @@ KIND_TABLE = [
 
 @pytest.mark.parametrize(("line", "kind", "number"), KIND_TABLE)
 def test_reply_kinds(line, kind, number):
-    reply = R.parse_reply(line)
+    reply = replies.parse_reply(line)
     assert reply.kind == kind
     assert reply.number == number
 
 
 def test_advanced_ok_fields():
-    reply = R.parse_reply("ok N10 P15 B3")
+    reply = replies.parse_reply("ok N10 P15 B3")
     assert (reply.number, reply.planner_free, reply.queue_free) == (10, 15, 3)
     assert not reply.is_temperature_ok
 
 
 def test_heating_keepalive_marks_waiting():
-    reply = R.parse_reply(" T:180.52 /210.00 B:60.01 /60.00 @:127 B@:0 W:?")
+    reply = replies.parse_reply(" T:180.52 /210.00 B:60.01 /60.00 @:127 B@:0 W:?")
     assert reply.kind == "temperature" and reply.waiting
 
 
@@ -92,7 +92,7 @@ def test_heating_keepalive_marks_waiting():
     ],
 )
 def test_temperatures_all_spacings(text, expected):
-    temps = R.parse_temperatures(text)
+    temps = replies.parse_temperatures(text)
     for key, value in expected.items():
         assert temps[key] == value
     assert "@" not in temps and "W" not in temps
@@ -104,14 +104,14 @@ def test_m115_marlin_fields_caps_and_area():
         "MarlinFirmware/Marlin PROTOCOL_VERSION:1.0 MACHINE_TYPE:Ender-3 V2 EXTRUDER_COUNT:1 "
         "UUID:cede2a2f-41a2-4748-9b12-c55c62f367ff"
     )
-    fields = R.parse_firmware_fields(line)
+    fields = replies.parse_firmware_fields(line)
     assert fields["FIRMWARE_NAME"] == "Marlin 2.1.2.1 (Feb  1 2024 12:00:00)"
     assert fields["MACHINE_TYPE"] == "Ender-3 V2"
     assert fields["EXTRUDER_COUNT"] == "1"
-    assert R.parse_capability("Cap:AUTOREPORT_TEMP:1") == ("AUTOREPORT_TEMP", True)
-    assert R.parse_capability("Cap:EMERGENCY_PARSER:0") == ("EMERGENCY_PARSER", False)
-    assert R.parse_capability("ok") is None
-    area = R.parse_area(
+    assert replies.parse_capability("Cap:AUTOREPORT_TEMP:1") == ("AUTOREPORT_TEMP", True)
+    assert replies.parse_capability("Cap:EMERGENCY_PARSER:0") == ("EMERGENCY_PARSER", False)
+    assert replies.parse_capability("ok") is None
+    area = replies.parse_area(
         "area:{full:{min:{x:-5.00,y:-5.00,z:0.00},max:{x:240.00,y:240.00,z:250.00}},"
         "work:{min:{x:0.00,y:0.00,z:0.00},max:{x:230.00,y:230.00,z:250.00}}}"
     )
@@ -135,7 +135,7 @@ def test_m115_marlin_fields_caps_and_area():
     ],
 )
 def test_m115_other_firmwares(line, name):
-    assert R.parse_firmware_fields(line)["FIRMWARE_NAME"] == name
+    assert replies.parse_firmware_fields(line)["FIRMWARE_NAME"] == name
 
 
 @pytest.mark.parametrize(
@@ -149,7 +149,7 @@ def test_m115_other_firmwares(line, name):
     ],
 )
 def test_m211(line, expected):
-    assert R.parse_soft_endstops(line) == expected
+    assert replies.parse_soft_endstops(line) == expected
 
 
 @pytest.mark.parametrize(
@@ -163,7 +163,7 @@ def test_m211(line, expected):
     ],
 )
 def test_m208(line, expected):
-    assert R.parse_axis_limits(line) == expected
+    assert replies.parse_axis_limits(line) == expected
 
 
 @pytest.mark.parametrize(
@@ -177,7 +177,7 @@ def test_m208(line, expected):
     ],
 )
 def test_m200(line, expected):
-    assert R.parse_filament_diameter(line) == expected
+    assert replies.parse_filament_diameter(line) == expected
 
 
 @pytest.mark.parametrize(
@@ -196,7 +196,7 @@ def test_m200(line, expected):
     ],
 )
 def test_nozzle_replies(line, expected):
-    assert R.parse_nozzle_reply(line) == expected
+    assert replies.parse_nozzle_reply(line) == expected
 
 
 @pytest.mark.parametrize(
@@ -209,4 +209,16 @@ def test_nozzle_replies(line, expected):
     ],
 )
 def test_unknown_command(line, command):
-    assert R.unknown_command_of(line) == command
+    assert replies.unknown_command_of(line) == command
+
+
+@pytest.mark.parametrize(("line", "kind"), [
+    ("Resend: " + "9" * 4301, "resend"),
+    ("Error:Line Number is not Last Line Number+1, Last Line: " + "9" * 4301, "line_error"),
+    ("ok N" + "9" * 5000 + " P15 B3", "ok"),
+])
+def test_huge_numbers_in_replies_saturate(line, kind):
+    """Fuzz regression: int() of more than 4300 digits raised ValueError in parse_reply."""
+    reply = replies.parse_reply(line)
+    assert reply.kind == kind
+    assert reply.number == 2**31 - 1

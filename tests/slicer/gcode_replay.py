@@ -7,12 +7,11 @@ move. Units mm; E is filament length in mm.
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, field
 
 import numpy as np
 
-_WORD = re.compile(r"([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
+from printer.gcode import lex
 
 
 @dataclass
@@ -47,7 +46,7 @@ class Replay:
 
 
 def replay(text: str) -> Replay:
-    """Interpret G-code text; raises ValueError on a malformed move line."""
+    """Interpret G-code text (lines read by the product's lexer, as Marlin reads them)."""
     pos = np.zeros(4)  # x y z e (logical, after G92 offsets: we track logical coordinates)
     abs_xyz = True
     abs_e = True
@@ -59,11 +58,11 @@ def replay(text: str) -> Replay:
     # physical position = logical + offset (G92 changes offset only)
     offset = np.zeros(4)
     for no, raw in enumerate(text.splitlines(), 1):
-        line = raw.split(";", 1)[0].strip()
-        if not line:
+        lexed = lex(raw)
+        cmd = lexed.word
+        if cmd is None:
             continue
-        words = dict((k.upper(), float(v)) for k, v in _WORD.findall(line))
-        cmd = line.split()[0].upper()
+        words = {letter: value for letter, value in lexed.params if value is not None}
         if cmd in ("G0", "G1"):
             new = pos.copy()
             for i, axis in enumerate("XYZ"):
