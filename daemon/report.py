@@ -5,7 +5,6 @@
 from __future__ import annotations
 
 import json
-import os
 import time
 from pathlib import Path
 from typing import Any
@@ -99,9 +98,9 @@ def write_reports(folder: Path, stem: str, job: Job, history: list[dict[str, Any
     folder.mkdir(parents=True, exist_ok=True)
     jp = folder / f"{stem}.report.json"
     tp = folder / f"{stem}.report.txt"
+    from repair.io import write_atomic  # not at import time: it brings numpy along
+
     for path, text in ((jp, json.dumps(report_dict(job, history), indent=2, default=str)),
                        (tp, report_text(job, history))):
-        tmp = path.with_name(f".{path.name}.tmp")
-        tmp.write_text(text)
-        os.replace(tmp, path)
+        write_atomic(path, [text.encode()])
     return jp, tp

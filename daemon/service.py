@@ -27,6 +27,7 @@ from daemon.pipeline import Processor, Spool
 from daemon.printlink import HALF_PRINTED, PrinterLink
 from daemon.states import JobState, TransitionError
 from daemon.watcher import SpoolWatcher
+from daemon.worker import FORK_SERVER, warm_up
 
 log = logging.getLogger("preflight.daemon")
 S = JobState
@@ -192,6 +193,14 @@ class Daemon:
         return f"{pr}; jobs: {active or 'none active'}"
 
     # -- the main loop --------------------------------------------------------------------
+    @staticmethod
+    def _warm_up() -> None:
+        """Have the fork server import the heavy modules before the first job needs them."""
+        try:
+            warm_up()
+        except Exception as e:  # the first task will try again and fail with the reason
+            log.error("the fork server did not start: %s", e)
+
     def run(self) -> int:
         def on_signal(signum, frame):  # noqa: ARG001
             log.info("received %s; stopping", signal.Signals(signum).name)
@@ -200,6 +209,7 @@ class Daemon:
         signal.signal(signal.SIGTERM, on_signal)
         signal.signal(signal.SIGINT, on_signal)
         self.recover()
+        threading.Thread(target=self._warm_up, name="forkserver-start", daemon=True).start()
         self.watcher.start()
         self.printer.start()
         workers = []
@@ -249,6 +259,7 @@ class Daemon:
         for t in workers:
             t.join(timeout=30)
         self.printer.join(timeout=60)
+        FORK_SERVER.shutdown()
         st = self.status()
         st["running"] = False
         self.journal.set_meta("status", st)

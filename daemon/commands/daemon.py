@@ -72,6 +72,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         q.set_defaults(func=cmd_jobs_request, action=action)
     p.set_defaults(func=lambda a, _p=p: (_p.print_help(sys.stderr), 2)[1])
 
+    p = subparsers.add_parser("example-config", help="print the documented example config "
+                                                     "(every key, its default and what it does)")
+    p.add_argument("--output", "-o", metavar="FILE", help="write it to FILE instead")
+    p.set_defaults(func=cmd_example_config)
+
     p = subparsers.add_parser("demo", help="run the daemon on a temporary spool with the "
                                            "virtual printer and print a shipped broken model")
     p.add_argument("--keep", action="store_true", help="keep the temporary folder")
@@ -215,6 +220,19 @@ def cmd_jobs_request(args: argparse.Namespace) -> int:
             return _fail(r["message"])
         time.sleep(0.1)
     return _fail(f"the daemon did not answer within {args.wait:g} s; the request stays recorded")
+
+
+def cmd_example_config(args: argparse.Namespace) -> int:
+    from daemon.config import example_config
+
+    text = example_config()
+    if args.output:
+        from repair.io import write_atomic
+
+        write_atomic(args.output, [text.encode()])
+    else:
+        sys.stdout.write(text)
+    return 0
 
 
 # --- demo --------------------------------------------------------------------------------
