@@ -33,9 +33,12 @@ import sys
 import threading
 from dataclasses import dataclass, field
 
-#: The modules every task child needs; imported once, in the server.
-PRELOAD = ("numpy", "trimesh", "manifold3d", "igl", "repair.pipeline", "slicer.engine",
-           "slicer.profile", "daemon.worker")
+#: Imported once, in the server, so that no task child pays for an import: every module of
+#: these packages, and the libraries they import lazily (inside functions).
+PRELOAD_PACKAGES = ("repair", "slicer")
+PRELOAD = ("numpy", "scipy.sparse", "scipy.sparse.csgraph", "scipy.spatial", "trimesh",
+           "trimesh.exchange.ply", "manifold3d", "igl", "igl.copyleft.cgal",
+           "xml.etree.ElementTree", "daemon.worker")
 
 MAX_MESSAGE = 65536
 CHILD_FDS = 2  # the child's stdout (progress pipe) and stderr (the task's log)
@@ -79,31 +82,33 @@ class ForkServer:
     def start_child(self, task: str, spec_path: str, stdout_fd: int, stderr_fd: int) -> int:
         """Fork a child running ``task`` on ``spec_path``; return its pid.
 
-        The child's exit is awaited with :meth:`wait_child`. A server that died since the
-        last request is started again once.
+        The child's exit is awaited with :meth:`wait_child`. If the server has died (since
+        the last request, or before answering this one) a new one is started, once; a child
+        the dead server may have forked died with it.
         """
+        message = {"task": task, "spec": spec_path}
         for attempt in (1, 2):
-            with self._lock:
-                self._ensure_started_locked()
-                self._next_id += 1
-                request_id = self._next_id
-                pending = _Pending()
-                self._starts[request_id] = pending
-                message = json.dumps({"id": request_id, "task": task, "spec": spec_path})
-                try:
-                    socket.send_fds(self._sock, [message.encode()], [stdout_fd, stderr_fd])
-                except OSError:
-                    self._starts.pop(request_id, None)
-                    self._mark_dead_locked()
-                    if attempt == 2:
-                        raise ForkServerDied("the fork server is not accepting requests") from None
-                    continue
+            pending = self._request(message, [stdout_fd, stderr_fd])
             pending.event.wait()
-            if pending.error is not None:
-                raise ForkServerDied(pending.error)
-            assert pending.value is not None
-            return pending.value
+            if pending.error is None and pending.value is not None:
+                return pending.value
+            if attempt == 2:
+                raise ForkServerDied(pending.error or "the fork server did not answer")
         raise AssertionError("unreachable")
+
+    def _request(self, message: dict, fds: list[int]) -> _Pending:
+        """Send one start request (starting the server if needed); its reply comes later."""
+        with self._lock:
+            self._ensure_started_locked()
+            self._next_id += 1
+            pending = _Pending()
+            self._starts[self._next_id] = pending
+            data = json.dumps({"id": self._next_id, **message}).encode()
+            try:
+                socket.send_fds(self._sock, [data], fds)
+            except OSError:
+                self._mark_dead_locked()  # tells ``pending`` that the server ended
+        return pending
 
     def wait_child(self, pid: int, timeout: float | None) -> int | None:
         """The child's wait status once it has exited, else None after ``timeout``.
@@ -203,11 +208,8 @@ class ForkServer:
 
 def serve(sock: socket.socket) -> None:
     """Fork a child per request until the daemon's end of ``sock`` closes."""
-    import importlib
-
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # a Ctrl-C is the daemon's to handle
-    for name in PRELOAD:
-        importlib.import_module(name)
+    _preload()
     threads = len(os.listdir("/proc/self/task")) if os.path.isdir("/proc/self/task") else 1
     if threads != 1:
         raise SystemExit(f"fork server: {threads} threads after the imports; refusing to fork")
@@ -229,6 +231,18 @@ def serve(sock: socket.socket) -> None:
                 while _drain(wake_read):
                     pass
         _reap(sock)
+
+
+def _preload() -> None:
+    import importlib
+    import pkgutil
+
+    for package in PRELOAD_PACKAGES:
+        module = importlib.import_module(package)
+        for info in pkgutil.iter_modules(module.__path__, prefix=f"{package}."):
+            importlib.import_module(info.name)
+    for name in PRELOAD:
+        importlib.import_module(name)
 
 
 def _drain(fd: int) -> bool:

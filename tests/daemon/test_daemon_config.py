@@ -3,7 +3,6 @@
 from pathlib import Path
 
 import pytest
-
 import tomli_w
 
 from daemon.config import (
