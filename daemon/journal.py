@@ -17,6 +17,7 @@ import json
 import sqlite3
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -145,7 +146,14 @@ class Journal:
     # -- jobs -----------------------------------------------------------------------------
     def add_job(self, *, name: str, source_name: str, kind: str, work_dir: str,
                 input_path: str, state: JobState = JobState.QUEUED, reason: str | None = None,
-                print_requested: bool = False) -> int:
+                print_requested: bool = False, note: str = "file taken from the spool",
+                while_recording: Callable[[], None] | None = None) -> int:
+        """Record a new job (queued, or moved on at once to ``state`` with ``reason``).
+
+        ``while_recording`` runs inside the same transaction: if it raises, no job is
+        recorded (the spool moves the dropped file with it, so that a file is never both
+        in the spool and in a job, nor in neither).
+        """
         now = time.time()
         with self._tx() as db:
             cur = db.execute(
@@ -155,13 +163,15 @@ class Journal:
                  None, int(print_requested)))
             job_id = int(cur.lastrowid)
             db.execute("INSERT INTO transitions VALUES (?,?,?,?,?)",
-                       (job_id, None, str(JobState.QUEUED), now, "file taken from the spool"))
+                       (job_id, None, str(JobState.QUEUED), now, note))
             if state != JobState.QUEUED:
                 check_transition(JobState.QUEUED, state)
                 db.execute("UPDATE jobs SET state=?, reason=? WHERE id=?",
                            (str(state), reason, job_id))
                 db.execute("INSERT INTO transitions VALUES (?,?,?,?,?)",
                            (job_id, str(JobState.QUEUED), str(state), now, reason))
+            if while_recording is not None:
+                while_recording()
         return job_id
 
     def get(self, job_id: int) -> Job | None:
@@ -284,19 +294,19 @@ class _Tx:
     """``with journal._tx() as db``: an IMMEDIATE transaction under the journal's lock."""
 
     def __init__(self, journal: Journal) -> None:
-        self.j = journal
+        self.journal = journal
 
     def __enter__(self) -> sqlite3.Connection:
-        self.j._lock.acquire()
+        self.journal._lock.acquire()
         try:
-            self.j._db.execute("BEGIN IMMEDIATE")
+            self.journal._db.execute("BEGIN IMMEDIATE")
         except BaseException:
-            self.j._lock.release()
+            self.journal._lock.release()
             raise
-        return self.j._db
+        return self.journal._db
 
     def __exit__(self, exc_type, exc, tb) -> None:
         try:
-            self.j._db.execute("COMMIT" if exc_type is None else "ROLLBACK")
+            self.journal._db.execute("COMMIT" if exc_type is None else "ROLLBACK")
         finally:
-            self.j._lock.release()
+            self.journal._lock.release()

@@ -23,7 +23,6 @@ from daemon.safety import UnsafeEntry, check_gcode, strip_gcode
 from daemon.states import JobState, TransitionError
 
 log = logging.getLogger("preflight.printer")
-S = JobState
 
 HALF_PRINTED = ("a half-printed part may be on the bed: remove it, then run "
                 "`preflight jobs requeue {id}` to print it again from the start")
@@ -35,7 +34,7 @@ class PrinterLink(threading.Thread):
     def __init__(self, cfg: Config, journal: Journal, spool: Spool, stop: threading.Event) -> None:
         super().__init__(name="printer", daemon=True)
         self.cfg = cfg
-        self.j = journal
+        self.journal = journal
         self.spool = spool
         self.stop_event = stop
         self._lock = threading.Lock()
@@ -61,7 +60,7 @@ class PrinterLink(threading.Thread):
         with self._lock:
             if self._info is not None:
                 return self._info
-        return self.j.get_meta("printer_info")
+        return self.journal.get_meta("printer_info")
 
     def cancel_job(self, job_id: int) -> bool:
         with self._lock:
@@ -156,7 +155,7 @@ class PrinterLink(threading.Thread):
         self.connections += 1
         with self._lock:
             self._info = info
-        self.j.set_meta("printer_info", info)
+        self.journal.set_meta("printer_info", info)
         self._set_status(state="connected", message=None, info=info, connected_since=time.time(),
                          connections=self.connections, retry_in=None)
         log.info("printer connected on %s: %s, nozzle %s mm (%s)", port, info.get("firmware"),
@@ -174,7 +173,7 @@ class PrinterLink(threading.Thread):
             self._info = None
 
     def _next_job(self) -> Job | None:
-        for job in self.j.jobs({S.READY}):
+        for job in self.journal.jobs({JobState.READY}):
             if job.print_requested:
                 return job
         return None
@@ -190,7 +189,8 @@ class PrinterLink(threading.Thread):
             with open(job.gcode_path or "", encoding="utf-8", errors="replace") as f:
                 lines = strip_gcode(f)
         except OSError as e:
-            self.j.transition(job.id, S.FAILED, reason=f"cannot read the G-code: {e.strerror}")
+            self.journal.transition(job.id, JobState.FAILED,
+                                    reason=f"cannot read the G-code: {e.strerror}")
             self.spool.archive(job.id)
             return
         if job.kind == "gcode":  # checked at intake, maybe before this printer was known
@@ -199,15 +199,15 @@ class PrinterLink(threading.Thread):
                             allow_firmware=self.cfg.safety.allow_firmware_commands,
                             build_volume=info.get("build_volume"))
             except UnsafeEntry as e:
-                self.j.transition(job.id, S.FAILED, reason=str(e), note=str(e))
+                self.journal.transition(job.id, JobState.FAILED, reason=str(e), note=str(e))
                 self.spool.archive(job.id)
                 return
         cancel = threading.Event()
         with self._lock:
             self._cancel[job.id] = cancel
         try:
-            self.j.transition(job.id, S.PRINTING, expect=S.READY, note=f"{len(lines)} lines",
-                              printer_info=info, progress=0.0)
+            self.journal.transition(job.id, JobState.PRINTING, expect=JobState.READY,
+                                    note=f"{len(lines)} lines", printer_info=info, progress=0.0)
         except TransitionError:
             return  # cancelled in the meantime
         acked = [0]
@@ -223,7 +223,7 @@ class PrinterLink(threading.Thread):
                 last[0] = now
                 frac = done / tot if tot else 1.0
                 self._set_status(progress=round(frac, 4), lines_done=done, lines_total=tot)
-                self.j.update(job.id, progress=frac)
+                self.journal.update(job.id, progress=frac)
 
         log.info("job %d: printing %d lines", job.id, total)
         try:
@@ -234,10 +234,10 @@ class PrinterLink(threading.Thread):
             pr = {"acked_lines": acked[0], "total_lines": total, "seconds": secs,
                   "error": str(e)}
             if cancel.is_set():
-                self._end(job.id, S.CANCELLED, "cancelled by user during the print (cooled down, "
-                          "motors off); " + HALF_PRINTED.format(id=job.id), pr)
+                self._end(job.id, JobState.CANCELLED, "cancelled by user during the print "
+                          "(cooled down, motors off); " + HALF_PRINTED.format(id=job.id), pr)
             else:
-                self._end(job.id, S.INTERRUPTED, "the daemon was stopped during the print "
+                self._end(job.id, JobState.INTERRUPTED, "the daemon was stopped during the print "
                           "(cooled down, motors off); " + HALF_PRINTED.format(id=job.id), pr)
             return
         except PrinterError as e:
@@ -256,7 +256,7 @@ class PrinterLink(threading.Thread):
         secs = time.monotonic() - t0
         pr = {"acked_lines": total, "total_lines": total, "seconds": secs,
               "result": _result_dict(result)}
-        self._end(job.id, S.DONE, None, pr)
+        self._end(job.id, JobState.DONE, None, pr)
         log.info("job %d: printed %d lines in %.1f s", job.id, total, secs)
 
     def _stale(self, job: Job, info: dict[str, Any]) -> bool:
@@ -273,29 +273,32 @@ class PrinterLink(threading.Thread):
             why = "the printer reports another build volume than the job was sliced for"
         if why is None:
             return False
-        self.j.transition(job.id, S.QUEUED, expect=S.READY, note=why + "; re-processing")
+        self.journal.transition(job.id, JobState.QUEUED, expect=JobState.READY,
+                                note=why + "; re-processing")
         log.info("job %d: %s; re-processing", job.id, why)
         return True
 
     def _end(self, job_id: int, state: JobState, reason: str | None,
              print_result: dict[str, Any]) -> None:
-        self.j.transition(job_id, state, note=reason, reason=reason, print_result=print_result,
-                          progress=1.0 if state == S.DONE else None)
+        self.journal.transition(job_id, state, note=reason, reason=reason,
+                                print_result=print_result,
+                                progress=1.0 if state == JobState.DONE else None)
         self.spool.archive(job_id)
 
     def _finish_broken(self, job_id: int, why: str, *, sent: int | None,
                        print_result: dict[str, Any] | None = None) -> None:
         """End a print that broke off. ``sent`` is how many of its lines reached the
         port (None: unknown, so assume the print started)."""
-        job = self.j.get(job_id)
-        if job is None or job.state != S.PRINTING:
+        job = self.journal.get(job_id)
+        if job is None or job.state != JobState.PRINTING:
             return
         if sent == 0:
-            self.j.transition(job_id, S.READY, note=f"not started: {why}", progress=None)
+            self.journal.transition(job_id, JobState.READY, note=f"not started: {why}",
+                                    progress=None)
             log.warning("job %d: the print did not start (%s); it stays ready", job_id, why)
             return
         reason = f"print interrupted: {why}; " + HALF_PRINTED.format(id=job_id)
-        self._end(job_id, S.INTERRUPTED, reason, print_result or {})
+        self._end(job_id, JobState.INTERRUPTED, reason, print_result or {})
         log.warning("job %d: %s", job_id, reason)
 
 
