@@ -363,8 +363,11 @@ def check_profile(cfg: Config, nozzle: float = 0.4,
     try:
         Profile.for_printer(nozzle_diameter=nozzle, build_volume=build_volume).with_overrides(
             cfg.profile)
-    except ProfileError as e:
-        raise ConfigError(f"[profile] {e}") from None
+    except ProfileError as e:  # its message may quote a long value: keep one short line
+        message = " ".join(str(e).split())
+        if len(message) > 200:
+            message = message[:197] + "..."
+        raise ConfigError(f"[profile] {message}") from None
 
 
 def setup_logging(level: str) -> None:

@@ -163,3 +163,13 @@ def test_refusals_are_one_short_line(tmp_path, text, key):
     message = str(e.value)
     assert message.startswith(key)
     assert "\n" not in message and len(message) <= 500
+
+
+def test_a_long_profile_value_is_refused_in_one_short_line():
+    """Found by fuzzing: the slicer's refusal quotes the whole value."""
+    from daemon.config import check_profile
+
+    with pytest.raises(ConfigError) as e:
+        check_profile(parse_config({"profile": {"infill_percent": "x" * 700}}))
+    assert str(e.value).startswith("[profile] ") and "infill_percent" in str(e.value)
+    assert len(str(e.value)) <= 500
