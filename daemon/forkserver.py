@@ -16,7 +16,9 @@ The server:
   and the task's log as stderr, and runs :func:`daemon.worker.child_main`;
 - reaps its children and reports each exit status back to the daemon;
 - exits as soon as the daemon's end of the socket closes, which the kernel does when
-  the daemon dies in any way (``kill -9`` included); its children follow it.
+  the daemon dies in any way (``kill -9`` included); its children follow it. (Not
+  ``PR_SET_PDEATHSIG``: that follows the *thread* that started the server, and the
+  server is started by whichever daemon thread needs it first.)
 
 The daemon starts the server again when it has died (``kill -9``, a crash).
 """
@@ -271,7 +273,13 @@ def _fork_child(sock: socket.socket, request: dict, fds: list[int],
         sock.send(json.dumps({"id": request["id"], "error": "bad request"}).encode())
         return
     server_pid = os.getpid()
-    pid = os.fork()
+    try:
+        pid = os.fork()
+    except OSError as e:  # e.g. EAGAIN: too many processes
+        for fd in fds:
+            os.close(fd)
+        sock.send(json.dumps({"id": request["id"], "error": f"cannot fork: {e}"}).encode())
+        return
     if pid == 0:
         code = 70
         try:
