@@ -64,10 +64,10 @@ class PrinterLink(threading.Thread):
 
     def cancel_job(self, job_id: int) -> bool:
         with self._lock:
-            ev = self._cancel.get(job_id)
-        if ev is None:
+            cancel = self._cancel.get(job_id)
+        if cancel is None:
             return False
-        ev.set()
+        cancel.set()
         return True
 
     # -- the thread -----------------------------------------------------------------------
@@ -119,11 +119,11 @@ class PrinterLink(threading.Thread):
         if self.virtual is None:
             from printer.virtual import VirtualPrinter
 
-            pc = self.cfg.printer
+            printer_config = self.cfg.printer
             self.virtual = VirtualPrinter(
-                firmware=pc.virtual_firmware, nozzle=pc.nozzle_diameter, baud=pc.baud,
-                speedup=pc.virtual_speedup,
-                log_path=str(pc.virtual_log) if pc.virtual_log else None)
+                firmware=printer_config.virtual_firmware, nozzle=printer_config.nozzle_diameter,
+                baud=printer_config.baud, speedup=printer_config.virtual_speedup,
+                log_path=str(printer_config.virtual_log) if printer_config.virtual_log else None)
             self.virtual_port = self.virtual.start()
             log.info("virtual printer on %s", self.virtual_port)
         return self.virtual_port
@@ -137,9 +137,10 @@ class PrinterLink(threading.Thread):
         host = None
         try:
             port = self._port()
-            pc = self.cfg.printer
-            host = PrinterHost(port, pc.baud, mode=pc.mode, nozzle_fallback=pc.nozzle_diameter,
-                               nozzle_macro=pc.nozzle_macro)
+            printer_config = self.cfg.printer
+            host = PrinterHost(port, printer_config.baud, mode=printer_config.mode,
+                               nozzle_fallback=printer_config.nozzle_diameter,
+                               nozzle_macro=printer_config.nozzle_macro)
             host.connect()
             info = host.query_info().to_dict()
         except Exception as e:  # PrinterError, OSError, or a bug: never kill the thread
@@ -180,28 +181,12 @@ class PrinterLink(threading.Thread):
 
     # -- printing -------------------------------------------------------------------------
     def _print(self, job: Job) -> None:
-        from printer.errors import PrinterError, StreamCancelled
-
         info = self.last_info() or {}
         if self._stale(job, info):
             return
-        try:
-            with open(job.gcode_path or "", encoding="utf-8", errors="replace") as f:
-                lines = strip_gcode(f)
-        except OSError as e:
-            self.journal.transition(job.id, JobState.FAILED,
-                                    reason=f"cannot read the G-code: {e.strerror}")
-            self.spool.archive(job.id)
+        lines = self._checked_lines(job, info)
+        if lines is None:
             return
-        if job.kind == "gcode":  # checked at intake, maybe before this printer was known
-            try:
-                check_gcode(lines, forbidden=self.cfg.safety.forbidden_gcodes,
-                            allow_firmware=self.cfg.safety.allow_firmware_commands,
-                            build_volume=info.get("build_volume"))
-            except UnsafeEntry as e:
-                self.journal.transition(job.id, JobState.FAILED, reason=str(e), note=str(e))
-                self.spool.archive(job.id)
-                return
         cancel = threading.Event()
         with self._lock:
             self._cancel[job.id] = cancel
@@ -210,54 +195,82 @@ class PrinterLink(threading.Thread):
                                     note=f"{len(lines)} lines", printer_info=info, progress=0.0)
         except TransitionError:
             return  # cancelled in the meantime
+        self._stream(job, lines, cancel)
+
+    def _checked_lines(self, job: Job, info: dict[str, Any]) -> list[str] | None:
+        """The job's G-code lines, or None once the job has failed (unreadable, or a
+        dropped G-code file the policy refuses for this printer)."""
+        try:
+            with open(job.gcode_path or "", encoding="utf-8", errors="replace") as f:
+                lines = strip_gcode(f)
+        except OSError as e:
+            self.journal.transition(job.id, JobState.FAILED,
+                                    reason=f"cannot read the G-code: {e.strerror}")
+            self.spool.archive(job.id)
+            return None
+        if job.kind == "gcode":  # checked at intake, maybe before this printer was known
+            try:
+                check_gcode(lines, forbidden=self.cfg.safety.forbidden_gcodes,
+                            allow_firmware=self.cfg.safety.allow_firmware_commands,
+                            build_volume=info.get("build_volume"))
+            except UnsafeEntry as e:
+                self.journal.transition(job.id, JobState.FAILED, reason=str(e), note=str(e))
+                self.spool.archive(job.id)
+                return None
+        return lines
+
+    def _stream(self, job: Job, lines: list[str], cancel: threading.Event) -> None:
+        """Stream a printing job's lines; the job ends done, cancelled, interrupted or
+        broken off."""
+        from printer.errors import PrinterError, StreamCancelled
+
         acked = [0]
         last = [0.0]
-        t0 = time.monotonic()
+        started = time.monotonic()
         total = len(lines)
         self._set_status(state="printing", job=job.id, progress=0.0)
 
-        def progress(done: int, tot: int) -> None:
+        def progress(done: int, of: int) -> None:
             acked[0] = done
             now = time.monotonic()
-            if now - last[0] >= 0.5 or done >= tot:
+            if now - last[0] >= 0.5 or done >= of:
                 last[0] = now
-                frac = done / tot if tot else 1.0
-                self._set_status(progress=round(frac, 4), lines_done=done, lines_total=tot)
-                self.journal.update(job.id, progress=frac)
+                fraction = done / of if of else 1.0
+                self._set_status(progress=round(fraction, 4), lines_done=done, lines_total=of)
+                self.journal.update(job.id, progress=fraction)
+
+        def outcome(acked_lines: int, **more: Any) -> dict[str, Any]:
+            return {"acked_lines": acked_lines, "total_lines": total,
+                    "seconds": time.monotonic() - started, **more}
 
         log.info("job %d: printing %d lines", job.id, total)
         try:
             result = self.host.stream(lines, progress=progress,
                                       cancel=AnyEvent(cancel, self.stop_event))
         except StreamCancelled as e:
-            secs = time.monotonic() - t0
-            pr = {"acked_lines": acked[0], "total_lines": total, "seconds": secs,
-                  "error": str(e)}
             if cancel.is_set():
                 self._end(job.id, JobState.CANCELLED, "cancelled by user during the print "
-                          "(cooled down, motors off); " + HALF_PRINTED.format(id=job.id), pr)
+                          "(cooled down, motors off); " + HALF_PRINTED.format(id=job.id),
+                          outcome(acked[0], error=str(e)))
             else:
-                self._end(job.id, JobState.INTERRUPTED, "the daemon was stopped during the print "
-                          "(cooled down, motors off); " + HALF_PRINTED.format(id=job.id), pr)
+                self._end(job.id, JobState.INTERRUPTED, "the daemon was stopped during the "
+                          "print (cooled down, motors off); " + HALF_PRINTED.format(id=job.id),
+                          outcome(acked[0], error=str(e)))
             return
         except PrinterError as e:
-            secs = time.monotonic() - t0
-            pr = {"acked_lines": acked[0], "total_lines": total, "seconds": secs,
-                  "error": str(e)}
+            print_result = outcome(acked[0], error=str(e))
             self._disconnect()
             self._finish_broken(job.id, f"{e} after {acked[0]} of {total} lines",
-                                sent=e.lines_sent, print_result=pr)
+                                sent=e.lines_sent, print_result=print_result)
             return
         finally:
             with self._lock:
                 self._cancel.pop(job.id, None)
             self._set_status(state="connected" if self.host else "waiting", job=None,
                              progress=None, lines_done=None, lines_total=None)
-        secs = time.monotonic() - t0
-        pr = {"acked_lines": total, "total_lines": total, "seconds": secs,
-              "result": _result_dict(result)}
-        self._end(job.id, JobState.DONE, None, pr)
-        log.info("job %d: printed %d lines in %.1f s", job.id, total, secs)
+        print_result = outcome(total, result=_result_dict(result))
+        self._end(job.id, JobState.DONE, None, print_result)
+        log.info("job %d: printed %d lines in %.1f s", job.id, total, print_result["seconds"])
 
     def _stale(self, job: Job, info: dict[str, Any]) -> bool:
         """A mesh job sliced for another nozzle / bed than the connected printer: redo it."""
@@ -265,10 +278,10 @@ class PrinterLink(threading.Thread):
             return False
         old = job.printer_info or {}
         why = None
-        nz = info.get("nozzle_diameter")
-        if (job.epsilon is not None and isinstance(nz, (int, float))
-                and abs(nz - job.epsilon) > 1e-6):
-            why = f"the printer now reports a {nz:g} mm nozzle (sliced for {job.epsilon:g} mm)"
+        nozzle = info.get("nozzle_diameter")
+        if (job.epsilon is not None and isinstance(nozzle, (int, float))
+                and abs(nozzle - job.epsilon) > 1e-6):
+            why = f"the printer now reports a {nozzle:g} mm nozzle (sliced for {job.epsilon:g} mm)"
         elif old and old.get("build_volume") != info.get("build_volume"):
             why = "the printer reports another build volume than the job was sliced for"
         if why is None:
