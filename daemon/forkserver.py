@@ -329,7 +329,10 @@ def main(argv: list[str]) -> int:
     daemon_pid = int(argv[1])
     if os.getppid() != daemon_pid:
         return 0  # the daemon died while starting us
-    serve(sock)
+    try:
+        serve(sock)
+    except (BrokenPipeError, ConnectionResetError):
+        pass  # the daemon is gone: so are we (and our children, PR_SET_PDEATHSIG)
     return 0
 
 

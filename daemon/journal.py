@@ -104,9 +104,9 @@ class Job:
     outputs: dict | None
 
     def to_dict(self) -> dict[str, Any]:
-        d = dict(self.__dict__)
-        d["state"] = str(self.state)
-        return d
+        fields = dict(self.__dict__)
+        fields["state"] = str(self.state)
+        return fields
 
 
 class Journal:
@@ -136,12 +136,12 @@ class Journal:
 
     @staticmethod
     def _row_to_job(row: sqlite3.Row) -> Job:
-        d = dict(row)
-        for f in JSON_FIELDS:
-            d[f] = json.loads(d[f]) if d[f] else None
-        d["state"] = JobState(d["state"])
-        d["print_requested"] = bool(d["print_requested"])
-        return Job(**d)
+        fields = dict(row)
+        for name in JSON_FIELDS:
+            fields[name] = json.loads(fields[name]) if fields[name] else None
+        fields["state"] = JobState(fields["state"])
+        fields["print_requested"] = bool(fields["print_requested"])
+        return Job(**fields)
 
     # -- jobs -----------------------------------------------------------------------------
     def add_job(self, *, name: str, source_name: str, kind: str, work_dir: str,
@@ -180,17 +180,17 @@ class Journal:
         return self._row_to_job(row) if row else None
 
     def jobs(self, states: set[JobState] | None = None, *, limit: int | None = None) -> list[Job]:
-        q = "SELECT * FROM jobs"
+        query = "SELECT * FROM jobs"
         args: list[Any] = []
         if states:
-            q += f" WHERE state IN ({','.join('?' * len(states))})"
+            query += f" WHERE state IN ({','.join('?' * len(states))})"
             args += [str(s) for s in states]
-        q += " ORDER BY id"
+        query += " ORDER BY id"
         if limit:
-            inner = q.replace(" ORDER BY id", " ORDER BY id DESC")
-            q = f"SELECT * FROM ({inner} LIMIT {int(limit)}) ORDER BY id"
+            inner = query.replace(" ORDER BY id", " ORDER BY id DESC")
+            query = f"SELECT * FROM ({inner} LIMIT {int(limit)}) ORDER BY id"
         with self._lock:
-            rows = self._db.execute(q, args).fetchall()
+            rows = self._db.execute(query, args).fetchall()
         return [self._row_to_job(r) for r in rows]
 
     def counts(self) -> dict[str, int]:
@@ -214,10 +214,10 @@ class Journal:
                 raise KeyError(f"no job {job_id}")
             old = JobState(row[0])
             if expect is not None:
-                exp = {expect} if isinstance(expect, JobState) else set(expect)
-                if old not in exp:
+                expected = {expect} if isinstance(expect, JobState) else set(expect)
+                if old not in expected:
                     raise TransitionError(f"job {job_id} is {old}, not "
-                                          f"{' or '.join(sorted(map(str, exp)))}")
+                                          f"{' or '.join(sorted(map(str, expected)))}")
             check_transition(old, new)
             self._set(db, job_id, state=str(new), updated=now, **fields)
             db.execute("INSERT INTO transitions VALUES (?,?,?,?,?)",

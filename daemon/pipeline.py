@@ -191,10 +191,13 @@ class Spool:
         self._write_reports(job_id, folder, stem)
 
     def drop_reports(self, job: Job) -> None:
+        """Delete a job's reports (it is redone) and forget their paths."""
+        outputs = dict(job.outputs or {})
         for key in ("report_json", "report_txt"):
-            report = (job.outputs or {}).get(key)
+            report = outputs.pop(key, None)
             if report:
                 Path(report).unlink(missing_ok=True)
+        self.journal.update(job.id, outputs=outputs)
 
     def restore_input(self, job: Job) -> tuple[str, str]:
         """For a requeue of a failed/cancelled job: bring its input back into a work folder."""
