@@ -42,6 +42,9 @@ PRELOAD = ("numpy", "scipy.sparse", "scipy.sparse.csgraph", "scipy.spatial", "tr
            "trimesh.exchange.ply", "manifold3d", "igl", "igl.copyleft.cgal",
            "xml.etree.ElementTree", "daemon.worker")
 
+#: Thread pools sized by these are kept at one thread in the server (and so its children).
+THREAD_POOL_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
 MAX_MESSAGE = 65536
 CHILD_FDS = 2  # the child's stdout (progress pipe) and stderr (the task's log)
 
@@ -147,7 +150,8 @@ class ForkServer:
         ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         env = dict(os.environ)
         env.setdefault("MALLOC_ARENA_MAX", "2")
-        env.setdefault("OPENBLAS_NUM_THREADS", "1")
+        # no BLAS/OpenMP thread pool in the server: a fork copies only the forking thread
+        env.update({name: "1" for name in THREAD_POOL_VARIABLES})
         with theirs:
             self._proc = subprocess.Popen(
                 [sys.executable, "-m", "daemon.forkserver", str(theirs.fileno()),

@@ -94,7 +94,15 @@ def test_a_killed_fork_server_is_replaced(tmp_path):
     assert FORK_SERVER.pid not in (None, server)
 
 
-def test_fork_server_forks_from_a_single_thread(tmp_path):
-    """numpy/OpenBLAS and the other imports leave no thread in the server to be forked."""
-    FORK_SERVER.ensure_started()
-    assert os.listdir(f"/proc/{FORK_SERVER.pid}/task") == [str(FORK_SERVER.pid)]
+def test_fork_server_forks_from_a_single_thread(monkeypatch):
+    """numpy/OpenBLAS and the other imports leave no thread in the server to be forked,
+    even when the environment asks for a BLAS thread pool."""
+    from daemon.forkserver import ForkServer
+
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "4")
+    server = ForkServer()
+    try:
+        server.ensure_started()
+        assert os.listdir(f"/proc/{server.pid}/task") == [str(server.pid)]
+    finally:
+        server.shutdown()
