@@ -183,6 +183,8 @@ class ForkServer:
                 else:
                     pending = self._starts.pop(int(reply["id"]), _Pending())
                     pending.error = reply.get("error")
+                    if "pid" in reply:  # awaited from now on: if the server dies, we say so
+                        self._exits.setdefault(int(reply["pid"]), _Pending())
                 pending.value = reply.get("status", reply.get("pid"))
                 pending.event.set()
         with self._lock:

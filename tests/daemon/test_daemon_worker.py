@@ -106,3 +106,24 @@ def test_fork_server_forks_from_a_single_thread(monkeypatch):
         assert os.listdir(f"/proc/{server.pid}/task") == [str(server.pid)]
     finally:
         server.shutdown()
+
+
+def test_a_task_whose_fork_server_is_killed_fails_with_the_reason(tmp_path, monkeypatch):
+    """kill -9 of the server mid-task: the task's child dies with it, the task fails
+    with a reason (it does not wait for its timeout), and the next task runs."""
+    monkeypatch.setenv(FAULT_ENV, "repair:hang")
+    children = []
+
+    def kill_server(pid):
+        children.append(pid)
+        os.kill(FORK_SERVER.pid, signal.SIGKILL)
+
+    with pytest.raises(WorkerFailed, match="the fork server ended"):
+        run_task("repair", spec(tmp_path), work_dir=tmp_path / "w1", timeout=600,
+                 memory_mb=1024, on_start=kill_server)
+    monkeypatch.delenv(FAULT_ENV)
+    report = run_task("repair", spec(tmp_path, "next.stl"), work_dir=tmp_path / "w2",
+                      timeout=300, memory_mb=2048)
+    assert report["after"]["triangles"] > 0
+    stat = Path(f"/proc/{children[0]}/stat")
+    assert not stat.exists() or stat.read_text().rsplit(")", 1)[1].split()[0] == "Z"
