@@ -4,6 +4,8 @@ Runs the real daemon (``preflight run``) as a subprocess against a virtual print
 served on a pty by this process (so the daemon's own memory is measured alone),
 and prints:
 
+- the start-up of a task child: from the daemon asking for it to the child's first
+  progress line (a warm fork server; the fork server's own start once, separately);
 - the latency from dropping a 20 mm cube into the spool to its first G-code line
   reaching the printer, split into detection, repair, slicing and stream start;
 - the idle daemon's resident memory (RSS, and its peak);
@@ -26,26 +28,21 @@ import time
 from pathlib import Path
 
 import numpy as np
+import tomli_w
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests" / "daemon"))
+
+from daemon_helpers import box  # noqa: E402
 
 from daemon.config import load_config  # noqa: E402
 from daemon.journal import Journal  # noqa: E402
+from daemon.worker import FORK_SERVER, run_task  # noqa: E402
 from printer.virtual import VirtualPrinter  # noqa: E402
 from repair.io import write_stl  # noqa: E402
 
 QUERY = {"M110", "M115", "M105", "M211", "M200", "M862.1", "M208", "M155"}
-
-
-def box(size):
-    x, y, z = size
-    v = np.array([[0, 0, 0], [x, 0, 0], [x, y, 0], [0, y, 0],
-                  [0, 0, z], [x, 0, z], [x, y, z], [0, y, z]], dtype=np.float64)
-    f = np.array([[0, 2, 1], [0, 3, 2], [4, 5, 6], [4, 6, 7], [0, 1, 5], [0, 5, 4],
-                  [1, 2, 6], [1, 6, 5], [2, 3, 7], [2, 7, 6], [3, 0, 4], [3, 4, 7]],
-                 dtype=np.int64)
-    return v, f
 
 
 def broken_box(size):
@@ -57,21 +54,14 @@ def broken_box(size):
 
 def config(root: Path, port: str, *, auto_print: bool) -> Path:
     p = root / "preflight.toml"
-    p.write_text(f"""
-[spool]
-path = "{root / 'spool'}"
-settle_seconds = 1.0
-close_grace_seconds = 0.05
-[printer]
-port = "{port}"
-baud = 250000
-reconnect_min_seconds = 0.2
-reconnect_max_seconds = 1.0
-[daemon]
-state_dir = "{root / 'state'}"
-auto_print = {'true' if auto_print else 'false'}
-log_level = "WARNING"
-""")
+    p.write_text(tomli_w.dumps({
+        "spool": {"path": str(root / "spool"), "settle_seconds": 1.0,
+                  "close_grace_seconds": 0.05},
+        "printer": {"port": port, "baud": 250000, "reconnect_min_seconds": 0.2,
+                    "reconnect_max_seconds": 1.0},
+        "daemon": {"state_dir": str(root / "state"), "auto_print": auto_print,
+                   "log_level": "WARNING"},
+    }))
     return p
 
 
@@ -105,13 +95,13 @@ class Run:
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "daemon", "run", "--config", str(self.cfg_path)],
             stdout=self.log, stderr=self.log, cwd=ROOT)
-        self.j = None
+        self.journal: Journal | None = None
         while True:
             if self.proc.poll() is not None:
                 raise SystemExit(f"daemon died: {(self.root / 'daemon.log').read_text()}")
             if self.cfg.journal_path.exists():
-                self.j = self.j or Journal(self.cfg.journal_path, readonly=True)
-                st = self.j.get_meta("status") or {}
+                self.journal = self.journal or Journal(self.cfg.journal_path, readonly=True)
+                st = self.journal.get_meta("status") or {}
                 if (st.get("printer") or {}).get("state") == "connected":
                     break
             time.sleep(0.05)
@@ -132,8 +122,9 @@ def bench_latency(speedup: float) -> None:
     try:
         time.sleep(2.0)
         rss, hwm = rss_kb(r.proc.pid)
+        server = sum(rss_kb(c)[0] for c in child_pids(r.proc.pid))
         print(f"idle daemon memory: RSS {rss / 1024:.1f} MB (peak {hwm / 1024:.1f} MB), "
-              "printer connected, nothing to do")
+              f"printer connected, nothing to do; its fork server: RSS {server / 1024:.1f} MB")
         c0, w0 = cpu_seconds(r.proc.pid), time.monotonic()
         time.sleep(5.0)
         cpu = (cpu_seconds(r.proc.pid) - c0) / (time.monotonic() - w0)
@@ -145,7 +136,7 @@ def bench_latency(speedup: float) -> None:
         while r.job_lines() == base:
             time.sleep(0.001)
         t1 = time.monotonic()
-        hist = r.j.history(1)
+        hist = r.journal.history(1)
         at = {h["to_state"]: h["at"] - wall0 for h in hist}
         print(f"latency, 20 mm cube dropped -> first line at the printer: {t1 - t0:.2f} s "
               f"(taken {at.get('queued', 0):.2f} s, repaired by {at.get('slicing', 0):.2f} s, "
@@ -154,6 +145,42 @@ def bench_latency(speedup: float) -> None:
         print(f"daemon memory after one job: RSS {rss / 1024:.1f} MB (peak {hwm / 1024:.1f} MB)")
     finally:
         r.close()
+
+
+def _first_line_seconds(root: Path, i: int) -> float:
+    """Seconds from run_task's call to the child's first progress line."""
+    first: list[float] = []
+    t0 = time.monotonic()
+    run_task("repair", {"in": str(root / "cube.stl"), "out": str(root / f"{i}.stl"),
+                        "epsilon": 0.4}, work_dir=root / f"w{i}", timeout=120, memory_mb=2048,
+             progress=lambda stage, fraction: first or first.append(time.monotonic()))
+    return first[0] - t0
+
+
+def child_pids(pid: int) -> list[int]:
+    """The processes ``pid`` started (from any of its threads)."""
+    return [int(c) for t in Path(f"/proc/{pid}/task").iterdir()
+            for c in (t / "children").read_text().split()]
+
+
+def bench_child_startup(runs: int) -> None:
+    """From asking for a task child to its first progress line, on a 10 mm cube."""
+    root = Path(tempfile.mkdtemp(prefix="preflight-bench-"))
+    try:
+        v, f = box((10.0, 10.0, 10.0))
+        write_stl(root / "cube.stl", v, f)
+        t0 = time.monotonic()
+        FORK_SERVER.ensure_started()
+        server_start = time.monotonic() - t0
+        times = [_first_line_seconds(root, i) for i in range(runs)]
+        rss, _ = rss_kb(FORK_SERVER.pid)
+        print(f"child start-up per task (request -> the task's first line): median "
+              f"{1000 * float(np.median(times)):.0f} ms, max {1000 * max(times):.0f} ms "
+              f"over {runs} tasks (fork server: started once in {server_start:.2f} s, "
+              f"RSS {rss / 1024:.0f} MB)")
+    finally:
+        FORK_SERVER.shutdown()
+        shutil.rmtree(root, ignore_errors=True)
 
 
 def bench_batch(n: int, auto_print: bool, speedup: float) -> None:
@@ -168,7 +195,7 @@ def bench_batch(n: int, auto_print: bool, speedup: float) -> None:
             t0 = t0 if t0 is not None else t
         final = ("done", "failed") if auto_print else ("ready", "failed")
         while True:
-            jobs = r.j.jobs()
+            jobs = r.journal.jobs()
             if len(jobs) == n and all(str(j.state) in final for j in jobs):
                 break
             time.sleep(0.05)
@@ -189,6 +216,7 @@ def main() -> int:
     a = ap.parse_args()
     print(f"preflight daemon benchmark ({os.cpu_count()} cores, virtual printer speed-up "
           f"{a.speedup:g}, 250000 baud)")
+    bench_child_startup(10)
     bench_latency(a.speedup)
     bench_batch(a.batch, auto_print=False, speedup=a.speedup)
     bench_batch(a.batch, auto_print=True, speedup=a.speedup)

@@ -11,8 +11,9 @@ from __future__ import annotations
 
 import logging
 import os
+import textwrap
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -31,52 +32,114 @@ class ConfigError(ValueError):
     """A configuration value is wrong; the message names the key."""
 
 
+# --- the schema ---------------------------------------------------------------------------
+# Every key is a dataclass field declared with setting(): its default, a one-line doc, and
+# how its value is checked. Parsing, validation and the example config come from these.
+
+BOOL, INT, FLOAT, STR, PATH, CHOICE, GCODES = ("bool", "int", "float", "str", "path",
+                                               "choice", "G-code words")
+
+
+@dataclass(frozen=True)
+class Rule:
+    """How one key's value is checked, and how the example config shows it."""
+
+    kind: str
+    doc: str
+    low: float | None = None          # the smallest value allowed
+    high: float | None = None         # the largest value allowed
+    above_low: bool = False           # the value must be > low (not >= low)
+    low_key: str | None = None        # the smallest value is that key's value
+    choices: tuple[str, ...] = ()
+    optional: bool = False            # the default is "not set" (None)
+    example: Any = None               # shown in the example config instead of the default
+    commented: bool = False           # shown commented out in the example config
+    upper: bool = False               # the value is taken in capitals ("info" = "INFO")
+
+
+def setting(default: Any, doc: str, kind: str, **rule: Any) -> Any:
+    """A config key: a dataclass field carrying its :class:`Rule`."""
+    return field(default=default, metadata={"rule": Rule(kind, doc, **rule)})
+
+
 @dataclass(frozen=True)
 class SpoolConfig:
-    path: Path = Path("/var/spool/preflight")
-    settle_seconds: float = 5.0       # size/mtime stable this long => complete (no close event)
-    close_grace_seconds: float = 0.3  # after close-after-write, wait this long for more writes
-    poll: bool = False                # use a polling observer (network shares without inotify)
+    path: Path = setting(Path("/var/spool/preflight"),
+                         "drop files here; done/ and failed/ live inside", PATH)
+    settle_seconds: float = setting(5.0, "no close event seen (network share): stable this "
+                                    "long = complete", FLOAT, low=0.05, high=3600)
+    close_grace_seconds: float = setting(0.3, "after close-after-write, wait this long for "
+                                         "more writes", FLOAT, low=0, high=60)
+    poll: bool = setting(False, "true: poll instead of inotify (NFS/SMB mounts)", BOOL)
 
 
 @dataclass(frozen=True)
 class PrinterConfig:
-    port: str = "virtual"             # device path, /dev/serial/by-id/..., or "virtual"
-    baud: int = 115200
-    nozzle_diameter: float = 0.4      # mm; used when the printer cannot report its nozzle
-    mode: str = "auto"                # streaming mode passed to PrinterHost
-    nozzle_macro: str | None = None   # Klipper macro reporting the nozzle
-    reconnect_min_seconds: float = 1.0
-    reconnect_max_seconds: float = 60.0
-    # Only for port = "virtual":
-    virtual_firmware: str = "marlin"
-    virtual_speedup: float = 50.0
-    virtual_log: Path | None = None   # append every executed command here
-
-
-@dataclass(frozen=True)
-class LimitsConfig:
-    max_file_mb: float = 200.0
-    max_triangles: int = 2_000_000
-    repair_timeout: float = 600.0
-    slice_timeout: float = 600.0
-    repair_memory_mb: int = 2048
-    slice_memory_mb: int = 2048
-    max_attempts: int = 3             # a job whose processing died this often fails
+    port: str = setting("virtual", 'a serial device (best under /dev/serial/by-id/), or '
+                        '"virtual"', STR, example="/dev/serial/by-id/usb-Prusa_Research__"
+                        "prusa3d.com__Original_Prusa_i3_MK3-if00")
+    baud: int = setting(115200, "serial speed", INT, low=300, high=4_000_000)
+    nozzle_diameter: float = setting(0.4, "mm, used when the printer cannot report its nozzle",
+                                     FLOAT, low=0.05, high=3.0, above_low=True)
+    mode: str = setting("auto", "how G-code is streamed", CHOICE,
+                        choices=("auto", "ping-pong", "buffered"))
+    nozzle_macro: str | None = setting(None, "Klipper: a macro that reports the nozzle", STR,
+                                       optional=True, example="GET_NOZZLE")
+    reconnect_min_seconds: float = setting(1.0, "first wait before reconnecting", FLOAT,
+                                           low=0.01, high=3600)
+    reconnect_max_seconds: float = setting(60.0, "longest wait between reconnects", FLOAT,
+                                           low_key="reconnect_min_seconds", high=86400)
+    virtual_firmware: str = setting("marlin", 'port = "virtual" only: the firmware it plays',
+                                    CHOICE, choices=("marlin", "prusa", "buddy", "klipper",
+                                                     "rrf"))
+    virtual_speedup: float = setting(50.0, 'port = "virtual" only: how much faster than real '
+                                     "time it prints", FLOAT, low=0.01, high=1e6)
+    virtual_log: Path | None = setting(None, 'port = "virtual" only: append every executed '
+                                       "command here", PATH, optional=True,
+                                       example="/var/log/preflight/virtual.gcode")
 
 
 @dataclass(frozen=True)
 class DaemonConfig:
-    state_dir: Path = Path("/var/lib/preflight")
-    auto_print: bool = True
-    log_level: str = "INFO"
-    workers: int = 1                  # repair/slice jobs processed at once
+    state_dir: Path = setting(Path("/var/lib/preflight"), "journal.sqlite lives here", PATH)
+    auto_print: bool = setting(True, "false: repair and slice, then wait for `preflight jobs "
+                               "print ID`", BOOL)
+    log_level: str = setting("INFO", "how much the daemon logs", CHOICE,
+                             choices=("DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL"),
+                             upper=True)
+    workers: int = setting(1, "models repaired/sliced at once", INT, low=1, high=64)
+
+
+@dataclass(frozen=True)
+class LimitsConfig:
+    max_file_mb: float = setting(200.0, "MB; a bigger dropped file is refused", FLOAT,
+                                 low=0, high=1e6, above_low=True)
+    max_triangles: int = setting(2_000_000, "a model with more triangles is refused", INT,
+                                 low=1, high=1e9)
+    repair_timeout: float = setting(600.0, "s", FLOAT, low=0, high=1e6, above_low=True)
+    slice_timeout: float = setting(600.0, "s", FLOAT, low=0, high=1e6, above_low=True)
+    repair_memory_mb: int = setting(2048, "address-space cap of the repair child", INT,
+                                    low=64, high=1e7)
+    slice_memory_mb: int = setting(2048, "address-space cap of the slicing child", INT,
+                                   low=64, high=1e7)
+    max_attempts: int = setting(3, "a job whose processing died this often fails", INT,
+                                low=1, high=100)
 
 
 @dataclass(frozen=True)
 class SafetyConfig:
-    allow_firmware_commands: bool = False
-    forbidden_gcodes: tuple[str, ...] = DEFAULT_FORBIDDEN_GCODES
+    allow_firmware_commands: bool = setting(False, "true: allow M500/M502/M997/Wi-Fi... in "
+                                            "dropped G-code", BOOL)
+    forbidden_gcodes: tuple[str, ...] = setting(DEFAULT_FORBIDDEN_GCODES, "G-code words refused "
+                                                "unless allow_firmware_commands", GCODES,
+                                                commented=True)
+
+
+#: The sections in the order of the example config; ``[profile]`` is an open table.
+SECTIONS: dict[str, type] = {"spool": SpoolConfig, "printer": PrinterConfig,
+                             "daemon": DaemonConfig, "limits": LimitsConfig,
+                             "safety": SafetyConfig}
+PROFILE = "profile"
 
 
 @dataclass(frozen=True)
@@ -106,44 +169,92 @@ class Config:
         return self.spool.path / ".preflight" / "work"
 
 
-# --- validation helpers ------------------------------------------------------------------
+def rules(section: type) -> list[tuple[str, Any, Rule]]:
+    """(key, default, rule) for every key of a section class, in declaration order."""
+    return [(f.name, f.default, f.metadata["rule"]) for f in fields(section)]
+
+
+# --- parsing and validation ----------------------------------------------------------------
+
+def _shown(value: Any, limit: int = 60) -> str:
+    """A value as it appears in an error message: one line, never very long."""
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+def _name(text: str) -> str:
+    """A section or key name as it appears in an error message: escaped, at most 40 chars."""
+    shown = repr(str(text))[1:-1]
+    return shown if len(shown) <= 40 else shown[:37] + "..."
+
 
 def _key(section: str, name: str) -> str:
-    return f"[{section}] {name}"
+    return f"[{_name(section)}] {_name(name)}"
 
 
-def _bool(section: str, name: str, v: Any) -> bool:
-    if isinstance(v, bool):
-        return v
-    raise ConfigError(f"{_key(section, name)}: expected true or false, got {v!r}")
+def _number(where: str, value: Any, rule: Rule, low: float) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ConfigError(f"{where}: expected a number, got {_shown(value)}")
+    if rule.kind == INT and not isinstance(value, int):
+        raise ConfigError(f"{where}: expected a whole number, got {_shown(value)}")
+    high = float("inf") if rule.high is None else rule.high
+    too_low = value <= low if rule.above_low else value < low
+    if value != value or too_low or value > high:
+        bounds = f"{'>' if rule.above_low else '>='} {low} and <= {high}"
+        raise ConfigError(f"{where}: {_shown(value)} is out of range (must be {bounds})")
+    return int(value) if rule.kind == INT else float(value)
 
 
-def _num(section: str, name: str, v: Any, *, lo: float, hi: float, integer: bool = False,
-         open_lo: bool = False) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
-        raise ConfigError(f"{_key(section, name)}: expected a number, got {v!r}")
-    if integer and not isinstance(v, int):
-        raise ConfigError(f"{_key(section, name)}: expected a whole number, got {v!r}")
-    if v != v or (v <= lo if open_lo else v < lo) or v > hi:
-        rng = f"{'>' if open_lo else '>='} {lo} and <= {hi}"
-        raise ConfigError(f"{_key(section, name)}: {v!r} is out of range (must be {rng})")
-    return int(v) if integer else float(v)
+def _string(where: str, value: Any) -> str:
+    if not isinstance(value, str) or not value.strip():
+        raise ConfigError(f"{where}: expected a non-empty string, got {_shown(value)}")
+    return value
 
 
-def _str(section: str, name: str, v: Any) -> str:
-    if not isinstance(v, str) or not v.strip():
-        raise ConfigError(f"{_key(section, name)}: expected a non-empty string, got {v!r}")
-    return v
+def check_value(section: str, name: str, value: Any, rule: Rule, *, base: Path | None,
+                earlier: dict[str, Any]) -> Any:
+    """``value`` checked and converted by ``rule``; ConfigError naming the key if wrong.
+
+    ``earlier``: the values of the section's keys declared before this one.
+    """
+    where = _key(section, name)
+    if rule.kind == BOOL:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where}: expected true or false, got {_shown(value)}")
+        return value
+    if rule.kind in (INT, FLOAT):
+        low = earlier[rule.low_key] if rule.low_key else rule.low
+        return _number(where, value, rule, float("-inf") if low is None else low)
+    if rule.kind == GCODES:
+        if not isinstance(value, list) or not all(isinstance(x, str) and x.strip()
+                                                  for x in value):
+            raise ConfigError(f'{where}: expected a list of G-code words like "M502"')
+        return tuple(x.strip().upper() for x in value)
+    text = _string(where, value)
+    if rule.kind == PATH:
+        if "\0" in text:
+            raise ConfigError(f"{where}: a path cannot contain a NUL character")
+        path = Path(os.path.expanduser(text))
+        return base / path if not path.is_absolute() and base is not None else path
+    if rule.kind == CHOICE:
+        text = text.upper() if rule.upper else text
+        if text not in rule.choices:
+            raise ConfigError(f"{where}: {_shown(text)} is not one of {', '.join(rule.choices)}")
+    return text
 
 
-def _path(section: str, name: str, v: Any, base: Path | None) -> Path:
-    p = Path(os.path.expanduser(_str(section, name, v)))
-    if not p.is_absolute() and base is not None:
-        p = base / p
-    return p
-
-
-_SECTIONS = {"spool", "printer", "limits", "daemon", "safety", "profile"}
+def _section(name: str, table: dict[str, Any], section: type, base: Path | None) -> Any:
+    known = [key for key, _, _ in rules(section)]
+    for key in table:
+        if key not in known:
+            raise ConfigError(f"{_key(name, key)}: unknown key (known: {', '.join(sorted(known))})")
+    values: dict[str, Any] = {}
+    for key, default, rule in rules(section):
+        if key in table:
+            values[key] = check_value(name, key, table[key], rule, base=base, earlier=values)
+        else:
+            values[key] = default
+    return section(**values)
 
 
 def parse_config(data: dict[str, Any], *, base: Path | None = None,
@@ -153,118 +264,69 @@ def parse_config(data: dict[str, Any], *, base: Path | None = None,
     Relative paths are taken relative to ``base`` (the config file's folder).
     Unknown sections or keys are errors, so that a typo never passes silently.
     """
-    for sect in data:
-        if sect not in _SECTIONS:
-            raise ConfigError(f"[{sect}]: unknown section (known: {', '.join(sorted(_SECTIONS))})")
-        if not isinstance(data[sect], dict):
-            raise ConfigError(f"[{sect}]: expected a table")
+    known = [*SECTIONS, PROFILE]
+    for name, table in data.items():
+        if name not in known:
+            raise ConfigError(f"[{_name(name)}]: unknown section "
+                              f"(known: {', '.join(sorted(known))})")
+        if not isinstance(table, dict):
+            raise ConfigError(f"[{name}]: expected a table")
+    sections = {name: _section(name, data.get(name, {}), section, base)
+                for name, section in SECTIONS.items()}
+    return Config(**sections, profile=dict(data.get(PROFILE, {})), source=source)
 
-    def take(sect: str, known: set[str]) -> dict[str, Any]:
-        d = dict(data.get(sect, {}))
-        for k in d:
-            if k not in known:
-                raise ConfigError(f"{_key(sect, k)}: unknown key "
-                                  f"(known: {', '.join(sorted(known))})")
-        return d
 
-    s = take("spool", {"path", "settle_seconds", "close_grace_seconds", "poll"})
-    spool = SpoolConfig()
-    spool = SpoolConfig(
-        path=_path("spool", "path", s["path"], base) if "path" in s else spool.path,
-        settle_seconds=_num("spool", "settle_seconds",
-                            s.get("settle_seconds", spool.settle_seconds), lo=0.05, hi=3600),
-        close_grace_seconds=_num("spool", "close_grace_seconds",
-                                 s.get("close_grace_seconds", spool.close_grace_seconds),
-                                 lo=0, hi=60),
-        poll=_bool("spool", "poll", s.get("poll", spool.poll)),
-    )
+# --- the example config ---------------------------------------------------------------------
 
-    p = take("printer", {"port", "baud", "nozzle_diameter", "mode", "nozzle_macro",
-                         "reconnect_min_seconds", "reconnect_max_seconds", "virtual_firmware",
-                         "virtual_speedup", "virtual_log"})
-    d = PrinterConfig()
-    baud = _num("printer", "baud", p.get("baud", d.baud), lo=300, hi=4_000_000, integer=True)
-    mode = _str("printer", "mode", p.get("mode", d.mode))
-    if mode not in ("auto", "ping-pong", "buffered"):
-        raise ConfigError(f"[printer] mode: {mode!r} is not one of auto, ping-pong, buffered")
-    fw = _str("printer", "virtual_firmware", p.get("virtual_firmware", d.virtual_firmware))
-    if fw not in ("marlin", "prusa", "buddy", "klipper", "rrf"):
-        raise ConfigError(f"[printer] virtual_firmware: {fw!r} is not one of "
-                          "marlin, prusa, buddy, klipper, rrf")
-    rmin = _num("printer", "reconnect_min_seconds",
-                p.get("reconnect_min_seconds", d.reconnect_min_seconds), lo=0.01, hi=3600)
-    rmax = _num("printer", "reconnect_max_seconds",
-                p.get("reconnect_max_seconds", d.reconnect_max_seconds), lo=rmin, hi=86400)
-    printer = PrinterConfig(
-        port=_str("printer", "port", p.get("port", d.port)),
-        baud=int(baud),
-        nozzle_diameter=_num("printer", "nozzle_diameter",
-                             p.get("nozzle_diameter", d.nozzle_diameter), lo=0.05, hi=3.0,
-                             open_lo=True),
-        mode=mode,
-        nozzle_macro=_str("printer", "nozzle_macro", p["nozzle_macro"]) if "nozzle_macro" in p
-        else None,
-        reconnect_min_seconds=rmin,
-        reconnect_max_seconds=rmax,
-        virtual_firmware=fw,
-        virtual_speedup=_num("printer", "virtual_speedup", p.get("virtual_speedup",
-                             d.virtual_speedup), lo=0.01, hi=1e6),
-        virtual_log=_path("printer", "virtual_log", p["virtual_log"], base)
-        if "virtual_log" in p else None,
-    )
+EXAMPLE_HEADER = """\
+# /etc/preflight/preflight.toml - the preflight daemon's configuration.
+# Every key is optional; the values shown are the built-in defaults unless noted.
+# Generated from the schema in daemon/config.py by `preflight example-config`.
+"""
 
-    lim = take("limits", {"max_file_mb", "max_triangles", "repair_timeout", "slice_timeout",
-                          "repair_memory_mb", "slice_memory_mb", "max_attempts"})
-    dl = LimitsConfig()
-    limits = LimitsConfig(
-        max_file_mb=_num("limits", "max_file_mb", lim.get("max_file_mb", dl.max_file_mb),
-                         lo=0, hi=1e6, open_lo=True),
-        max_triangles=int(_num("limits", "max_triangles", lim.get("max_triangles",
-                               dl.max_triangles), lo=1, hi=1e9, integer=True)),
-        repair_timeout=_num("limits", "repair_timeout", lim.get("repair_timeout",
-                            dl.repair_timeout), lo=0, hi=1e6, open_lo=True),
-        slice_timeout=_num("limits", "slice_timeout", lim.get("slice_timeout", dl.slice_timeout),
-                           lo=0, hi=1e6, open_lo=True),
-        repair_memory_mb=int(_num("limits", "repair_memory_mb", lim.get("repair_memory_mb",
-                                  dl.repair_memory_mb), lo=64, hi=1e7, integer=True)),
-        slice_memory_mb=int(_num("limits", "slice_memory_mb", lim.get("slice_memory_mb",
-                                 dl.slice_memory_mb), lo=64, hi=1e7, integer=True)),
-        max_attempts=int(_num("limits", "max_attempts", lim.get("max_attempts",
-                              dl.max_attempts), lo=1, hi=100, integer=True)),
-    )
+EXAMPLE_PROFILE = """\
+[profile]
+# Any slicer profile setting (see `preflight slice --help`), e.g.:
+# infill_percent = 15
+"""
 
-    dm = take("daemon", {"state_dir", "auto_print", "log_level", "workers"})
-    dd = DaemonConfig()
-    level = _str("daemon", "log_level", dm.get("log_level", dd.log_level)).upper()
-    if level not in ("DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL"):
-        raise ConfigError(f"[daemon] log_level: {level!r} is not one of "
-                          "DEBUG, INFO, WARNING, ERROR, CRITICAL")
-    daemon = DaemonConfig(
-        state_dir=_path("daemon", "state_dir", dm["state_dir"], base) if "state_dir" in dm
-        else dd.state_dir,
-        auto_print=_bool("daemon", "auto_print", dm.get("auto_print", dd.auto_print)),
-        log_level=level,
-        workers=int(_num("daemon", "workers", dm.get("workers", dd.workers), lo=1, hi=64,
-                         integer=True)),
-    )
+COMMENT_COLUMN = 34
 
-    sf = take("safety", {"allow_firmware_commands", "forbidden_gcodes"})
-    ds = SafetyConfig()
-    forbidden = sf.get("forbidden_gcodes", list(ds.forbidden_gcodes))
-    if not isinstance(forbidden, list) or not all(isinstance(x, str) and x.strip()
-                                                  for x in forbidden):
-        raise ConfigError("[safety] forbidden_gcodes: expected a list of G-code words "
-                          "like \"M502\"")
-    safety = SafetyConfig(
-        allow_firmware_commands=_bool("safety", "allow_firmware_commands",
-                                      sf.get("allow_firmware_commands",
-                                             ds.allow_firmware_commands)),
-        forbidden_gcodes=tuple(x.strip().upper() for x in forbidden),
-    )
 
-    profile = dict(data.get("profile", {}))
-    return Config(spool=spool, printer=printer, limits=limits, daemon=daemon, safety=safety,
-                  profile=profile, source=source)
+def _example_line(name: str, default: Any, rule: Rule) -> str:
+    import tomli_w
+
+    shown = rule.example if rule.example is not None else default
+    if isinstance(shown, tuple):  # a list, wrapped; its doc goes on the line above
+        prefix = f"{name} = ["
+        items = textwrap.wrap(", ".join(tomli_w.dumps({"x": x})[4:].strip() for x in shown),
+                              width=88 - len(prefix), break_long_words=False,
+                              break_on_hyphens=False)
+        body = ("\n" + " " * len(prefix)).join(items)
+        mark = "# " if rule.commented else ""
+        return f"# {rule.doc}\n" + "\n".join(
+            mark + line for line in f"{prefix}{body}]".split("\n"))
+    assignment = tomli_w.dumps({name: str(shown) if isinstance(shown, Path) else shown}).strip()
+    doc = rule.doc + (f" ({' | '.join(rule.choices)})" if rule.choices else "")
+    if rule.optional:
+        doc += "; not set by default"
+    elif rule.example is not None:
+        doc += f" (default {tomli_w.dumps({'d': default}).strip()[4:]})"
+    if rule.optional or rule.commented:
+        assignment = "# " + assignment
+    return f"{assignment.ljust(COMMENT_COLUMN - 2)}  # {doc}"
+
+
+def example_config() -> str:
+    """The documented example config (``systemd/preflight.toml``): every key, its default
+    and its one-line doc, from the schema."""
+    parts = [EXAMPLE_HEADER]
+    for name, section in SECTIONS.items():
+        lines = [f"[{name}]"] + [_example_line(key, default, rule)
+                                 for key, default, rule in rules(section)]
+        parts.append("\n".join(lines) + "\n")
+    parts.append(EXAMPLE_PROFILE)
+    return "\n".join(parts)
 
 
 def load_config(path: str | os.PathLike[str] | None = None) -> Config:
@@ -301,8 +363,11 @@ def check_profile(cfg: Config, nozzle: float = 0.4,
     try:
         Profile.for_printer(nozzle_diameter=nozzle, build_volume=build_volume).with_overrides(
             cfg.profile)
-    except ProfileError as e:
-        raise ConfigError(f"[profile] {e}") from None
+    except ProfileError as e:  # its message may quote a long value: keep one short line
+        message = " ".join(str(e).split())
+        if len(message) > 200:
+            message = message[:197] + "..."
+        raise ConfigError(f"[profile] {message}") from None
 
 
 def setup_logging(level: str) -> None:

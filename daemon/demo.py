@@ -17,6 +17,11 @@ import tempfile
 import time
 from importlib import resources
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from daemon.config import Config
+    from daemon.journal import Job, Journal
 
 DEMO_MODEL = "open_cube_stuck_to_side.stl"
 DEMO_TIMEOUT = 900.0  # s: give up (and say so) rather than hang
@@ -45,33 +50,23 @@ def _end_progress() -> None:
 
 
 def write_demo_config(root: Path, *, speedup: float) -> Path:
+    """The demo's config: a temporary spool and state folder, the virtual printer playing
+    a Prusa (it reports its nozzle with M862.1 Q, so epsilon comes from the printer)."""
+    import tomli_w
+
     cfg = root / "preflight.toml"
-    cfg.write_text(f"""# written by `preflight demo`
-[spool]
-path = "{root / 'spool'}"
-settle_seconds = 1.0
-close_grace_seconds = 0.2
-
-[printer]
-port = "virtual"
-virtual_firmware = "prusa"        # reports its nozzle (M862.1 Q): epsilon comes from it
-baud = 250000
-virtual_speedup = {speedup}
-reconnect_min_seconds = 0.5
-
-[daemon]
-state_dir = "{root / 'state'}"
-auto_print = true
-log_level = "INFO"
-""")
+    cfg.write_text("# written by `preflight demo`\n" + tomli_w.dumps({
+        "spool": {"path": str(root / "spool"), "settle_seconds": 1.0,
+                  "close_grace_seconds": 0.2},
+        "printer": {"port": "virtual", "virtual_firmware": "prusa", "baud": 250000,
+                    "virtual_speedup": speedup, "reconnect_min_seconds": 0.5},
+        "daemon": {"state_dir": str(root / "state"), "auto_print": True, "log_level": "INFO"},
+    }))
     return cfg
 
 
 def run_demo(*, keep: bool = False, speedup: float | None = None) -> int:
     from daemon.config import load_config
-    from daemon.journal import Journal
-    from daemon.report import report_text
-    from daemon.service import daemon_alive
 
     root = Path(tempfile.mkdtemp(prefix="preflight-demo-"))
     cfg_path = write_demo_config(root, speedup=speedup or 1000.0)
@@ -83,7 +78,7 @@ def run_demo(*, keep: bool = False, speedup: float | None = None) -> int:
                                 stdout=log, stderr=log, stdin=subprocess.DEVNULL)
     code = 1
     try:
-        code = _follow(proc, cfg, root, log_path, Journal, report_text, daemon_alive)
+        code = _follow(proc, cfg, log_path)
     except KeyboardInterrupt:
         _end_progress()
         print("preflight: demo interrupted", file=sys.stderr)
@@ -110,101 +105,123 @@ def _tail(path: Path, n: int = 5) -> str:
         return ""
 
 
-def _follow(proc, cfg, root: Path, log_path: Path, Journal, report_text, daemon_alive) -> int:
+class DemoFailed(Exception):
+    """The demo cannot go on; the message says why."""
+
+
+def _follow(proc: subprocess.Popen, cfg: Config, log_path: Path) -> int:
+    from daemon.report import report_text
+
     start = time.monotonic()
-    # 1. the daemon is up
-    while True:
-        if proc.poll() is not None:
-            print(f"preflight: the daemon exited with status {proc.returncode}:\n"
-                  f"{_tail(log_path)}", file=sys.stderr)
-            return 1
-        if cfg.journal_path.exists():
-            j = Journal(cfg.journal_path, readonly=True)
-            if daemon_alive(j.get_meta("status")):
-                break
-            j.close()
-        if time.monotonic() - start > 60:
-            print("preflight: the daemon did not start within 60 s", file=sys.stderr)
-            return 1
-        time.sleep(0.2)
-    _say(f"daemon running (pid {proc.pid})")
-    # 2. drop the broken model, the way a network copy does: write, then rename
-    src = resources.files("daemon") / "data" / DEMO_MODEL
-    part = cfg.spool.path / (DEMO_MODEL + ".part")
-    with resources.as_file(src) as p:
-        shutil.copyfile(p, part)
-    os.rename(part, cfg.spool.path / DEMO_MODEL)
-    _say(f"dropped {DEMO_MODEL} (a broken model: an open cube stuck to the side of a closed one)")
-    # 3. follow the job through its recorded transitions (none is missed between polls)
-    announced = 0
-    job = None
-    while time.monotonic() - start < DEMO_TIMEOUT:
-        if proc.poll() is not None:
-            _end_progress()
-            print(f"preflight: the daemon died (status {proc.returncode}):\n{_tail(log_path)}",
-                  file=sys.stderr)
-            return 1
-        jobs = j.jobs()
-        if not jobs:
-            time.sleep(0.2)
-            continue
-        job = jobs[-1]
-        hist = j.history(job.id)
-        for h in hist[announced:]:
-            if announced and hist[announced - 1]["to_state"] == "printing":
-                _end_progress()
-            _announce(h["to_state"], job)
-            announced += 1
-        state = str(job.state)
-        if state == "printing" and job.progress is not None:
-            _progress("streaming to the printer", job.progress)
-        if state in ("done", "failed", "cancelled", "interrupted") and (
-                job.outputs or {}).get("report_txt"):
-            break
-        time.sleep(0.2)
-    else:
-        print(f"preflight: the demo did not finish within {DEMO_TIMEOUT:g} s", file=sys.stderr)
+    try:
+        journal = _wait_for_daemon(proc, cfg, log_path, start)
+        _say(f"daemon running (pid {proc.pid})")
+        _drop_demo_model(cfg.spool.path)
+        job = _watch_job(proc, journal, log_path, start)
+    except DemoFailed as e:
+        _end_progress()
+        print(f"preflight: {e}", file=sys.stderr)
         return 1
-    job = j.get(job.id)
-    st = j.get_meta("status") or {}
+    status = journal.get_meta("status") or {}
     _say("")
     _say("---- report ----")
-    sys.stdout.write(report_text(job, j.history(job.id)))
-    outs = job.outputs or {}
-    for k in ("input", "repaired", "gcode", "report_txt"):
-        if k in outs:
-            _say(f"  {k}: {outs[k]}")
+    sys.stdout.write(report_text(job, journal.history(job.id)))
+    outputs = job.outputs or {}
+    for key in ("input", "repaired", "gcode", "report_txt"):
+        if key in outputs:
+            _say(f"  {key}: {outputs[key]}")
     _say("")
     if str(job.state) != "done":
         print(f"preflight: the demo job ended {job.state}: {job.reason}", file=sys.stderr)
         return 1
     _say(f"demo finished in {time.monotonic() - start:.1f} s: the broken model was repaired, "
          f"sliced and printed on the virtual printer "
-         f"({(st.get('printer') or {}).get('port')}).")
+         f"({(status.get('printer') or {}).get('port')}).")
     return 0
 
 
-def _announce(s: str, job) -> None:
-    if s == "queued":
+def _wait_for_daemon(proc: subprocess.Popen, cfg: Config, log_path: Path,
+                     start: float) -> Journal:
+    """The daemon's journal, once the daemon says it runs."""
+    from daemon.journal import Journal
+    from daemon.service import daemon_alive
+
+    while True:
+        if proc.poll() is not None:
+            raise DemoFailed(f"the daemon exited with status {proc.returncode}:\n"
+                             f"{_tail(log_path)}")
+        if cfg.journal_path.exists():
+            journal = Journal(cfg.journal_path, readonly=True)
+            if daemon_alive(journal.get_meta("status")):
+                return journal
+            journal.close()
+        if time.monotonic() - start > 60:
+            raise DemoFailed("the daemon did not start within 60 s")
+        time.sleep(0.2)
+
+
+def _drop_demo_model(spool: Path) -> None:
+    """Drop the broken model the way a network copy does: write, then rename."""
+    model = resources.files("daemon") / "data" / DEMO_MODEL
+    part = spool / (DEMO_MODEL + ".part")
+    with resources.as_file(model) as path:
+        shutil.copyfile(path, part)
+    os.rename(part, spool / DEMO_MODEL)
+    _say(f"dropped {DEMO_MODEL} (a broken model: an open cube stuck to the side of a closed one)")
+
+
+def _watch_job(proc: subprocess.Popen, journal: Journal, log_path: Path, start: float) -> Job:
+    """Announce the job's recorded transitions (none is missed between polls) until it
+    has ended and its reports are written; return it."""
+    announced = 0
+    while time.monotonic() - start < DEMO_TIMEOUT:
+        if proc.poll() is not None:
+            raise DemoFailed(f"the daemon died (status {proc.returncode}):\n{_tail(log_path)}")
+        jobs = journal.jobs()
+        if not jobs:
+            time.sleep(0.2)
+            continue
+        job = jobs[-1]
+        history = journal.history(job.id)
+        for step in history[announced:]:
+            if announced and history[announced - 1]["to_state"] == "printing":
+                _end_progress()
+            _announce(step["to_state"], job)
+            announced += 1
+        state = str(job.state)
+        if state == "printing" and job.progress is not None:
+            _progress("streaming to the printer", job.progress)
+        if state in ("done", "failed", "cancelled", "interrupted") and (
+                job.outputs or {}).get("report_txt"):
+            latest = journal.get(job.id)
+            assert latest is not None
+            return latest
+        time.sleep(0.2)
+    raise DemoFailed(f"the demo did not finish within {DEMO_TIMEOUT:g} s")
+
+
+def _announce(state: str, job: Job) -> None:
+    if state == "queued":
         _say(f"job {job.id}: queued; asking the printer for its nozzle")
-    elif s == "repairing":
+    elif state == "repairing":
         _say(f"job {job.id}: repairing with epsilon = {job.epsilon:g} mm ({job.epsilon_source})")
-    elif s == "slicing":
-        rep = job.repair_report or {}
-        b, a = rep.get("before") or {}, rep.get("after") or {}
-        _say(f"job {job.id}: repaired - {rep.get('summary', '')}")
-        _say(f"         triangles {b.get('triangles', '?')} -> {a.get('triangles', '?')}")
-    elif s == "ready":
-        sm = job.slice_summary or {}
-        _say(f"job {job.id}: sliced - {sm.get('layers', '?')} layers, "
-             f"{(sm.get('filament_mm') or 0) / 1000:.2f} m of filament, "
-             f"estimated {sm.get('estimated_seconds', 0) / 60:.1f} min of printing")
-    elif s == "printing":
+    elif state == "slicing":
+        report = job.repair_report or {}
+        before, after = report.get("before") or {}, report.get("after") or {}
+        _say(f"job {job.id}: repaired - {report.get('summary', '')}")
+        _say(f"         triangles {before.get('triangles', '?')} -> "
+             f"{after.get('triangles', '?')}")
+    elif state == "ready":
+        summary = job.slice_summary or {}
+        _say(f"job {job.id}: sliced - {summary.get('layers', '?')} layers, "
+             f"{(summary.get('filament_mm') or 0) / 1000:.2f} m of filament, "
+             f"estimated {summary.get('estimated_seconds', 0) / 60:.1f} min of printing")
+    elif state == "printing":
         info = job.printer_info or {}
         _say(f"job {job.id}: streaming to the printer ({info.get('firmware', '?')})")
-    elif s == "done":
-        pr = job.print_result or {}
-        _say(f"job {job.id}: printed - {pr.get('acked_lines')} lines acknowledged in "
-             f"{pr.get('seconds', 0):.1f} s")
+    elif state == "done":
+        result = job.print_result or {}
+        _say(f"job {job.id}: printed - {result.get('acked_lines')} lines acknowledged in "
+             f"{result.get('seconds', 0):.1f} s")
     else:
-        _say(f"job {job.id}: {s} - {job.reason}")
+        _say(f"job {job.id}: {state} - {job.reason}")

@@ -17,6 +17,7 @@ import json
 import sqlite3
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -103,9 +104,9 @@ class Job:
     outputs: dict | None
 
     def to_dict(self) -> dict[str, Any]:
-        d = dict(self.__dict__)
-        d["state"] = str(self.state)
-        return d
+        fields = dict(self.__dict__)
+        fields["state"] = str(self.state)
+        return fields
 
 
 class Journal:
@@ -135,17 +136,24 @@ class Journal:
 
     @staticmethod
     def _row_to_job(row: sqlite3.Row) -> Job:
-        d = dict(row)
-        for f in JSON_FIELDS:
-            d[f] = json.loads(d[f]) if d[f] else None
-        d["state"] = JobState(d["state"])
-        d["print_requested"] = bool(d["print_requested"])
-        return Job(**d)
+        fields = dict(row)
+        for name in JSON_FIELDS:
+            fields[name] = json.loads(fields[name]) if fields[name] else None
+        fields["state"] = JobState(fields["state"])
+        fields["print_requested"] = bool(fields["print_requested"])
+        return Job(**fields)
 
     # -- jobs -----------------------------------------------------------------------------
     def add_job(self, *, name: str, source_name: str, kind: str, work_dir: str,
                 input_path: str, state: JobState = JobState.QUEUED, reason: str | None = None,
-                print_requested: bool = False) -> int:
+                print_requested: bool = False, note: str = "file taken from the spool",
+                while_recording: Callable[[], None] | None = None) -> int:
+        """Record a new job (queued, or moved on at once to ``state`` with ``reason``).
+
+        ``while_recording`` runs inside the same transaction: if it raises, no job is
+        recorded (the spool moves the dropped file with it, so that a file is never both
+        in the spool and in a job, nor in neither).
+        """
         now = time.time()
         with self._tx() as db:
             cur = db.execute(
@@ -155,13 +163,15 @@ class Journal:
                  None, int(print_requested)))
             job_id = int(cur.lastrowid)
             db.execute("INSERT INTO transitions VALUES (?,?,?,?,?)",
-                       (job_id, None, str(JobState.QUEUED), now, "file taken from the spool"))
+                       (job_id, None, str(JobState.QUEUED), now, note))
             if state != JobState.QUEUED:
                 check_transition(JobState.QUEUED, state)
                 db.execute("UPDATE jobs SET state=?, reason=? WHERE id=?",
                            (str(state), reason, job_id))
                 db.execute("INSERT INTO transitions VALUES (?,?,?,?,?)",
                            (job_id, str(JobState.QUEUED), str(state), now, reason))
+            if while_recording is not None:
+                while_recording()
         return job_id
 
     def get(self, job_id: int) -> Job | None:
@@ -170,17 +180,17 @@ class Journal:
         return self._row_to_job(row) if row else None
 
     def jobs(self, states: set[JobState] | None = None, *, limit: int | None = None) -> list[Job]:
-        q = "SELECT * FROM jobs"
+        query = "SELECT * FROM jobs"
         args: list[Any] = []
         if states:
-            q += f" WHERE state IN ({','.join('?' * len(states))})"
+            query += f" WHERE state IN ({','.join('?' * len(states))})"
             args += [str(s) for s in states]
-        q += " ORDER BY id"
+        query += " ORDER BY id"
         if limit:
-            inner = q.replace(" ORDER BY id", " ORDER BY id DESC")
-            q = f"SELECT * FROM ({inner} LIMIT {int(limit)}) ORDER BY id"
+            inner = query.replace(" ORDER BY id", " ORDER BY id DESC")
+            query = f"SELECT * FROM ({inner} LIMIT {int(limit)}) ORDER BY id"
         with self._lock:
-            rows = self._db.execute(q, args).fetchall()
+            rows = self._db.execute(query, args).fetchall()
         return [self._row_to_job(r) for r in rows]
 
     def counts(self) -> dict[str, int]:
@@ -204,10 +214,10 @@ class Journal:
                 raise KeyError(f"no job {job_id}")
             old = JobState(row[0])
             if expect is not None:
-                exp = {expect} if isinstance(expect, JobState) else set(expect)
-                if old not in exp:
+                expected = {expect} if isinstance(expect, JobState) else set(expect)
+                if old not in expected:
                     raise TransitionError(f"job {job_id} is {old}, not "
-                                          f"{' or '.join(sorted(map(str, exp)))}")
+                                          f"{' or '.join(sorted(map(str, expected)))}")
             check_transition(old, new)
             self._set(db, job_id, state=str(new), updated=now, **fields)
             db.execute("INSERT INTO transitions VALUES (?,?,?,?,?)",
@@ -284,19 +294,19 @@ class _Tx:
     """``with journal._tx() as db``: an IMMEDIATE transaction under the journal's lock."""
 
     def __init__(self, journal: Journal) -> None:
-        self.j = journal
+        self.journal = journal
 
     def __enter__(self) -> sqlite3.Connection:
-        self.j._lock.acquire()
+        self.journal._lock.acquire()
         try:
-            self.j._db.execute("BEGIN IMMEDIATE")
+            self.journal._db.execute("BEGIN IMMEDIATE")
         except BaseException:
-            self.j._lock.release()
+            self.journal._lock.release()
             raise
-        return self.j._db
+        return self.journal._db
 
     def __exit__(self, exc_type, exc, tb) -> None:
         try:
-            self.j._db.execute("COMMIT" if exc_type is None else "ROLLBACK")
+            self.journal._db.execute("COMMIT" if exc_type is None else "ROLLBACK")
         finally:
-            self.j._lock.release()
+            self.journal._lock.release()

@@ -20,7 +20,8 @@ def notify(message: str) -> bool:
     try:
         with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC) as s:
             s.connect(addr)
-            s.sendall(message.encode("utf-8", "replace"))
+            # never wait: a listener that stopped reading must not stall the daemon
+            s.send(message.encode("utf-8", "replace"), socket.MSG_DONTWAIT)
         return True
     except OSError:
         return False

@@ -15,6 +15,7 @@ import shutil
 import threading
 import time
 import uuid
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -36,20 +37,19 @@ from daemon.states import JobState
 from daemon.worker import WorkerCancelled, WorkerFailed, run_task
 
 log = logging.getLogger("preflight.pipeline")
-S = JobState
 
 
 def epsilon_from(info: dict[str, Any], cfg: Config) -> tuple[float, str]:
     """ε (mm) and where it came from: the printer's nozzle, else the configured fallback."""
-    nz = info.get("nozzle_diameter") if info else None
-    src = (info or {}).get("nozzle_source") or ""
-    if isinstance(nz, (int, float)) and nz > 0:
-        if src == "config":
-            return float(nz), ("the configured nozzle, [printer] nozzle_diameter (the printer "
-                               "does not report its nozzle)")
-        if src == "default":
-            return float(nz), "the default nozzle (the printer does not report its nozzle)"
-        return float(nz), f"the printer's nozzle, reported by {src or 'the printer'}"
+    nozzle = info.get("nozzle_diameter") if info else None
+    source = (info or {}).get("nozzle_source") or ""
+    if isinstance(nozzle, (int, float)) and nozzle > 0:
+        if source == "config":
+            return float(nozzle), ("the configured nozzle, [printer] nozzle_diameter (the "
+                                   "printer does not report its nozzle)")
+        if source == "default":
+            return float(nozzle), "the default nozzle (the printer does not report its nozzle)"
+        return float(nozzle), f"the printer's nozzle, reported by {source or 'the printer'}"
     return cfg.printer.nozzle_diameter, "[printer] nozzle_diameter in the config (fallback)"
 
 
@@ -65,10 +65,10 @@ class Spool:
 
     def __init__(self, cfg: Config, journal: Journal) -> None:
         self.cfg = cfg
-        self.j = journal
+        self.journal = journal
         self.root = cfg.spool.path
-        for d in (self.root, cfg.done_dir, cfg.failed_dir, cfg.work_dir):
-            d.mkdir(parents=True, exist_ok=True)
+        for folder in (self.root, cfg.done_dir, cfg.failed_dir, cfg.work_dir):
+            folder.mkdir(parents=True, exist_ok=True)
 
     # -- intake ---------------------------------------------------------------------------
     def intake(self, path: Path) -> int | None:
@@ -78,7 +78,7 @@ class Spool:
         """
         name = path.name
         try:
-            st = check_spool_entry(self.root, path)
+            entry = check_spool_entry(self.root, path)
         except FileNotFoundError:
             return None
         except UnsafeEntry as e:
@@ -88,11 +88,12 @@ class Spool:
             return self._refuse(path, f"refused: {name} is not a model or G-code file (accepted: "
                                       f"{' '.join(sorted(ACCEPTED_SUFFIXES))})")
         limit = self.cfg.limits.max_file_mb * 1024 * 1024
-        if st.st_size > limit:
-            return self._refuse(path, f"refused: {name} is {st.st_size / 1048576:.1f} MB, over the "
+        if entry.st_size > limit:
+            return self._refuse(path, f"refused: {name} is {entry.st_size / 1048576:.1f} MB, "
+                                      "over the "
                                       f"limit of {self.cfg.limits.max_file_mb:g} MB "
                                       "([limits] max_file_mb)")
-        if st.st_size == 0:
+        if entry.st_size == 0:
             return self._refuse(path, f"refused: {name} is empty")
         safe = sanitise_name(name)
         work = self.cfg.work_dir / uuid.uuid4().hex
@@ -100,17 +101,10 @@ class Spool:
         dest = work / safe
         kind = "gcode" if suffix in GCODE_SUFFIXES else "mesh"
         try:
-            with self.j._tx() as db:
-                now = time.time()
-                cur = db.execute(
-                    "INSERT INTO jobs (name, source_name, kind, state, created, updated, work_dir,"
-                    " input_path, print_requested) VALUES (?,?,?,?,?,?,?,?,?)",
-                    (safe, name, kind, str(S.QUEUED), now, now, str(work), str(dest),
-                     int(self.cfg.daemon.auto_print)))
-                job_id = int(cur.lastrowid)
-                db.execute("INSERT INTO transitions VALUES (?,?,?,?,?)",
-                           (job_id, None, str(S.QUEUED), now, "taken from the spool"))
-                os.rename(path, dest)
+            job_id = self.journal.add_job(
+                name=safe, source_name=name, kind=kind, work_dir=str(work), input_path=str(dest),
+                print_requested=self.cfg.daemon.auto_print, note="taken from the spool",
+                while_recording=lambda: os.rename(path, dest))
         except FileNotFoundError:
             shutil.rmtree(work, ignore_errors=True)
             return None
@@ -121,8 +115,9 @@ class Spool:
         """Record a failed job for an entry refused at the door, move it to failed/."""
         safe = sanitise_name(path.name)
         dest = safe_output_path(self.cfg.failed_dir, safe, 0)
-        job_id = self.j.add_job(name=safe, source_name=display_name(path.name), kind="refused",
-                                work_dir="", input_path="", state=S.FAILED, reason=reason)
+        job_id = self.journal.add_job(name=safe, source_name=display_name(path.name),
+                                      kind="refused", work_dir="", input_path="",
+                                      state=JobState.FAILED, reason=reason)
         if dest.name != safe:
             dest = safe_output_path(self.cfg.failed_dir, safe, job_id)
         try:
@@ -131,84 +126,88 @@ class Spool:
         except OSError as e:
             log.warning("job %d: could not move %s to failed/: %s", job_id, path.name, e)
             outputs = {}
-        self.j.update(job_id, outputs=outputs)
+        self.journal.update(job_id, outputs=outputs)
         self._write_reports(job_id, self.cfg.failed_dir, Path(dest.name).stem)
         log.warning("job %d: %s", job_id, reason)
         return job_id
 
     def recover_orphans(self) -> list[str]:
         """Work folders no job owns (the daemon died mid-intake): give files back to the spool."""
-        owned = {Path(j.work_dir).name for j in self.j.jobs() if j.work_dir}
+        owned = {Path(job.work_dir).name for job in self.journal.jobs() if job.work_dir}
         given_back = []
-        for d in self.cfg.work_dir.iterdir():
-            if not d.is_dir() or d.name in owned:
+        for folder in self.cfg.work_dir.iterdir():
+            if not folder.is_dir() or folder.name in owned:
                 continue
-            for f in d.iterdir():
-                if f.is_file() and not f.name.endswith((".json", ".log")):
-                    target = safe_output_path(self.root, f.name, 0)
-                    os.rename(f, target)
+            for entry in folder.iterdir():
+                if entry.is_file() and not entry.name.endswith((".json", ".log")):
+                    target = safe_output_path(self.root, entry.name, 0)
+                    os.rename(entry, target)
                     given_back.append(target.name)
-            shutil.rmtree(d, ignore_errors=True)
+            shutil.rmtree(folder, ignore_errors=True)
         return given_back
 
     # -- outcome --------------------------------------------------------------------------
     def _write_reports(self, job_id: int, folder: Path, stem: str) -> None:
-        job = self.j.get(job_id)
+        job = self.journal.get(job_id)
         assert job is not None
-        jp, tp = write_reports(folder, stem, job, self.j.history(job_id))
-        outs = dict(job.outputs or {})
-        outs.update(report_json=str(jp), report_txt=str(tp))
-        self.j.update(job_id, outputs=outs)
+        json_path, text_path = write_reports(folder, stem, job, self.journal.history(job_id))
+        outputs = dict(job.outputs or {})
+        outputs.update(report_json=str(json_path), report_txt=str(text_path))
+        self.journal.update(job_id, outputs=outputs)
         # rewrite once more so the JSON report lists its own paths
-        job = self.j.get(job_id)
+        job = self.journal.get(job_id)
         assert job is not None
-        write_reports(folder, stem, job, self.j.history(job_id))
+        write_reports(folder, stem, job, self.journal.history(job_id))
 
     def archive(self, job_id: int) -> None:
         """Move a finished job's files to done/ (done) or failed/ (failed, cancelled)
         and write its reports. Interrupted jobs keep their work folder (for a requeue)
         and only get reports in failed/."""
-        job = self.j.get(job_id)
+        job = self.journal.get(job_id)
         assert job is not None
-        folder = self.cfg.done_dir if job.state == S.DONE else self.cfg.failed_dir
+        folder = self.cfg.done_dir if job.state == JobState.DONE else self.cfg.failed_dir
         stem = Path(job.name).stem
-        outs = dict(job.outputs or {})
-        if job.state != S.INTERRUPTED and job.work_dir and Path(job.work_dir).is_dir():
+        outputs = dict(job.outputs or {})
+        if job.state != JobState.INTERRUPTED and job.work_dir and Path(job.work_dir).is_dir():
             moves = [("input", job.input_path, job.name)]
             if job.kind == "mesh":
                 moves += [("repaired", job.repaired_path, f"{stem}.repaired.stl"),
                           ("gcode", job.gcode_path, f"{stem}.gcode")]
-            for key, src, name in moves:
-                if src and Path(src).is_file():
+            for key, source, name in moves:
+                if source and Path(source).is_file():
                     dest = safe_output_path(folder, name, job.id)
-                    os.rename(src, dest)
-                    outs[key] = str(dest)
+                    os.rename(source, dest)
+                    outputs[key] = str(dest)
             shutil.rmtree(job.work_dir, ignore_errors=True)
         # the report stem follows the archived input's name, unique per job
-        in_out = outs.get("input")
-        if in_out:
-            stem = Path(in_out).stem
+        archived_input = outputs.get("input")
+        if archived_input:
+            stem = Path(archived_input).stem
         elif (folder / f"{stem}.report.json").exists():
             stem = f"{stem}-{job.id}"
-        self.j.update(job_id, outputs=outs)
+        self.journal.update(job_id, outputs=outputs)
         self._write_reports(job_id, folder, stem)
 
     def drop_reports(self, job: Job) -> None:
-        for k in ("report_json", "report_txt"):
-            p = (job.outputs or {}).get(k)
-            if p:
-                Path(p).unlink(missing_ok=True)
+        """Delete a job's reports (it is redone) and forget their paths."""
+        outputs = dict(job.outputs or {})
+        for key in ("report_json", "report_txt"):
+            report = outputs.pop(key, None)
+            if report:
+                Path(report).unlink(missing_ok=True)
+        self.journal.update(job.id, outputs=outputs)
 
     def restore_input(self, job: Job) -> tuple[str, str]:
         """For a requeue of a failed/cancelled job: bring its input back into a work folder."""
-        src = (job.outputs or {}).get("input")
-        if job.kind == "refused" or not src or not Path(src).is_file() or Path(src).is_symlink():
+        archived = (job.outputs or {}).get("input")
+        if (job.kind == "refused" or not archived or not Path(archived).is_file()
+                or Path(archived).is_symlink()):
             raise ValueError(f"job {job.id} was refused at intake ({job.reason}); fix the file "
                              "and drop it into the spool again")
         work = self.cfg.work_dir / uuid.uuid4().hex
         work.mkdir(parents=True)
         dest = work / job.name
-        os.rename(src, dest)
+        os.rename(archived, dest)
         self.drop_reports(job)
         return str(work), str(dest)
 
@@ -220,7 +219,7 @@ class Processor:
     def __init__(self, cfg: Config, journal: Journal, spool: Spool, printer_info, *,
                  stop: threading.Event, claim_lock: threading.Lock, active: dict[int, Any]):
         self.cfg = cfg
-        self.j = journal
+        self.journal = journal
         self.spool = spool
         self.printer_info = printer_info    # callable() -> dict | None (last known info)
         self.stop = stop
@@ -231,11 +230,11 @@ class Processor:
         """Claim the oldest queued job; without printer info only G-code (its command
         policy needs no printer; the build volume is checked again before printing)."""
         with self.claim_lock:
-            for job in self.j.jobs({S.QUEUED}):
+            for job in self.journal.jobs({JobState.QUEUED}):
                 if job.id not in self.active and (have_printer or job.kind == "gcode"):
-                    ev = threading.Event()
-                    self.active[job.id] = ev
-                    return job, ev
+                    cancel = threading.Event()
+                    self.active[job.id] = cancel
+                    return job, cancel
         return None
 
     def run_forever(self) -> None:
@@ -262,82 +261,103 @@ class Processor:
 
     # -- steps ----------------------------------------------------------------------------
     def _fail(self, job_id: int, reason: str) -> None:
-        job = self.j.get(job_id)
-        if job is None or job.state not in (S.QUEUED, S.REPAIRING, S.SLICING, S.READY):
+        job = self.journal.get(job_id)
+        if job is None or job.state not in (JobState.QUEUED, JobState.REPAIRING,
+                                            JobState.SLICING, JobState.READY):
             return
-        self.j.transition(job_id, S.FAILED, note=reason, reason=reason, progress=None)
+        self.journal.transition(job_id, JobState.FAILED, note=reason, reason=reason,
+                                progress=None)
         self.spool.archive(job_id)
         log.warning("job %d failed: %s", job_id, reason)
 
-    def _stopped(self, job_id: int, cancel: threading.Event) -> None:
+    def _stopped(self, job_id: int) -> None:
         """The child was stopped: cancelled by the user, or the daemon is shutting down."""
         if self.stop.is_set():
-            self.j.transition(job_id, S.QUEUED, note="daemon stopping; will be redone",
-                              progress=None)
+            self.journal.transition(job_id, JobState.QUEUED,
+                                    note="daemon stopping; will be redone", progress=None)
         else:
-            self.j.transition(job_id, S.CANCELLED, note="cancelled", reason="cancelled by user",
-                              progress=None)
+            self.journal.transition(job_id, JobState.CANCELLED, note="cancelled",
+                                    reason="cancelled by user", progress=None)
             self.spool.archive(job_id)
 
-    def _progress(self, job_id: int):
+    def _progress(self, job_id: int) -> Callable[[str, float], None]:
+        """A progress callback that records the job's progress at most twice a second."""
         last = [0.0]
 
-        def cb(stage: str, fraction: float) -> None:
+        def record(stage: str, fraction: float) -> None:  # noqa: ARG001
             now = time.monotonic()
             if now - last[0] >= 0.5 or fraction >= 1.0:
                 last[0] = now
-                self.j.update(job_id, progress=float(fraction))
-        return cb
+                self.journal.update(job_id, progress=float(fraction))
+        return record
+
+    def _run_child(self, job: Job, task: str, spec: dict[str, Any], cancel: threading.Event,
+                   failed: str) -> tuple[bool, Any]:
+        """Run ``task`` for ``job`` in a child: (True, its result), or (False, None) once
+        the job has been failed (``failed``: the reason's start) or stopped."""
+        limits = self.cfg.limits
+        timeout, memory_mb = {"repair": (limits.repair_timeout, limits.repair_memory_mb),
+                              "slice": (limits.slice_timeout, limits.slice_memory_mb)}[task]
+        try:
+            return True, run_task(task, spec, work_dir=Path(job.work_dir or ""),
+                                  timeout=timeout, memory_mb=memory_mb,
+                                  progress=self._progress(job.id),
+                                  cancel=AnyEvent(cancel, self.stop))
+        except WorkerCancelled:
+            self._stopped(job.id)
+        except WorkerFailed as e:
+            self._fail(job.id, f"{failed}: {e}")
+        return False, None
 
     def process(self, job: Job, info: dict[str, Any] | None, cancel: threading.Event) -> None:
         if job.kind == "gcode":
             self._check_gcode(job, info)
             return
         assert info is not None
-        eps, eps_src = epsilon_from(info, self.cfg)
         if job.attempts >= self.cfg.limits.max_attempts:
             self._fail(job.id, f"processing was interrupted {job.attempts} times (the daemon "
                                "stopped or died while working on it); giving up")
             return
+        repaired = self._repair(job, info, cancel)
+        if repaired is not None:
+            self._slice(job, info, repaired, cancel)
+
+    def _repair(self, job: Job, info: dict[str, Any], cancel: threading.Event) -> Path | None:
+        """Repair the job's mesh; the repaired STL's path, or None if the job ended."""
+        epsilon, epsilon_source = epsilon_from(info, self.cfg)
         work = Path(job.work_dir or "")
-        lim = self.cfg.limits
-        self.j.transition(job.id, S.REPAIRING, expect=S.QUEUED, note=f"epsilon {eps:g} mm",
-                          attempts=job.attempts + 1, epsilon=eps, epsilon_source=eps_src,
-                          printer_info=info, progress=0.0)
+        self.journal.transition(job.id, JobState.REPAIRING, expect=JobState.QUEUED,
+                                note=f"epsilon {epsilon:g} mm", attempts=job.attempts + 1,
+                                epsilon=epsilon, epsilon_source=epsilon_source,
+                                printer_info=info, progress=0.0)
         repaired = work / "repaired.stl"
-        try:
-            report = run_task("repair", {
-                "in": job.input_path, "out": str(repaired), "job_name": job.name,
-                "report": str(work / "repair.report.json"), "epsilon": eps,
-                "max_bytes": int(lim.max_file_mb * 1024 * 1024),
-                "max_triangles": lim.max_triangles,
-            }, work_dir=work, timeout=lim.repair_timeout, memory_mb=lim.repair_memory_mb,
-                progress=self._progress(job.id), cancel=self._either(cancel))
-        except WorkerCancelled:
-            self._stopped(job.id, cancel)
-            return
-        except WorkerFailed as e:
-            self._fail(job.id, f"repair failed: {e}")
-            return
+        ok, report = self._run_child(job, "repair", {
+            "in": job.input_path, "out": str(repaired), "job_name": job.name,
+            "report": str(work / "repair.report.json"), "epsilon": epsilon,
+            "max_bytes": int(self.cfg.limits.max_file_mb * 1024 * 1024),
+            "max_triangles": self.cfg.limits.max_triangles,
+        }, cancel, "repair failed")
+        if not ok:
+            return None
         summary = (report or {}).get("summary", "repaired")
-        self.j.transition(job.id, S.SLICING, note=summary, repair_report=report,
-                          repaired_path=str(repaired), progress=0.0)
+        self.journal.transition(job.id, JobState.SLICING, note=summary, repair_report=report,
+                                repaired_path=str(repaired), progress=0.0)
         log.info("job %d: repaired (%s)", job.id, summary)
-        gcode = work / f"{Path(job.name).stem}.gcode"
-        bv = info.get("build_volume")
-        try:
-            out = run_task("slice", {
-                "in": str(repaired), "out": str(gcode), "nozzle": eps, "job_name": job.name,
-                "build_volume": list(bv) if bv else None,
-                "filament_diameter": info.get("filament_diameter"),
-                "flavour": flavour_from(info), "overrides": self.cfg.profile,
-            }, work_dir=work, timeout=lim.slice_timeout, memory_mb=lim.slice_memory_mb,
-                progress=self._progress(job.id), cancel=self._either(cancel))
-        except WorkerCancelled:
-            self._stopped(job.id, cancel)
-            return
-        except WorkerFailed as e:
-            self._fail(job.id, f"slicing failed: {e}")
+        return repaired
+
+    def _slice(self, job: Job, info: dict[str, Any], repaired: Path,
+               cancel: threading.Event) -> None:
+        """Slice the repaired mesh and check the G-code; the job ends ready or failed."""
+        gcode = Path(job.work_dir or "") / f"{Path(job.name).stem}.gcode"
+        build_volume = info.get("build_volume")
+        epsilon, _ = epsilon_from(info, self.cfg)
+        ok, out = self._run_child(job, "slice", {
+            "in": str(repaired), "out": str(gcode), "nozzle": epsilon, "job_name": job.name,
+            "build_volume": list(build_volume) if build_volume else None,
+            "filament_diameter": info.get("filament_diameter"),
+            "flavour": flavour_from(info), "overrides": self.cfg.profile,
+        }, cancel, "slicing failed")
+        if not ok:
             return
         summary = (out or {}).get("summary") or {}
         try:
@@ -348,33 +368,30 @@ class Processor:
         except UnsafeEntry as e:
             self._fail(job.id, f"the sliced G-code was {e} (check the [profile] start/end G-code)")
             return
-        self.j.transition(job.id, S.READY, note="sliced", slice_summary=summary,
-                          gcode_path=str(gcode), progress=None)
+        self.journal.transition(job.id, JobState.READY, note="sliced", slice_summary=summary,
+                                gcode_path=str(gcode), progress=None)
         log.info("job %d: sliced: %s", job.id, summary)
 
-    def _either(self, cancel: threading.Event) -> threading.Event:
-        """An event set when the job is cancelled or the daemon stops."""
-        return AnyEvent(cancel, self.stop)  # type: ignore[return-value]
-
     def _check_gcode(self, job: Job, info: dict[str, Any] | None) -> None:
-        bv = (info or {}).get("build_volume")
+        build_volume = (info or {}).get("build_volume")
         try:
             with open(job.input_path or "", encoding="utf-8", errors="replace") as f:
-                res = check_gcode(strip_gcode(f), forbidden=self.cfg.safety.forbidden_gcodes,
-                                  allow_firmware=self.cfg.safety.allow_firmware_commands,
-                                  build_volume=bv)
+                checked = check_gcode(strip_gcode(f), forbidden=self.cfg.safety.forbidden_gcodes,
+                                      allow_firmware=self.cfg.safety.allow_firmware_commands,
+                                      build_volume=build_volume)
         except UnsafeEntry as e:
             self._fail(job.id, str(e))
             return
         except OSError as e:
             self._fail(job.id, f"cannot read the G-code: {e.strerror}")
             return
-        if res.lines == 0:
+        if checked.lines == 0:
             self._fail(job.id, "the G-code file has no commands")
             return
-        self.j.transition(job.id, S.READY, expect=S.QUEUED, note="G-code checked",
-                          gcode_path=job.input_path, printer_info=info,
-                          slice_summary={"gcode_check": res.to_dict()})
+        self.journal.transition(job.id, JobState.READY, expect=JobState.QUEUED,
+                                note="G-code checked", gcode_path=job.input_path,
+                                printer_info=info,
+                                slice_summary={"gcode_check": checked.to_dict()})
 
 
 class AnyEvent:

@@ -23,7 +23,6 @@ from daemon.safety import UnsafeEntry, check_gcode, strip_gcode
 from daemon.states import JobState, TransitionError
 
 log = logging.getLogger("preflight.printer")
-S = JobState
 
 HALF_PRINTED = ("a half-printed part may be on the bed: remove it, then run "
                 "`preflight jobs requeue {id}` to print it again from the start")
@@ -35,7 +34,7 @@ class PrinterLink(threading.Thread):
     def __init__(self, cfg: Config, journal: Journal, spool: Spool, stop: threading.Event) -> None:
         super().__init__(name="printer", daemon=True)
         self.cfg = cfg
-        self.j = journal
+        self.journal = journal
         self.spool = spool
         self.stop_event = stop
         self._lock = threading.Lock()
@@ -61,14 +60,14 @@ class PrinterLink(threading.Thread):
         with self._lock:
             if self._info is not None:
                 return self._info
-        return self.j.get_meta("printer_info")
+        return self.journal.get_meta("printer_info")
 
     def cancel_job(self, job_id: int) -> bool:
         with self._lock:
-            ev = self._cancel.get(job_id)
-        if ev is None:
+            cancel = self._cancel.get(job_id)
+        if cancel is None:
             return False
-        ev.set()
+        cancel.set()
         return True
 
     # -- the thread -----------------------------------------------------------------------
@@ -120,11 +119,11 @@ class PrinterLink(threading.Thread):
         if self.virtual is None:
             from printer.virtual import VirtualPrinter
 
-            pc = self.cfg.printer
+            printer_config = self.cfg.printer
             self.virtual = VirtualPrinter(
-                firmware=pc.virtual_firmware, nozzle=pc.nozzle_diameter, baud=pc.baud,
-                speedup=pc.virtual_speedup,
-                log_path=str(pc.virtual_log) if pc.virtual_log else None)
+                firmware=printer_config.virtual_firmware, nozzle=printer_config.nozzle_diameter,
+                baud=printer_config.baud, speedup=printer_config.virtual_speedup,
+                log_path=str(printer_config.virtual_log) if printer_config.virtual_log else None)
             self.virtual_port = self.virtual.start()
             log.info("virtual printer on %s", self.virtual_port)
         return self.virtual_port
@@ -138,9 +137,10 @@ class PrinterLink(threading.Thread):
         host = None
         try:
             port = self._port()
-            pc = self.cfg.printer
-            host = PrinterHost(port, pc.baud, mode=pc.mode, nozzle_fallback=pc.nozzle_diameter,
-                               nozzle_macro=pc.nozzle_macro)
+            printer_config = self.cfg.printer
+            host = PrinterHost(port, printer_config.baud, mode=printer_config.mode,
+                               nozzle_fallback=printer_config.nozzle_diameter,
+                               nozzle_macro=printer_config.nozzle_macro)
             host.connect()
             info = host.query_info().to_dict()
         except Exception as e:  # PrinterError, OSError, or a bug: never kill the thread
@@ -156,7 +156,7 @@ class PrinterLink(threading.Thread):
         self.connections += 1
         with self._lock:
             self._info = info
-        self.j.set_meta("printer_info", info)
+        self.journal.set_meta("printer_info", info)
         self._set_status(state="connected", message=None, info=info, connected_since=time.time(),
                          connections=self.connections, retry_in=None)
         log.info("printer connected on %s: %s, nozzle %s mm (%s)", port, info.get("firmware"),
@@ -174,90 +174,103 @@ class PrinterLink(threading.Thread):
             self._info = None
 
     def _next_job(self) -> Job | None:
-        for job in self.j.jobs({S.READY}):
+        for job in self.journal.jobs({JobState.READY}):
             if job.print_requested:
                 return job
         return None
 
     # -- printing -------------------------------------------------------------------------
     def _print(self, job: Job) -> None:
-        from printer.errors import PrinterError, StreamCancelled
-
         info = self.last_info() or {}
         if self._stale(job, info):
             return
+        lines = self._checked_lines(job, info)
+        if lines is None:
+            return
+        cancel = threading.Event()
+        with self._lock:
+            self._cancel[job.id] = cancel
+        try:
+            self.journal.transition(job.id, JobState.PRINTING, expect=JobState.READY,
+                                    note=f"{len(lines)} lines", printer_info=info, progress=0.0)
+        except TransitionError:
+            return  # cancelled in the meantime
+        self._stream(job, lines, cancel)
+
+    def _checked_lines(self, job: Job, info: dict[str, Any]) -> list[str] | None:
+        """The job's G-code lines, or None once the job has failed (unreadable, or a
+        dropped G-code file the policy refuses for this printer)."""
         try:
             with open(job.gcode_path or "", encoding="utf-8", errors="replace") as f:
                 lines = strip_gcode(f)
         except OSError as e:
-            self.j.transition(job.id, S.FAILED, reason=f"cannot read the G-code: {e.strerror}")
+            self.journal.transition(job.id, JobState.FAILED,
+                                    reason=f"cannot read the G-code: {e.strerror}")
             self.spool.archive(job.id)
-            return
+            return None
         if job.kind == "gcode":  # checked at intake, maybe before this printer was known
             try:
                 check_gcode(lines, forbidden=self.cfg.safety.forbidden_gcodes,
                             allow_firmware=self.cfg.safety.allow_firmware_commands,
                             build_volume=info.get("build_volume"))
             except UnsafeEntry as e:
-                self.j.transition(job.id, S.FAILED, reason=str(e), note=str(e))
+                self.journal.transition(job.id, JobState.FAILED, reason=str(e), note=str(e))
                 self.spool.archive(job.id)
-                return
-        cancel = threading.Event()
-        with self._lock:
-            self._cancel[job.id] = cancel
-        try:
-            self.j.transition(job.id, S.PRINTING, expect=S.READY, note=f"{len(lines)} lines",
-                              printer_info=info, progress=0.0)
-        except TransitionError:
-            return  # cancelled in the meantime
+                return None
+        return lines
+
+    def _stream(self, job: Job, lines: list[str], cancel: threading.Event) -> None:
+        """Stream a printing job's lines; the job ends done, cancelled, interrupted or
+        broken off."""
+        from printer.errors import PrinterError, StreamCancelled
+
         acked = [0]
         last = [0.0]
-        t0 = time.monotonic()
+        started = time.monotonic()
         total = len(lines)
         self._set_status(state="printing", job=job.id, progress=0.0)
 
-        def progress(done: int, tot: int) -> None:
+        def progress(done: int, of: int) -> None:
             acked[0] = done
             now = time.monotonic()
-            if now - last[0] >= 0.5 or done >= tot:
+            if now - last[0] >= 0.5 or done >= of:
                 last[0] = now
-                frac = done / tot if tot else 1.0
-                self._set_status(progress=round(frac, 4), lines_done=done, lines_total=tot)
-                self.j.update(job.id, progress=frac)
+                fraction = done / of if of else 1.0
+                self._set_status(progress=round(fraction, 4), lines_done=done, lines_total=of)
+                self.journal.update(job.id, progress=fraction)
+
+        def outcome(acked_lines: int, **more: Any) -> dict[str, Any]:
+            return {"acked_lines": acked_lines, "total_lines": total,
+                    "seconds": time.monotonic() - started, **more}
 
         log.info("job %d: printing %d lines", job.id, total)
         try:
             result = self.host.stream(lines, progress=progress,
                                       cancel=AnyEvent(cancel, self.stop_event))
         except StreamCancelled as e:
-            secs = time.monotonic() - t0
-            pr = {"acked_lines": acked[0], "total_lines": total, "seconds": secs,
-                  "error": str(e)}
             if cancel.is_set():
-                self._end(job.id, S.CANCELLED, "cancelled by user during the print (cooled down, "
-                          "motors off); " + HALF_PRINTED.format(id=job.id), pr)
+                self._end(job.id, JobState.CANCELLED, "cancelled by user during the print "
+                          "(cooled down, motors off); " + HALF_PRINTED.format(id=job.id),
+                          outcome(acked[0], error=str(e)))
             else:
-                self._end(job.id, S.INTERRUPTED, "the daemon was stopped during the print "
-                          "(cooled down, motors off); " + HALF_PRINTED.format(id=job.id), pr)
+                self._end(job.id, JobState.INTERRUPTED, "the daemon was stopped during the "
+                          "print (cooled down, motors off); " + HALF_PRINTED.format(id=job.id),
+                          outcome(acked[0], error=str(e)))
             return
         except PrinterError as e:
-            secs = time.monotonic() - t0
-            pr = {"acked_lines": acked[0], "total_lines": total, "seconds": secs,
-                  "error": str(e)}
+            print_result = outcome(acked[0], error=str(e))
             self._disconnect()
             self._finish_broken(job.id, f"{e} after {acked[0]} of {total} lines",
-                                sent=e.lines_sent, print_result=pr)
+                                sent=e.lines_sent, print_result=print_result)
             return
         finally:
             with self._lock:
                 self._cancel.pop(job.id, None)
             self._set_status(state="connected" if self.host else "waiting", job=None,
                              progress=None, lines_done=None, lines_total=None)
-        secs = time.monotonic() - t0
-        pr = {"acked_lines": total, "total_lines": total, "seconds": secs,
-              "result": _result_dict(result)}
-        self._end(job.id, S.DONE, None, pr)
-        log.info("job %d: printed %d lines in %.1f s", job.id, total, secs)
+        print_result = outcome(total, result=_result_dict(result))
+        self._end(job.id, JobState.DONE, None, print_result)
+        log.info("job %d: printed %d lines in %.1f s", job.id, total, print_result["seconds"])
 
     def _stale(self, job: Job, info: dict[str, Any]) -> bool:
         """A mesh job sliced for another nozzle / bed than the connected printer: redo it."""
@@ -265,37 +278,40 @@ class PrinterLink(threading.Thread):
             return False
         old = job.printer_info or {}
         why = None
-        nz = info.get("nozzle_diameter")
-        if (job.epsilon is not None and isinstance(nz, (int, float))
-                and abs(nz - job.epsilon) > 1e-6):
-            why = f"the printer now reports a {nz:g} mm nozzle (sliced for {job.epsilon:g} mm)"
+        nozzle = info.get("nozzle_diameter")
+        if (job.epsilon is not None and isinstance(nozzle, (int, float))
+                and abs(nozzle - job.epsilon) > 1e-6):
+            why = f"the printer now reports a {nozzle:g} mm nozzle (sliced for {job.epsilon:g} mm)"
         elif old and old.get("build_volume") != info.get("build_volume"):
             why = "the printer reports another build volume than the job was sliced for"
         if why is None:
             return False
-        self.j.transition(job.id, S.QUEUED, expect=S.READY, note=why + "; re-processing")
+        self.journal.transition(job.id, JobState.QUEUED, expect=JobState.READY,
+                                note=why + "; re-processing")
         log.info("job %d: %s; re-processing", job.id, why)
         return True
 
     def _end(self, job_id: int, state: JobState, reason: str | None,
              print_result: dict[str, Any]) -> None:
-        self.j.transition(job_id, state, note=reason, reason=reason, print_result=print_result,
-                          progress=1.0 if state == S.DONE else None)
+        self.journal.transition(job_id, state, note=reason, reason=reason,
+                                print_result=print_result,
+                                progress=1.0 if state == JobState.DONE else None)
         self.spool.archive(job_id)
 
     def _finish_broken(self, job_id: int, why: str, *, sent: int | None,
                        print_result: dict[str, Any] | None = None) -> None:
         """End a print that broke off. ``sent`` is how many of its lines reached the
         port (None: unknown, so assume the print started)."""
-        job = self.j.get(job_id)
-        if job is None or job.state != S.PRINTING:
+        job = self.journal.get(job_id)
+        if job is None or job.state != JobState.PRINTING:
             return
         if sent == 0:
-            self.j.transition(job_id, S.READY, note=f"not started: {why}", progress=None)
+            self.journal.transition(job_id, JobState.READY, note=f"not started: {why}",
+                                    progress=None)
             log.warning("job %d: the print did not start (%s); it stays ready", job_id, why)
             return
         reason = f"print interrupted: {why}; " + HALF_PRINTED.format(id=job_id)
-        self._end(job_id, S.INTERRUPTED, reason, print_result or {})
+        self._end(job_id, JobState.INTERRUPTED, reason, print_result or {})
         log.warning("job %d: %s", job_id, reason)
 
 

@@ -5,7 +5,6 @@
 from __future__ import annotations
 
 import json
-import os
 import time
 from pathlib import Path
 from typing import Any
@@ -13,25 +12,26 @@ from typing import Any
 from daemon.journal import Job
 
 
-def _ts(t: float | None) -> str:
-    if not t:
+def _local_time(epoch: float | None) -> str:
+    if not epoch:
         return "-"
-    return time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(t))
+    return time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(epoch))
 
 
-def _duration(s: float | None) -> str:
-    if s is None:
+def _duration(seconds: float | None) -> str:
+    if seconds is None:
         return "?"
-    s = int(round(s))
-    h, rem = divmod(s, 3600)
-    m, sec = divmod(rem, 60)
-    return f"{h}h{m:02d}m" if h else (f"{m}m{sec:02d}s" if m else f"{sec}s")
+    hours, rest = divmod(int(round(seconds)), 3600)
+    minutes, secs = divmod(rest, 60)
+    if hours:
+        return f"{hours}h{minutes:02d}m"
+    return f"{minutes}m{secs:02d}s" if minutes else f"{secs}s"
 
 
 def report_dict(job: Job, history: list[dict[str, Any]]) -> dict[str, Any]:
-    d = job.to_dict()
-    d["history"] = history
-    return d
+    report = job.to_dict()
+    report["history"] = history
+    return report
 
 
 def report_text(job: Job, history: list[dict[str, Any]]) -> str:
@@ -46,62 +46,66 @@ def report_text(job: Job, history: list[dict[str, Any]]) -> str:
     lines.append(f"Result: {outcome}" + (f" - {job.reason}" if job.reason else ""))
     info = job.printer_info or {}
     if info:
-        bv = info.get("build_volume")
-        bvs = " x ".join(f"{v:g}" for v in bv) + " mm" if bv else "unknown"
+        volume = info.get("build_volume")
+        volume_text = " x ".join(f"{v:g}" for v in volume) + " mm" if volume else "unknown"
         lines.append(f"Printer: {info.get('firmware') or 'unknown firmware'}, nozzle "
                      f"{info.get('nozzle_diameter')} mm (from {info.get('nozzle_source')}), "
-                     f"build volume {bvs}")
+                     f"build volume {volume_text}")
     if job.epsilon is not None:
         lines.append(f"Epsilon: {job.epsilon:g} mm ({job.epsilon_source})")
-    rep = job.repair_report
-    if rep:
-        before = rep.get("before", {}) or {}
-        after = rep.get("after", {}) or {}
-        pr = rep.get("printable", {}) or {}
-        ok = pr.get("ok")
-        if ok is None and isinstance(pr, dict):
-            bools = [v for v in pr.values() if isinstance(v, bool)]
-            ok = all(bools) if bools else None
-        lines.append(f"Repair: {rep.get('summary', '')}".rstrip())
+    repair = job.repair_report
+    if repair:
+        before = repair.get("before", {}) or {}
+        after = repair.get("after", {}) or {}
+        verdict = repair.get("printable", {}) or {}
+        ok = verdict.get("ok")
+        if ok is None and isinstance(verdict, dict):
+            checks = [v for v in verdict.values() if isinstance(v, bool)]
+            ok = all(checks) if checks else None
+        lines.append(f"Repair: {repair.get('summary', '')}".rstrip())
         lines.append(f"  triangles {before.get('triangles', '?')} -> {after.get('triangles', '?')}"
-                     f", max deviation {_fmt(rep.get('deviation'))} mm, volume "
-                     f"{_fmt(rep.get('volume'))} mm3, printable: "
+                     f", max deviation {_number(repair.get('deviation'))} mm, volume "
+                     f"{_number(repair.get('volume'))} mm3, printable: "
                      f"{'yes' if ok else ('no' if ok is False else '?')}")
     elif job.kind == "gcode":
         lines.append("Repair/slicing: skipped (G-code file), checked against the build volume "
                      "and the command policy")
-    s = job.slice_summary
-    if s:
-        lines.append(f"Slicing: {s.get('layers', '?')} layers, filament "
-                     f"{_fmt(s.get('filament_mm'), 1000, 'm')} ({_fmt(s.get('filament_g'))} g), "
-                     f"estimated {_duration(s.get('estimated_seconds'))}")
-    p = job.print_result
-    if p:
-        lines.append(f"Print: {p.get('acked_lines', '?')} of {p.get('total_lines', '?')} lines "
-                     f"acknowledged in {_duration(p.get('seconds'))}"
-                     + (f" - {p['error']}" if p.get("error") else ""))
+    sliced = job.slice_summary
+    if sliced:
+        lines.append(f"Slicing: {sliced.get('layers', '?')} layers, filament "
+                     f"{_number(sliced.get('filament_mm'), 1000, 'm')} "
+                     f"({_number(sliced.get('filament_g'))} g), "
+                     f"estimated {_duration(sliced.get('estimated_seconds'))}")
+    printed = job.print_result
+    if printed:
+        lines.append(f"Print: {printed.get('acked_lines', '?')} of "
+                     f"{printed.get('total_lines', '?')} lines acknowledged in "
+                     f"{_duration(printed.get('seconds'))}"
+                     + (f" - {printed['error']}" if printed.get("error") else ""))
     if history:
-        lines.append("Timeline: " + ", ".join(f"{h['to_state']} {_ts(h['at'])}" for h in history))
+        lines.append("Timeline: " + ", ".join(f"{step['to_state']} {_local_time(step['at'])}"
+                                              for step in history))
     return "\n".join(lines) + "\n"
 
 
-def _fmt(v: Any, div: float = 1.0, unit: str = "") -> str:
-    if isinstance(v, dict):
-        v = v.get("max", v.get("value"))
-    if isinstance(v, (int, float)):
-        return f"{v / div:.3g}{(' ' + unit) if unit else ''}"
+def _number(value: Any, divisor: float = 1.0, unit: str = "") -> str:
+    """A measure in 3 significant digits; a dict measure shows its "max" (or "value")."""
+    if isinstance(value, dict):
+        value = value.get("max", value.get("value"))
+    if isinstance(value, (int, float)):
+        return f"{value / divisor:.3g}{(' ' + unit) if unit else ''}"
     return "?"
 
 
 def write_reports(folder: Path, stem: str, job: Job, history: list[dict[str, Any]]
                   ) -> tuple[Path, Path]:
     """Write ``<stem>.report.json`` and ``<stem>.report.txt`` into ``folder`` atomically."""
+    from repair.io import write_atomic  # not at import time: it brings numpy along
+
     folder.mkdir(parents=True, exist_ok=True)
-    jp = folder / f"{stem}.report.json"
-    tp = folder / f"{stem}.report.txt"
-    for path, text in ((jp, json.dumps(report_dict(job, history), indent=2, default=str)),
-                       (tp, report_text(job, history))):
-        tmp = path.with_name(f".{path.name}.tmp")
-        tmp.write_text(text)
-        os.replace(tmp, path)
-    return jp, tp
+    json_path = folder / f"{stem}.report.json"
+    text_path = folder / f"{stem}.report.txt"
+    write_atomic(json_path, [json.dumps(report_dict(job, history), indent=2,
+                                        default=str).encode()])
+    write_atomic(text_path, [report_text(job, history).encode()])
+    return json_path, text_path

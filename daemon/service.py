@@ -21,15 +21,15 @@ from typing import Any
 
 from daemon import __version__
 from daemon.config import Config
-from daemon.journal import Journal
+from daemon.journal import Job, Journal
 from daemon.notify import notify, watchdog_interval
 from daemon.pipeline import Processor, Spool
 from daemon.printlink import HALF_PRINTED, PrinterLink
 from daemon.states import JobState, TransitionError
 from daemon.watcher import SpoolWatcher
+from daemon.worker import FORK_SERVER, warm_up
 
 log = logging.getLogger("preflight.daemon")
-S = JobState
 
 
 class AlreadyRunning(RuntimeError):
@@ -66,16 +66,17 @@ class Daemon:
     # -- start-up recovery ----------------------------------------------------------------
     def recover(self) -> None:
         """Make the journal consistent after a crash, a kill -9 or a power cut."""
-        j = self.journal
-        for job in j.jobs({S.REPAIRING, S.SLICING}):
-            j.transition(job.id, S.QUEUED, progress=None,
+        journal = self.journal
+        for job in journal.jobs({JobState.REPAIRING, JobState.SLICING}):
+            journal.transition(job.id, JobState.QUEUED, progress=None,
                          note=f"the daemon stopped while {job.state}; redoing it")
             log.info("job %d: was %s when the daemon stopped; redoing it", job.id, job.state)
-        for job in j.jobs({S.PRINTING}):
+        for job in journal.jobs({JobState.PRINTING}):
             reason = ("print interrupted: the daemon or the machine stopped during the print "
                       f"(about {100 * (job.progress or 0):.0f}% acknowledged); "
                       + HALF_PRINTED.format(id=job.id))
-            j.transition(job.id, S.INTERRUPTED, reason=reason, note=reason, progress=None)
+            journal.transition(job.id, JobState.INTERRUPTED, reason=reason, note=reason,
+                               progress=None)
             self.spool.archive(job.id)
             log.warning("job %d: %s", job.id, reason)
         for name in self.spool.recover_orphans():
@@ -86,77 +87,84 @@ class Daemon:
         for req in self.journal.pending_requests():
             try:
                 try:
-                    ok, msg = self._handle(req["action"], int(req["job_id"]))
+                    ok, answer = self._handle(req["action"], int(req["job_id"]))
                 except TransitionError:  # the job moved on meanwhile: look again, once
-                    ok, msg = self._handle(req["action"], int(req["job_id"]))
+                    ok, answer = self._handle(req["action"], int(req["job_id"]))
             except (TransitionError, KeyError, ValueError, OSError) as e:
-                ok, msg = False, str(e).strip("'\"")
+                ok, answer = False, str(e).strip("'\"")
             except Exception as e:  # a bad request must not take the daemon down
                 log.exception("request %r", req)
-                ok, msg = False, f"internal error: {e}"
-            self.journal.finish_request(req["id"], ok, msg)
-            log.info("request %s job %s: %s", req["action"], req["job_id"], msg)
+                ok, answer = False, f"internal error: {e}"
+            self.journal.finish_request(req["id"], ok, answer)
+            log.info("request %s job %s: %s", req["action"], req["job_id"], answer)
         self.printer.wake.set()
 
     def _handle(self, action: str, job_id: int) -> tuple[bool, str]:
-        j = self.journal
-        job = j.get(job_id)
+        job = self.journal.get(job_id)
         if job is None:
             return False, f"there is no job {job_id}"
-        if action == "print":
-            if job.state == S.INTERRUPTED:
-                return False, (f"job {job_id} was interrupted mid-print; make sure the bed is "
-                               f"clear, then use `preflight jobs requeue {job_id}`")
-            if job.state not in (S.READY, S.QUEUED, S.REPAIRING, S.SLICING):
-                return False, f"job {job_id} is {job.state}; only a ready job can be printed"
-            if job.print_requested:
-                return True, f"job {job_id} is already going to print"
-            j.update(job_id, print_requested=True)
-            return True, f"job {job_id} will print" + (" when it is ready"
-                                                         if job.state != S.READY else "")
-        if action == "requeue":
-            if job.state == S.INTERRUPTED:
-                self.spool.drop_reports(job)
-                j.transition(job_id, S.READY, expect=S.INTERRUPTED, print_requested=True,
-                             reason=None, progress=None, note="requeued by the user")
-                return True, f"job {job_id} will be printed again from the start"
-            if job.state in (S.FAILED, S.CANCELLED):
-                work, inp = self.spool.restore_input(job)
-                j.transition(job_id, S.QUEUED, expect={S.FAILED, S.CANCELLED}, work_dir=work,
-                             input_path=inp, reason=None, attempts=0, progress=None,
-                             repaired_path=None, gcode_path=None, repair_report=None,
-                             slice_summary=None, print_result=None, outputs={},
-                             print_requested=self.cfg.daemon.auto_print,
-                             note="requeued by the user")
-                return True, f"job {job_id} is queued again"
-            return False, f"job {job_id} is {job.state}; only failed, cancelled or interrupted " \
-                          "jobs can be requeued"
-        if action == "cancel":
-            if job.state in (S.QUEUED, S.READY, S.INTERRUPTED):
-                with self._claim:
-                    if job_id in self._active:  # a worker just took it
-                        self._active[job_id].set()
-                        return True, f"job {job_id} is being cancelled"
-                    # expect: the printer thread may have started it since we looked
-                    j.transition(job_id, S.CANCELLED, expect=job.state,
-                                 reason="cancelled by user", note="cancelled by the user",
-                                 progress=None)
-                self.spool.archive(job_id)
-                return True, f"job {job_id} cancelled"
-            if job.state in (S.REPAIRING, S.SLICING):
-                with self._claim:
-                    ev = self._active.get(job_id)
-                if ev is None:
-                    return False, f"job {job_id} is {job.state} but no worker holds it; try again"
-                ev.set()
-                return True, f"job {job_id} is being cancelled"
-            if job.state == S.PRINTING:
-                if self.printer.cancel_job(job_id):
-                    return True, (f"job {job_id}: stopping the print (cooldown and motors off "
-                                  "will be sent)")
-                return False, f"job {job_id} is printing but the printer thread does not hold it"
-            return False, f"job {job_id} is {job.state}; nothing to cancel"
-        return False, f"unknown request {action!r}"
+        handlers = {"print": self._print, "requeue": self._requeue, "cancel": self._cancel}
+        if action not in handlers:
+            return False, f"unknown request {action!r}"
+        return handlers[action](job)
+
+    def _print(self, job: Job) -> tuple[bool, str]:
+        if job.state == JobState.INTERRUPTED:
+            return False, (f"job {job.id} was interrupted mid-print; make sure the bed is "
+                           f"clear, then use `preflight jobs requeue {job.id}`")
+        if job.state not in (JobState.READY, JobState.QUEUED, JobState.REPAIRING,
+                             JobState.SLICING):
+            return False, f"job {job.id} is {job.state}; only a ready job can be printed"
+        if job.print_requested:
+            return True, f"job {job.id} is already going to print"
+        self.journal.update(job.id, print_requested=True)
+        return True, f"job {job.id} will print" + (" when it is ready"
+                                                    if job.state != JobState.READY else "")
+
+    def _requeue(self, job: Job) -> tuple[bool, str]:
+        if job.state == JobState.INTERRUPTED:
+            self.spool.drop_reports(job)
+            self.journal.transition(job.id, JobState.READY, expect=JobState.INTERRUPTED,
+                                    print_requested=True, reason=None, progress=None,
+                                    note="requeued by the user")
+            return True, f"job {job.id} will be printed again from the start"
+        if job.state in (JobState.FAILED, JobState.CANCELLED):
+            work_dir, input_path = self.spool.restore_input(job)
+            self.journal.transition(
+                job.id, JobState.QUEUED, expect={JobState.FAILED, JobState.CANCELLED},
+                work_dir=work_dir, input_path=input_path, reason=None, attempts=0, progress=None,
+                repaired_path=None, gcode_path=None, repair_report=None, slice_summary=None,
+                print_result=None, outputs={}, print_requested=self.cfg.daemon.auto_print,
+                note="requeued by the user")
+            return True, f"job {job.id} is queued again"
+        return False, (f"job {job.id} is {job.state}; only failed, cancelled or interrupted "
+                       "jobs can be requeued")
+
+    def _cancel(self, job: Job) -> tuple[bool, str]:
+        if job.state in (JobState.QUEUED, JobState.READY, JobState.INTERRUPTED):
+            with self._claim:
+                if job.id in self._active:  # a worker just took it
+                    self._active[job.id].set()
+                    return True, f"job {job.id} is being cancelled"
+                # expect: the printer thread may have started it since we looked
+                self.journal.transition(job.id, JobState.CANCELLED, expect=job.state,
+                                        reason="cancelled by user", note="cancelled by the user",
+                                        progress=None)
+            self.spool.archive(job.id)
+            return True, f"job {job.id} cancelled"
+        if job.state in (JobState.REPAIRING, JobState.SLICING):
+            with self._claim:
+                cancel = self._active.get(job.id)
+            if cancel is None:
+                return False, f"job {job.id} is {job.state} but no worker holds it; try again"
+            cancel.set()
+            return True, f"job {job.id} is being cancelled"
+        if job.state == JobState.PRINTING:
+            if self.printer.cancel_job(job.id):
+                return True, (f"job {job.id}: stopping the print (cooldown and motors off "
+                              "will be sent)")
+            return False, f"job {job.id} is printing but the printer thread does not hold it"
+        return False, f"job {job.id} is {job.state}; nothing to cancel"
 
     # -- status ---------------------------------------------------------------------------
     def status(self) -> dict[str, Any]:
@@ -176,22 +184,31 @@ class Daemon:
         }
 
     @staticmethod
-    def status_line(st: dict[str, Any]) -> str:
-        p = st.get("printer") or {}
-        jobs = st.get("jobs") or {}
+    def status_line(status: dict[str, Any]) -> str:
+        printer = status.get("printer") or {}
+        jobs = status.get("jobs") or {}
         active = ", ".join(f"{jobs[k]} {k}" for k in ("queued", "repairing", "slicing", "ready",
                                                       "printing") if jobs.get(k))
-        if p.get("state") == "printing":
-            pr = f"printing job {p.get('job')} {100 * (p.get('progress') or 0):.0f}%"
-        elif p.get("state") == "connected":
-            info = p.get("info") or {}
-            pr = f"printer ready ({info.get('firmware') or '?'}, nozzle " \
-                 f"{info.get('nozzle_diameter')} mm)"
+        if printer.get("state") == "printing":
+            doing = f"printing job {printer.get('job')} {100 * (printer.get('progress') or 0):.0f}%"
+        elif printer.get("state") == "connected":
+            info = printer.get("info") or {}
+            doing = (f"printer ready ({info.get('firmware') or '?'}, nozzle "
+                     f"{info.get('nozzle_diameter')} mm)")
         else:
-            pr = f"printer {p.get('state')}" + (f": {p['message']}" if p.get("message") else "")
-        return f"{pr}; jobs: {active or 'none active'}"
+            doing = f"printer {printer.get('state')}" + (
+                f": {printer['message']}" if printer.get("message") else "")
+        return f"{doing}; jobs: {active or 'none active'}"
 
     # -- the main loop --------------------------------------------------------------------
+    @staticmethod
+    def _warm_up() -> None:
+        """Have the fork server import the heavy modules before the first job needs them."""
+        try:
+            warm_up()
+        except Exception as e:  # the first task will try again and fail with the reason
+            log.error("the fork server did not start: %s", e)
+
     def run(self) -> int:
         def on_signal(signum, frame):  # noqa: ARG001
             log.info("received %s; stopping", signal.Signals(signum).name)
@@ -200,22 +217,40 @@ class Daemon:
         signal.signal(signal.SIGTERM, on_signal)
         signal.signal(signal.SIGINT, on_signal)
         self.recover()
+        threading.Thread(target=self._warm_up, name="forkserver-start", daemon=True).start()
         self.watcher.start()
         self.printer.start()
         workers = []
         for i in range(self.cfg.daemon.workers):
-            proc = Processor(self.cfg, self.journal, self.spool, self.printer.last_info,
-                             stop=self.stop, claim_lock=self._claim, active=self._active)
-            t = threading.Thread(target=proc.run_forever, name=f"worker-{i}", daemon=True)
-            t.start()
-            workers.append(t)
+            processor = Processor(self.cfg, self.journal, self.spool, self.printer.last_info,
+                                  stop=self.stop, claim_lock=self._claim, active=self._active)
+            thread = threading.Thread(target=processor.run_forever, name=f"worker-{i}",
+                                      daemon=True)
+            thread.start()
+            workers.append(thread)
         log.info("preflight %s watching %s (state in %s, printer %s)", __version__,
                  self.cfg.spool.path, self.cfg.daemon.state_dir, self.cfg.printer.port)
-        st = self.status()
-        self.journal.set_meta("status", st)
-        notify(f"READY=1\nSTATUS={self.status_line(st)}\nMAINPID={os.getpid()}")
-        wd = watchdog_interval()
-        last_status = last_wd = 0.0
+        status = self.status()
+        self.journal.set_meta("status", status)
+        notify(f"READY=1\nSTATUS={self.status_line(status)}\nMAINPID={os.getpid()}")
+        self._main_loop(workers)
+        notify("STOPPING=1\nSTATUS=stopping")
+        log.info("stopping")
+        self.watcher.stop()
+        for thread in workers:
+            thread.join(timeout=30)
+        self.printer.join(timeout=60)
+        FORK_SERVER.shutdown()
+        status = self.status()
+        status["running"] = False
+        self.journal.set_meta("status", status)
+        self.journal.close()
+        return 0
+
+    def _main_loop(self, workers: list[threading.Thread]) -> None:
+        """Intake, CLI requests, status and the systemd watchdog until asked to stop."""
+        watchdog_every = watchdog_interval()
+        last_status = last_watchdog = 0.0
         while not self.stop.is_set():
             try:
                 for path in self.watcher.due():
@@ -227,15 +262,15 @@ class Daemon:
                 now = time.monotonic()
                 if now - last_status >= 1.0:
                     last_status = now
-                    st = self.status()
-                    self.journal.set_meta("status", st)
-                    notify(f"STATUS={self.status_line(st)}")
+                    status = self.status()
+                    self.journal.set_meta("status", status)
+                    notify(f"STATUS={self.status_line(status)}")
             except Exception:  # e.g. the journal locked for too long: log and go on
                 log.exception("main loop")
                 self.stop.wait(1.0)
                 continue
-            if wd and now - last_wd >= wd:
-                last_wd = now
+            if watchdog_every and now - last_watchdog >= watchdog_every:
+                last_watchdog = now
                 if self.printer.is_alive() and all(t.is_alive() for t in workers):
                     notify("WATCHDOG=1")
             # a file that is settling is due within close_grace_seconds: look again sooner
@@ -243,17 +278,6 @@ class Daemon:
                 0.2, max(0.02, self.cfg.spool.close_grace_seconds / 2))
             self.watcher.wakeup.wait(nap)
             self.watcher.wakeup.clear()
-        notify("STOPPING=1\nSTATUS=stopping")
-        log.info("stopping")
-        self.watcher.stop()
-        for t in workers:
-            t.join(timeout=30)
-        self.printer.join(timeout=60)
-        st = self.status()
-        st["running"] = False
-        self.journal.set_meta("status", st)
-        self.journal.close()
-        return 0
 
 
 def daemon_alive(status: dict[str, Any] | None, *, max_age: float = 10.0) -> bool:

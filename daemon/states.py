@@ -23,27 +23,28 @@ class JobState(StrEnum):
     INTERRUPTED = "interrupted"
 
 
-S = JobState
+# the table below reads better with the bare state names
+QUEUED, REPAIRING, SLICING, READY, PRINTING, DONE, FAILED, CANCELLED, INTERRUPTED = JobState
 
 #: from-state -> the states it may move to.
 ALLOWED: dict[JobState, frozenset[JobState]] = {
-    S.QUEUED: frozenset({S.REPAIRING, S.READY, S.FAILED, S.CANCELLED}),
+    QUEUED: frozenset({REPAIRING, READY, FAILED, CANCELLED}),
     # back to queued: redone after a daemon restart or a changed printer
-    S.REPAIRING: frozenset({S.SLICING, S.QUEUED, S.FAILED, S.CANCELLED}),
-    S.SLICING: frozenset({S.READY, S.QUEUED, S.FAILED, S.CANCELLED}),
+    REPAIRING: frozenset({SLICING, QUEUED, FAILED, CANCELLED}),
+    SLICING: frozenset({READY, QUEUED, FAILED, CANCELLED}),
     # ready -> queued: the printer's nozzle/volume changed, re-process
-    S.READY: frozenset({S.PRINTING, S.QUEUED, S.FAILED, S.CANCELLED}),
+    READY: frozenset({PRINTING, QUEUED, FAILED, CANCELLED}),
     # printing -> ready: the stream never started (no line acknowledged)
-    S.PRINTING: frozenset({S.DONE, S.FAILED, S.CANCELLED, S.INTERRUPTED, S.READY}),
-    S.DONE: frozenset(),
+    PRINTING: frozenset({DONE, FAILED, CANCELLED, INTERRUPTED, READY}),
+    DONE: frozenset(),
     # requeue: failed/cancelled start over, interrupted is re-sent from the start
-    S.FAILED: frozenset({S.QUEUED}),
-    S.CANCELLED: frozenset({S.QUEUED}),
-    S.INTERRUPTED: frozenset({S.READY, S.CANCELLED}),
+    FAILED: frozenset({QUEUED}),
+    CANCELLED: frozenset({QUEUED}),
+    INTERRUPTED: frozenset({READY, CANCELLED}),
 }
 
-ACTIVE = frozenset({S.QUEUED, S.REPAIRING, S.SLICING, S.READY, S.PRINTING})
-FINAL = frozenset({S.DONE, S.FAILED, S.CANCELLED, S.INTERRUPTED})
+ACTIVE = frozenset({QUEUED, REPAIRING, SLICING, READY, PRINTING})
+FINAL = frozenset({DONE, FAILED, CANCELLED, INTERRUPTED})
 
 
 class TransitionError(ValueError):

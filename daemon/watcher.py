@@ -58,7 +58,7 @@ class SpoolWatcher:
         self.grace = float(close_grace_seconds)
         self.poll = poll
         self._lock = threading.Lock()
-        self._cands: dict[str, _Candidate] = {}
+        self._candidates: dict[str, _Candidate] = {}
         self._handed: dict[str, int] = {}   # name -> inode handed over, still in the spool
         self._observer = None
         self._last_scan = 0.0
@@ -85,12 +85,12 @@ class SpoolWatcher:
 
     # -- events ---------------------------------------------------------------------------
     def _relevant(self, path: str) -> str | None:
-        p = Path(path)
-        if p.parent != self.spool:
+        entry = Path(path)
+        if entry.parent != self.spool:
             return None
-        if is_partial_name(p.name):
+        if is_partial_name(entry.name):
             return None
-        return p.name
+        return entry.name
 
     def on_event(self, event: FileSystemEvent) -> None:
         if event.is_directory:
@@ -100,37 +100,37 @@ class SpoolWatcher:
             if isinstance(event, FileSystemMovedEvent):
                 gone = self._relevant(event.src_path)
                 if gone:
-                    self._cands.pop(gone, None)
+                    self._candidates.pop(gone, None)
                 name = self._relevant(event.dest_path)
                 if name:
                     self._handed.pop(name, None)
-                    c = self._cands.setdefault(name, _Candidate(now, now))
-                    c.closed_at, c.writing, c.last_change = now, False, now
+                    candidate = self._candidates.setdefault(name, _Candidate(now, now))
+                    candidate.closed_at, candidate.writing, candidate.last_change = now, False, now
             else:
                 name = self._relevant(event.src_path)
                 if not name:
                     return
                 if event.event_type == "deleted":
-                    self._cands.pop(name, None)
+                    self._candidates.pop(name, None)
                     self._handed.pop(name, None)
                     return
                 if event.event_type == "created":
                     self._handed.pop(name, None)
                 elif name in self._handed:
                     return
-                c = self._cands.setdefault(name, _Candidate(now, now))
+                candidate = self._candidates.setdefault(name, _Candidate(now, now))
                 if isinstance(event, FileClosedEvent):
-                    c.closed_at, c.writing = now, False
+                    candidate.closed_at, candidate.writing = now, False
                 elif self.poll:
-                    c.last_change = now
+                    candidate.last_change = now
                 elif event.event_type == "created":
                     # a new file, or one renamed in from outside the spool (inotify then
                     # reports a creation): writes that follow mark it as being written
-                    c.closed_at, c.last_change = None, now
-                elif c.closed_at is None:
-                    c.writing, c.last_change = True, now
+                    candidate.closed_at, candidate.last_change = None, now
+                elif candidate.closed_at is None:
+                    candidate.writing, candidate.last_change = True, now
                 else:  # written/touched again after a close (scp -p sets times): wait again
-                    c.last_change = now
+                    candidate.last_change = now
         self.wakeup.set()
 
     def scan(self) -> None:
@@ -143,29 +143,29 @@ class SpoolWatcher:
             return
         with self._lock:
             present = set(names)
-            for n in list(self._handed):
-                if n not in present:
-                    del self._handed[n]
-            for n in names:
-                if is_partial_name(n) or n in self._cands:
+            for name in list(self._handed):
+                if name not in present:
+                    del self._handed[name]
+            for name in names:
+                if is_partial_name(name) or name in self._candidates:
                     continue
                 try:
-                    st = os.lstat(self.spool / n)
+                    entry = os.lstat(self.spool / name)
                 except FileNotFoundError:
                     continue
-                if self._handed.get(n) == st.st_ino:
+                if self._handed.get(name) == entry.st_ino:
                     continue
-                if stat.S_ISDIR(st.st_mode):
+                if stat.S_ISDIR(entry.st_mode):
                     continue
-                self._cands[n] = _Candidate(now, now)
+                self._candidates[name] = _Candidate(now, now)
 
     def forget(self, name: str) -> None:
         with self._lock:
-            self._cands.pop(name, None)
+            self._candidates.pop(name, None)
 
     def pending(self) -> int:
         with self._lock:
-            return len(self._cands)
+            return len(self._candidates)
 
     # -- completeness ---------------------------------------------------------------------
     def due(self) -> list[Path]:
@@ -175,47 +175,47 @@ class SpoolWatcher:
             self.scan()
         ready: list[tuple[float, str]] = []
         with self._lock:
-            for name, c in list(self._cands.items()):
+            for name, candidate in list(self._candidates.items()):
                 try:
-                    st = os.lstat(self.spool / name)
+                    entry = os.lstat(self.spool / name)
                 except FileNotFoundError:
-                    del self._cands[name]
+                    del self._candidates[name]
                     continue
-                if not stat.S_ISREG(st.st_mode):
-                    if stat.S_ISDIR(st.st_mode):
-                        del self._cands[name]
+                if not stat.S_ISREG(entry.st_mode):
+                    if stat.S_ISDIR(entry.st_mode):
+                        del self._candidates[name]
                     else:  # symlinks and other oddities: hand over, intake refuses them
-                        ready.append((c.first_seen, name))
-                        del self._cands[name]
-                        self._handed[name] = st.st_ino
+                        ready.append((candidate.first_seen, name))
+                        del self._candidates[name]
+                        self._handed[name] = entry.st_ino
                     continue
-                sig = (st.st_size, st.st_mtime_ns)
-                if sig != c.signature:
-                    if c.signature is not None:
-                        c.last_change = now
-                    c.signature = sig
-                quiet = now - c.last_change
-                if c.closed_at is not None:
-                    ok = now - max(c.closed_at, c.last_change) >= self.grace
-                elif c.writing:
+                signature = (entry.st_size, entry.st_mtime_ns)
+                if signature != candidate.signature:
+                    if candidate.signature is not None:
+                        candidate.last_change = now
+                    candidate.signature = signature
+                quiet = now - candidate.last_change
+                if candidate.closed_at is not None:
+                    ok = now - max(candidate.closed_at, candidate.last_change) >= self.grace
+                elif candidate.writing:
                     ok = quiet >= max(60.0, 12 * self.settle)
-                elif st.st_size == 0:  # created, nothing written yet: wait for a close
+                elif entry.st_size == 0:  # created, nothing written yet: wait for a close
                     ok = quiet >= max(60.0, 12 * self.settle)
                 else:
-                    ok = quiet >= self.settle and now - c.first_seen >= self.settle
+                    ok = quiet >= self.settle and now - candidate.first_seen >= self.settle
                 if ok:
-                    ready.append((c.first_seen, name))
-                    del self._cands[name]
-                    self._handed[name] = st.st_ino
-        return [self.spool / n for _, n in sorted(ready)]
+                    ready.append((candidate.first_seen, name))
+                    del self._candidates[name]
+                    self._handed[name] = entry.st_ino
+        return [self.spool / name for _, name in sorted(ready)]
 
 
 class _Handler(FileSystemEventHandler):
     def __init__(self, watcher: SpoolWatcher) -> None:
-        self.w = watcher
+        self.watcher = watcher
 
     def on_any_event(self, event: FileSystemEvent) -> None:
         try:
-            self.w.on_event(event)
+            self.watcher.on_event(event)
         except Exception:  # never let the observer thread die
             log.exception("spool event %r", event)

@@ -2,22 +2,22 @@
 
 The daemon never runs native geometry code in its own process: a segfault, an
 endless loop or an out-of-memory in ``repair`` or ``slicer`` must fail one job,
-not the daemon. :func:`run_task` starts ``python -m daemon.worker TASK SPEC``:
+not the daemon. :func:`run_task` has the fork server (:mod:`daemon.forkserver`,
+which has already imported the heavy modules) fork one child per task:
 
-- the child limits its address space with ``resource.setrlimit(RLIMIT_AS)``
-  before importing anything heavy, and asks the kernel to kill it when the
-  daemon dies (``PR_SET_PDEATHSIG``), so a ``kill -9`` of the daemon leaves no
-  orphan;
-- progress comes back as JSON lines on the child's stdout;
+- the child limits its address space with ``resource.setrlimit(RLIMIT_AS)`` before
+  running the task, and dies with the fork server, which dies with the daemon, so a
+  ``kill -9`` of the daemon leaves no orphan;
+- progress comes back as JSON lines on the child's stdout (a pipe to the daemon);
 - the result (or a one-line error) is written as JSON to the spec's ``result`` path;
-- the parent kills the child's process group on timeout or cancel, and turns a
-  death by signal into a reason (``crashed with SIGSEGV``).
+- the daemon kills the child's process group (the child and anything it forked) on
+  timeout or cancel, and turns a death by signal into a reason (``crashed with SIGSEGV``).
 
 Test hook (documented, used by the end-to-end tests): the environment variable
-``PREFLIGHT_TEST_WORKER_FAULT=TASK:ACTION[:NAME][,...]`` makes the child for TASK
-(``repair`` or ``slice``) whose job's file name contains NAME do ACTION:
-``abort`` (``os.abort()``, a native crash), ``hang`` (an endless loop) or
-``oom`` (allocate until the memory cap stops it). It is ignored otherwise.
+``PREFLIGHT_TEST_WORKER_FAULT=TASK:ACTION[:NAME][,...]`` (read by the daemon when it
+starts a task) makes the child for TASK (``repair`` or ``slice``) whose job's file
+name contains NAME do ACTION: ``abort`` (``os.abort()``, a native crash), ``hang`` (an
+endless loop) or ``oom`` (allocate until the memory cap stops it). It is ignored otherwise.
 """
 
 from __future__ import annotations
@@ -25,15 +25,20 @@ from __future__ import annotations
 import json
 import os
 import signal
-import subprocess
 import sys
 import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
+
+from daemon.forkserver import ForkServer, ForkServerDied
 
 FAULT_ENV = "PREFLIGHT_TEST_WORKER_FAULT"
+POLL_SECONDS = 0.1
+
+#: The daemon's one fork server, started on first use (or by :func:`warm_up`).
+FORK_SERVER = ForkServer()
 
 
 class WorkerFailed(Exception):
@@ -42,6 +47,11 @@ class WorkerFailed(Exception):
 
 class WorkerCancelled(Exception):
     """The task was stopped because its job was cancelled or the daemon is stopping."""
+
+
+def warm_up() -> None:
+    """Start the fork server now, so that the first job does not wait for its imports."""
+    FORK_SERVER.ensure_started()
 
 
 def run_task(task: str, spec: dict[str, Any], *, work_dir: Path, timeout: float,
@@ -54,91 +64,102 @@ def run_task(task: str, spec: dict[str, Any], *, work_dir: Path, timeout: float,
     Raises WorkerFailed (with the reason) or WorkerCancelled.
     """
     work_dir.mkdir(parents=True, exist_ok=True)
-    spec = dict(spec, memory_mb=memory_mb, parent_pid=os.getpid())
-    spec_path = work_dir / f"{task}.spec.json"
     result_path = work_dir / f"{task}.result.json"
-    spec["result"] = str(result_path)
-    result_path.unlink(missing_ok=True)
-    spec_path.write_text(json.dumps(spec))
-    env = dict(os.environ)
-    env.setdefault("MALLOC_ARENA_MAX", "2")
-    env.setdefault("OPENBLAS_NUM_THREADS", "1")
+    spec_path = work_dir / f"{task}.spec.json"
     log_path = work_dir / f"{task}.log"
-    with open(log_path, "ab") as log:
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "daemon.worker", task, str(spec_path)],
-            stdout=subprocess.PIPE, stderr=log, stdin=subprocess.DEVNULL, env=env,
-            start_new_session=True, close_fds=True)
+    spec = dict(spec, memory_mb=memory_mb, result=str(result_path),
+                test_fault=os.environ.get(FAULT_ENV, ""))
+    result_path.unlink(missing_ok=True)
+    spec_path.write_text(json.dumps(spec))  # read by the child only once it is complete
+    progress_read, progress_write = os.pipe()
+    try:
+        with open(log_path, "ab") as log:
+            pid = FORK_SERVER.start_child(task, str(spec_path), progress_write, log.fileno())
+    except ForkServerDied as e:
+        os.close(progress_read)
+        raise WorkerFailed(f"{task} could not be started: {e}") from None
+    finally:
+        os.close(progress_write)
     if on_start:
-        on_start(proc.pid)
+        on_start(pid)
+    reader = threading.Thread(target=_pump_progress,
+                              args=(os.fdopen(progress_read, "rb"), progress),
+                              name=f"{task}-progress", daemon=True)
+    reader.start()
+    status, stopped = _supervise(task, pid, timeout, cancel)
+    reader.join(timeout=2)
+    if stopped == "cancelled":
+        raise WorkerCancelled(f"{task} stopped")
+    if stopped:
+        raise WorkerFailed(stopped)
+    return _outcome(task, status, result_path, log_path, memory_mb)
 
-    def pump() -> None:
-        assert proc.stdout is not None
-        for raw in proc.stdout:
+
+def _pump_progress(pipe: IO[bytes], progress: Callable[[str, float], None] | None) -> None:
+    """Hand the child's JSON progress lines to ``progress`` until the pipe closes."""
+    with pipe:
+        for raw in pipe:
             try:
-                msg = json.loads(raw)
+                message = json.loads(raw)
             except ValueError:
                 continue
-            if progress and isinstance(msg, dict) and "stage" in msg:
+            if progress and isinstance(message, dict) and "stage" in message:
                 try:
-                    progress(str(msg["stage"]), float(msg.get("fraction", 0.0)))
+                    progress(str(message["stage"]), float(message.get("fraction", 0.0)))
                 except Exception:  # a progress consumer must not break the task
                     pass
 
-    reader = threading.Thread(target=pump, name=f"{task}-progress", daemon=True)
-    reader.start()
+
+def _supervise(task: str, pid: int, timeout: float, cancel: threading.Event | None
+               ) -> tuple[int | str | None, str | None]:
+    """Wait for the child; kill its group on cancel or timeout.
+
+    Returns (its wait status, or a reason why there is none; why it was stopped:
+    "cancelled", a timeout reason, or None).
+    """
     deadline = time.monotonic() + timeout
-    why: str | None = None
-    cancelled = False
+    stopped: str | None = None
     while True:
         try:
-            proc.wait(timeout=0.1)
-            break
-        except subprocess.TimeoutExpired:
-            pass
+            status = FORK_SERVER.wait_child(pid, POLL_SECONDS)
+        except ForkServerDied as e:
+            return str(e), stopped
+        if status is not None:
+            return status, stopped
+        if stopped:
+            continue
         if cancel is not None and cancel.is_set():
-            cancelled = True
+            stopped = "cancelled"
         elif time.monotonic() > deadline:
-            why = f"{task} took longer than the limit of {timeout:g} s and was stopped"
-        if cancelled or why:
-            _kill_group(proc)
-            break
-    reader.join(timeout=2)
-    if proc.stdout:
-        proc.stdout.close()
-    rc = proc.returncode
-    if cancelled:
-        raise WorkerCancelled(f"{task} stopped")
-    if why:
-        raise WorkerFailed(why)
-    result: dict[str, Any] | None = None
+            stopped = f"{task} took longer than the limit of {timeout:g} s and was stopped"
+        if stopped:
+            try:
+                os.killpg(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+
+
+def _outcome(task: str, status: int | str | None, result_path: Path, log_path: Path,
+             memory_mb: int) -> Any:
+    """The task's result from its result file, else a reason from how the child ended."""
     try:
         result = json.loads(result_path.read_text())
     except (OSError, ValueError):
         result = None
-    if result is not None and result.get("ok"):
+    if isinstance(result, dict) and result.get("ok"):
         return result.get("result")
-    if result is not None and result.get("error"):
+    if isinstance(result, dict) and result.get("error"):
         raise WorkerFailed(str(result["error"]))
-    if rc is not None and rc < 0:
-        sig = _signame(-rc)
+    if isinstance(status, str):
+        raise WorkerFailed(f"{task} stopped: {status}; see {log_path}")
+    code = os.waitstatus_to_exitcode(status) if status is not None else None
+    if code is not None and code < 0:
         hint = ""
-        if -rc in (signal.SIGKILL,):
+        if -code == signal.SIGKILL:
             hint = f" (possibly out of memory; the cap is {memory_mb} MB)"
-        raise WorkerFailed(f"{task} crashed with {sig}{hint}; see {log_path}")
+        raise WorkerFailed(f"{task} crashed with {_signame(-code)}{hint}; see {log_path}")
     tail = _tail(log_path)
-    raise WorkerFailed(f"{task} failed (exit status {rc}){': ' + tail if tail else ''}")
-
-
-def _kill_group(proc: subprocess.Popen) -> None:
-    try:
-        os.killpg(proc.pid, signal.SIGKILL)
-    except ProcessLookupError:
-        pass
-    try:
-        proc.wait(timeout=10)
-    except subprocess.TimeoutExpired:
-        pass
+    raise WorkerFailed(f"{task} failed (exit status {code}){': ' + tail if tail else ''}")
 
 
 def _signame(n: int) -> str:
@@ -156,20 +177,7 @@ def _tail(path: Path) -> str:
     return lines[-1][:200] if lines else ""
 
 
-# --- the child ---------------------------------------------------------------------------
-
-def _die_with_parent(parent_pid: int) -> None:
-    """Ask Linux to SIGKILL us when the daemon dies; exit if it already has."""
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
-    if os.getppid() != parent_pid:
-        os._exit(70)
-
+# --- the child (forked by the fork server) -----------------------------------------------
 
 def _limit_memory(memory_mb: int) -> None:
     import resource
@@ -178,8 +186,8 @@ def _limit_memory(memory_mb: int) -> None:
     resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
 
 
-def _apply_test_fault(task: str, in_path: str) -> None:
-    for spec in os.environ.get(FAULT_ENV, "").split(","):
+def _apply_test_fault(task: str, in_path: str, faults: str) -> None:
+    for spec in faults.split(","):
         parts = spec.strip().split(":", 2)
         if len(parts) < 2 or parts[0] != task:
             continue
@@ -232,19 +240,20 @@ TASKS = {"repair": _task_repair, "slice": _task_slice}
 
 
 def child_main(argv: list[str]) -> int:
+    """Run the task ``argv[0]`` on the spec file ``argv[1]``; return the exit status."""
     task, spec_path = argv[0], argv[1]
     spec = json.loads(Path(spec_path).read_text())
-    _die_with_parent(int(spec["parent_pid"]))
     _limit_memory(int(spec["memory_mb"]))
     result_path = Path(spec["result"])
 
+    from repair.io import write_atomic  # preloaded by the fork server
+
     def finish(payload: dict[str, Any]) -> None:
-        tmp = result_path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(payload, default=str))
-        os.replace(tmp, result_path)
+        write_atomic(result_path, [json.dumps(payload, default=str).encode()])
 
     try:
-        _apply_test_fault(task, spec.get("job_name") or spec.get("in", ""))
+        _apply_test_fault(task, spec.get("job_name") or spec.get("in", ""),
+                          str(spec.get("test_fault") or ""))
         result = TASKS[task](spec)
     except MemoryError:
         finish({"ok": False, "error": f"{task} ran out of memory (the cap is "
@@ -262,7 +271,3 @@ def child_main(argv: list[str]) -> int:
         return 3
     finish({"ok": True, "result": result})
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(child_main(sys.argv[1:]))

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["MAX_WORKERS", "balanced_shares", "cpu_workers", "map_forked"]
+__all__ = ["MAX_WORKERS", "balanced_shares", "cpu_workers", "die_with_parent", "map_forked"]
 
 #: At most this many processes per call.
 MAX_WORKERS = 4
@@ -34,9 +34,10 @@ def cpu_workers() -> int:
     return max(1, min(n, MAX_WORKERS))
 
 
-def _die_with_parent() -> None:
-    """Linux: have the kernel kill this (forked) process if its parent dies first, so a
-    repair that is killed leaves no workers behind."""
+def die_with_parent() -> None:
+    """Linux: have the kernel SIGKILL this (forked) process when its parent dies, so a
+    process that is killed leaves no children behind. The kernel ties this to the parent
+    *thread* that forked; elsewhere than Linux it does nothing."""
     try:
         import ctypes
         import signal
@@ -64,7 +65,7 @@ def map_forked(
         if pid == 0:  # child: run the share, write the arrays, leave without cleanup
             code = 1
             try:
-                _die_with_parent()
+                die_with_parent()
                 os.close(r)
                 buf = io.BytesIO()
                 arrays = {}

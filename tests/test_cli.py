@@ -25,3 +25,13 @@ def test_no_command_prints_usage_and_fails():
     out = run_cli()
     assert out.returncode == 2
     assert "usage: preflight" in out.stderr
+
+
+def test_example_config_prints_and_writes_the_shipped_file(tmp_path):
+    shipped = (ROOT / "systemd" / "preflight.toml").read_text()
+    out = run_cli("example-config")
+    assert out.returncode == 0, out.stderr
+    assert out.stdout == shipped
+    out = run_cli("example-config", "--output", str(tmp_path / "p.toml"))
+    assert out.returncode == 0, out.stderr
+    assert (tmp_path / "p.toml").read_text() == shipped

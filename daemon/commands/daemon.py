@@ -12,13 +12,10 @@ import json
 import sys
 import time
 
+from daemon.commands import fail
+
 CONFIG_HELP = ("TOML config file (default: $PREFLIGHT_CONFIG, else /etc/preflight/preflight.toml, "
                "else built-in defaults)")
-
-
-def _fail(msg: str, code: int = 1) -> int:
-    print(f"preflight: {msg}", file=sys.stderr)
-    return code
 
 
 def _config_arg(p: argparse.ArgumentParser, *, suppress: bool = False) -> None:
@@ -72,6 +69,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         q.set_defaults(func=cmd_jobs_request, action=action)
     p.set_defaults(func=lambda a, _p=p: (_p.print_help(sys.stderr), 2)[1])
 
+    p = subparsers.add_parser("example-config", help="print the documented example config "
+                                                     "(every key, its default and what it does)")
+    p.add_argument("--output", "-o", metavar="FILE", help="write it to FILE instead")
+    p.set_defaults(func=cmd_example_config)
+
     p = subparsers.add_parser("demo", help="run the daemon on a temporary spool with the "
                                            "virtual printer and print a shipped broken model")
     p.add_argument("--keep", action="store_true", help="keep the temporary folder")
@@ -89,17 +91,23 @@ def cmd_run(args: argparse.Namespace) -> int:
         cfg = _load(args)
         check_profile(cfg)
     except ConfigError as e:
-        return _fail(str(e), 2)
+        return fail(str(e), 2)
     setup_logging(cfg.daemon.log_level)
     from daemon.service import AlreadyRunning, Daemon
 
     try:
-        d = Daemon(cfg)
-    except AlreadyRunning as e:
-        return _fail(str(e))
-    except OSError as e:
-        return _fail(f"cannot set up {e.filename or 'the state/spool folders'}: {e.strerror}")
-    return d.run()
+        daemon = Daemon(cfg)
+    except (AlreadyRunning, OSError) as e:
+        return fail(_start_error(e))
+    return daemon.run()
+
+
+def _start_error(error: Exception) -> str:
+    """Why the daemon could not start, in one line."""
+    if isinstance(error, OSError):
+        return (f"cannot set up {error.filename or 'the state/spool folders'}: "
+                f"{error.strerror}")
+    return str(error)
 
 
 # --- status and jobs ---------------------------------------------------------------------
@@ -111,9 +119,9 @@ def _journal(args: argparse.Namespace):
     try:
         cfg = _load(args)
     except ConfigError as e:
-        raise SystemExit(_fail(str(e), 2)) from None
+        raise SystemExit(fail(str(e), 2)) from None
     if not cfg.journal_path.exists():
-        raise SystemExit(_fail(f"no journal at {cfg.journal_path}: the daemon has never run with "
+        raise SystemExit(fail(f"no journal at {cfg.journal_path}: the daemon has never run with "
                                f"this configuration ({cfg.source})"))
     return cfg, Journal(cfg.journal_path, readonly=True)
 
@@ -121,32 +129,34 @@ def _journal(args: argparse.Namespace):
 def cmd_status(args: argparse.Namespace) -> int:
     from daemon.service import Daemon, daemon_alive
 
-    cfg, j = _journal(args)
-    st = j.get_meta("status")
-    alive = daemon_alive(st)
+    cfg, journal = _journal(args)
+    status = journal.get_meta("status")
+    alive = daemon_alive(status)
     if args.json:
-        print(json.dumps({"alive": alive, **(st or {})}, indent=2))
+        print(json.dumps({"alive": alive, **(status or {})}, indent=2))
         return 0 if alive else 3
     if not alive:
-        last = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(st["heartbeat"])) if st else "?"
+        last = (time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(status["heartbeat"]))
+                if status else "?")
         print(f"preflight daemon: not running (last seen {last})")
-        counts = j.counts()
+        counts = journal.counts()
         print("jobs: " + (", ".join(f"{v} {k}" for k, v in sorted(counts.items())) or "none"))
         return 3
-    print(f"preflight daemon: running (pid {st['pid']}, since "
-          f"{time.strftime('%H:%M:%S', time.localtime(st['started']))}, config {st['config']})")
-    print(Daemon.status_line(st))
-    p = st.get("printer") or {}
-    info = p.get("info") or {}
+    since = time.strftime("%H:%M:%S", time.localtime(status["started"]))
+    print(f"preflight daemon: running (pid {status['pid']}, since {since}, "
+          f"config {status['config']})")
+    print(Daemon.status_line(status))
+    printer = status.get("printer") or {}
+    info = printer.get("info") or {}
     if info:
         bv = info.get("build_volume")
-        print(f"printer: {p.get('port')} - {info.get('firmware')}, nozzle "
+        print(f"printer: {printer.get('port')} - {info.get('firmware')}, nozzle "
               f"{info.get('nozzle_diameter')} mm ({info.get('nozzle_source')}), build volume "
               f"{' x '.join(f'{v:g}' for v in bv) + ' mm' if bv else 'unknown'}")
-    elif p.get("message"):
-        print(f"printer: {p.get('port')} - {p.get('state')}: {p['message']}")
-    print(f"spool: {st['spool']} ({st.get('waiting_files', 0)} file(s) being written)")
-    print("jobs: " + (", ".join(f"{v} {k}" for k, v in sorted(st["jobs"].items())) or "none"))
+    elif printer.get("message"):
+        print(f"printer: {printer.get('port')} - {printer.get('state')}: {printer['message']}")
+    print(f"spool: {status['spool']} ({status.get('waiting_files', 0)} file(s) being written)")
+    print("jobs: " + (", ".join(f"{v} {k}" for k, v in sorted(status["jobs"].items())) or "none"))
     return 0
 
 
@@ -160,8 +170,8 @@ def _job_line(job) -> str:
 
 
 def cmd_jobs_list(args: argparse.Namespace) -> int:
-    _, j = _journal(args)
-    jobs = j.jobs(limit=None if args.all else 50)
+    _, journal = _journal(args)
+    jobs = journal.jobs(limit=None if args.all else 50)
     if args.json:
         print(json.dumps([x.to_dict() for x in jobs], indent=2, default=str))
         return 0
@@ -177,15 +187,15 @@ def cmd_jobs_list(args: argparse.Namespace) -> int:
 def cmd_jobs_show(args: argparse.Namespace) -> int:
     from daemon.report import report_dict, report_text
 
-    _, j = _journal(args)
-    job = j.get(args.id)
+    _, journal = _journal(args)
+    job = journal.get(args.id)
     if job is None:
-        return _fail(f"there is no job {args.id}")
-    hist = j.history(job.id)
+        return fail(f"there is no job {args.id}")
+    history = journal.history(job.id)
     if args.json:
-        print(json.dumps(report_dict(job, hist), indent=2, default=str))
+        print(json.dumps(report_dict(job, history), indent=2, default=str))
         return 0
-    sys.stdout.write(report_text(job, hist))
+    sys.stdout.write(report_text(job, history))
     if job.outputs:
         for k, v in sorted(job.outputs.items()):
             print(f"  {k}: {v}")
@@ -195,26 +205,39 @@ def cmd_jobs_show(args: argparse.Namespace) -> int:
 def cmd_jobs_request(args: argparse.Namespace) -> int:
     from daemon.service import daemon_alive
 
-    cfg, j = _journal(args)
+    cfg, journal = _journal(args)
     from daemon.journal import Journal
 
-    if j.get(args.id) is None:
-        return _fail(f"there is no job {args.id}")
-    jw = Journal(cfg.journal_path)
-    req = jw.add_request(args.id, args.action)
-    if not daemon_alive(jw.get_meta("status")):
-        return _fail(f"the daemon is not running; the {args.action} request for job {args.id} "
+    if journal.get(args.id) is None:
+        return fail(f"there is no job {args.id}")
+    writer = Journal(cfg.journal_path)
+    request_id = writer.add_request(args.id, args.action)
+    if not daemon_alive(writer.get_meta("status")):
+        return fail(f"the daemon is not running; the {args.action} request for job {args.id} "
                      "is recorded and will be carried out when it starts", 3)
     end = time.monotonic() + args.wait
     while time.monotonic() < end:
-        r = jw.request(req)
-        if r and r["handled"]:
-            if r["ok"]:
-                print(r["message"])
+        answer = writer.request(request_id)
+        if answer and answer["handled"]:
+            if answer["ok"]:
+                print(answer["message"])
                 return 0
-            return _fail(r["message"])
+            return fail(answer["message"])
         time.sleep(0.1)
-    return _fail(f"the daemon did not answer within {args.wait:g} s; the request stays recorded")
+    return fail(f"the daemon did not answer within {args.wait:g} s; the request stays recorded")
+
+
+def cmd_example_config(args: argparse.Namespace) -> int:
+    from daemon.config import example_config
+
+    text = example_config()
+    if args.output:
+        from repair.io import write_atomic
+
+        write_atomic(args.output, [text.encode()])
+    else:
+        sys.stdout.write(text)
+    return 0
 
 
 # --- demo --------------------------------------------------------------------------------

@@ -9,6 +9,8 @@ import sys
 import threading
 import time
 
+from daemon.commands import fail
+
 
 def register(subparsers) -> None:
     """Add ``virtual-printer``, ``printer info`` and ``print`` to the preflight CLI."""
@@ -65,11 +67,6 @@ def _port_args(parser: argparse.ArgumentParser) -> None:
                         help="Klipper macro that prints the nozzle diameter")
 
 
-def _fail(message: str, code: int = 1) -> int:
-    print(f"preflight: {message}", file=sys.stderr)
-    return code
-
-
 def _virtual_printer(args) -> int:
     from printer.virtual import Faults, VirtualPrinter
 
@@ -87,7 +84,7 @@ def _virtual_printer(args) -> int:
         )
         path = vp.start()
     except (OSError, ValueError) as exc:
-        return _fail(f"cannot start the virtual printer: {exc}")
+        return fail(f"cannot start the virtual printer: {exc}")
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
@@ -116,7 +113,7 @@ def _printer_info(args) -> int:
         with _host(args) as host:
             info = host.query_info().to_dict()
     except PrinterError as exc:
-        return _fail(str(exc))
+        return fail(str(exc))
     if args.json:
         print(json.dumps(info, indent=2))
         return 0
@@ -164,7 +161,7 @@ def _print(args) -> int:
         with open(args.file, encoding="utf-8", errors="replace") as fh:
             lines = fh.read().splitlines()
     except OSError as exc:
-        return _fail(f"cannot read {args.file}: {exc.strerror}")
+        return fail(f"cannot read {args.file}: {exc.strerror}")
     cancel = threading.Event()
     previous = {}
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -175,7 +172,7 @@ def _print(args) -> int:
             result = host.stream(lines, progress=progress, cancel=cancel)
     except PrinterError as exc:
         progress.finish()
-        return _fail(str(exc), 130 if cancel.is_set() else 1)
+        return fail(str(exc), 130 if cancel.is_set() else 1)
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)

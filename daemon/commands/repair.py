@@ -7,6 +7,8 @@ import os
 import sys
 import time
 
+from daemon.commands import fail
+
 #: Inputs above this many bytes get a progress line on a terminal.
 _PROGRESS_BYTES = 2_000_000
 
@@ -28,11 +30,6 @@ def register(subparsers) -> None:
     p.add_argument("--report", metavar="R.json", help="write the repair report as JSON")
     p.add_argument("--json", action="store_true", help="print the report as JSON on stdout")
     p.set_defaults(func=run)
-
-
-def _fail(msg: str) -> int:
-    print(f"preflight: {msg}", file=sys.stderr)
-    return 1
 
 
 class _ProgressLine:
@@ -57,13 +54,13 @@ class _ProgressLine:
 def run(args) -> int:
     """Run the repair; 0 on a printable result, 1 with a one-line reason otherwise."""
     if not (args.epsilon > 0):
-        return _fail(f"--epsilon must be a positive number of mm, got {args.epsilon}")
+        return fail(f"--epsilon must be a positive number of mm, got {args.epsilon}")
     if not os.path.isfile(args.input):
-        return _fail(f"{args.input}: no such file")
+        return fail(f"{args.input}: no such file")
     try:
         big = os.path.getsize(args.input) >= _PROGRESS_BYTES
     except OSError as exc:
-        return _fail(f"{args.input}: {exc.strerror or exc}")
+        return fail(f"{args.input}: {exc.strerror or exc}")
     line = _ProgressLine() if big and sys.stderr.isatty() else None
 
     from repair.io import MeshReadError
@@ -75,15 +72,15 @@ def run(args) -> int:
     except (MeshReadError, RepairError) as exc:
         if line:
             line.done()
-        return _fail(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
+        return fail(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
     except OSError as exc:
         if line:
             line.done()
-        return _fail(f"{exc.filename or args.output}: {exc.strerror or exc}")
+        return fail(f"{exc.filename or args.output}: {exc.strerror or exc}")
     except MemoryError:
         if line:
             line.done()
-        return _fail("out of memory while repairing the model")
+        return fail("out of memory while repairing the model")
     if line:
         line.done()
     if args.json:

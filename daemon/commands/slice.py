@@ -7,6 +7,8 @@ import json
 import sys
 import time
 
+from daemon.commands import fail
+
 
 def register(subparsers) -> None:
     """Add the ``slice`` sub-command."""
@@ -31,11 +33,6 @@ def register(subparsers) -> None:
                    help="slicing engine (cura/prusa need CuraEngine/prusa-slicer installed)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=run)
-
-
-def _fail(msg: str) -> int:
-    print(f"preflight: {msg}", file=sys.stderr)
-    return 1
 
 
 def _parse_bed(text: str) -> tuple[float, float, float]:
@@ -94,15 +91,15 @@ def run(args: argparse.Namespace) -> int:
     try:
         profile = build_profile(args)
     except ProfileError as exc:
-        return _fail(str(exc))
+        return fail(str(exc))
     except ValueError as exc:
-        return _fail(f"bad setting: {exc}")
+        return fail(f"bad setting: {exc}")
     except OSError as exc:
-        return _fail(f"cannot read profile: {exc}")
+        return fail(f"cannot read profile: {exc}")
 
     src = Path(args.input)
     if not src.is_file():
-        return _fail(f"no such file: {src}")
+        return fail(f"no such file: {src}")
     tty = sys.stderr.isatty()
     last = [0.0]
 
@@ -129,11 +126,11 @@ def run(args: argparse.Namespace) -> int:
     except (SliceError, ValueError) as exc:  # MeshReadError is a ValueError
         if tty:
             print(file=sys.stderr)
-        return _fail(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
+        return fail(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
     except OSError as exc:
         if tty:
             print(file=sys.stderr)
-        return _fail(f"{exc.strerror or exc}: {exc.filename or args.output}")
+        return fail(f"{exc.strerror or exc}: {exc.filename or args.output}")
     if tty:
         print(file=sys.stderr)
     summary["output"] = str(args.output)

@@ -12,6 +12,7 @@ import zipfile
 from pathlib import Path
 
 import numpy as np
+import tomli_w
 
 from daemon.config import load_config
 from daemon.journal import Journal
@@ -20,48 +21,29 @@ ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "daemon" / "data"
 
 # Small, fast prints: few layers, no infill, a fast virtual printer.
-FAST_PROFILE = """
-[profile]
-layer_height = 0.3
-first_layer_height = 0.3
-perimeters = 1
-top_layers = 1
-bottom_layers = 1
-infill_percent = 0
-skirts = 0
-"""
+FAST_PROFILE = {"layer_height": 0.3, "first_layer_height": 0.3, "perimeters": 1,
+                "top_layers": 1, "bottom_layers": 1, "infill_percent": 0, "skirts": 0}
 
 
-def write_config(tmp: Path, *, port: str = "virtual", extra: str = "", profile: bool = True,
-                 speedup: float = 2000.0, auto_print: bool = True,
+def write_config(tmp: Path, *, port: str = "virtual", limits: dict | None = None,
+                 profile: bool = True, speedup: float = 2000.0, auto_print: bool = True,
                  virtual_log: Path | None = None) -> Path:
-    text = f"""
-[spool]
-path = "{tmp / 'spool'}"
-settle_seconds = 1.0
-close_grace_seconds = 0.2
-
-[printer]
-port = "{port}"
-baud = 250000
-virtual_speedup = {speedup}
-reconnect_min_seconds = 0.2
-reconnect_max_seconds = 1.0
-{f'virtual_log = "{virtual_log}"' if virtual_log else ''}
-
-[daemon]
-state_dir = "{tmp / 'state'}"
-auto_print = {'true' if auto_print else 'false'}
-log_level = "DEBUG"
-
-[limits]
-repair_timeout = 120
-slice_timeout = 120
-{extra}
-{FAST_PROFILE if profile else ''}
-"""
+    """A config for a test daemon in ``tmp``; ``limits`` overrides the [limits] keys."""
+    printer = {"port": port, "baud": 250000, "virtual_speedup": speedup,
+               "reconnect_min_seconds": 0.2, "reconnect_max_seconds": 1.0}
+    if virtual_log:
+        printer["virtual_log"] = str(virtual_log)
+    config = {
+        "spool": {"path": str(tmp / "spool"), "settle_seconds": 1.0, "close_grace_seconds": 0.2},
+        "printer": printer,
+        "daemon": {"state_dir": str(tmp / "state"), "auto_print": auto_print,
+                   "log_level": "DEBUG"},
+        "limits": {"repair_timeout": 120, "slice_timeout": 120, **(limits or {})},
+    }
+    if profile:
+        config["profile"] = FAST_PROFILE
     p = tmp / "preflight.toml"
-    p.write_text(text)
+    p.write_text(tomli_w.dumps(config))
     return p
 
 

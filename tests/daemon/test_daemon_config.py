@@ -3,8 +3,16 @@
 from pathlib import Path
 
 import pytest
+import tomli_w
 
-from daemon.config import ConfigError, load_config, parse_config
+from daemon.config import (
+    SECTIONS,
+    ConfigError,
+    example_config,
+    load_config,
+    parse_config,
+    rules,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -106,10 +114,62 @@ def test_unknown_profile_setting_is_named_at_start(tmp_path):
     import subprocess
     import sys
 
-    pytest.importorskip("slicer.profile")
-    p = write(tmp_path, f"[spool]\npath = \"{tmp_path / 's'}\"\n[daemon]\nstate_dir = "
-                        f"\"{tmp_path / 'st'}\"\n[profile]\ninfill_prcent = 20\n")
+    p = write(tmp_path, tomli_w.dumps({"spool": {"path": str(tmp_path / "s")},
+                                       "daemon": {"state_dir": str(tmp_path / "st")},
+                                       "profile": {"infill_prcent": 20}}))
     out = subprocess.run([sys.executable, "-m", "daemon", "run", "--config", str(p)],
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 2
     assert out.stderr.startswith("preflight: [profile]") and "infill_prcent" in out.stderr
+
+
+def test_shipped_example_config_is_the_generated_one():
+    """systemd/preflight.toml is regenerated with `preflight example-config -o ...`."""
+    assert (ROOT / "systemd" / "preflight.toml").read_text() == example_config()
+
+
+def test_example_config_shows_every_key_with_its_default():
+    text = example_config()
+    uncommented = "\n".join(line[2:] if line.startswith("# ") and " = " in line
+                            or line.startswith("#  ") else line for line in text.splitlines())
+    cfg = parse_config(__import__("tomllib").loads(uncommented))
+    defaults = parse_config({})
+    for name, section in SECTIONS.items():
+        for key, default, rule in rules(section):
+            assert f"\n{key} = " in text or f"\n# {key} = " in text, key
+            if rule.example is None:
+                assert getattr(getattr(cfg, name), key) == default, key
+                assert getattr(getattr(defaults, name), key) == default, key
+    assert cfg.printer.port == rules(SECTIONS["printer"])[0][2].example
+
+
+def test_paths_with_quotes_and_backslashes_round_trip(tmp_path):
+    odd = tmp_path / 'a "quoted" \\ dir'
+    p = write(tmp_path, tomli_w.dumps({"spool": {"path": str(odd)}}))
+    assert load_config(p).spool.path == odd
+
+
+@pytest.mark.parametrize("text, key", [
+    ('[spool]\n"bad\\nkey" = 1', "[spool] bad\\nkey: unknown key"),
+    ('["sect\\nion"]\nx = 1', "[sect\\nion]: unknown section"),
+    ("[printer]\nport = \"" + "x" * 600 + "\"\nbaud = \"" + "y" * 600 + "\"",
+     "[printer] baud: expected a number"),
+    ('[spool]\npath = "a\\u0000b"', "[spool] path: a path cannot contain a NUL"),
+])
+def test_refusals_are_one_short_line(tmp_path, text, key):
+    """Found by fuzzing: names and values are shown escaped and cut short."""
+    with pytest.raises(ConfigError) as e:
+        load_config(write(tmp_path, text))
+    message = str(e.value)
+    assert message.startswith(key)
+    assert "\n" not in message and len(message) <= 500
+
+
+def test_a_long_profile_value_is_refused_in_one_short_line():
+    """Found by fuzzing: the slicer's refusal quotes the whole value."""
+    from daemon.config import check_profile
+
+    with pytest.raises(ConfigError) as e:
+        check_profile(parse_config({"profile": {"infill_percent": "x" * 700}}))
+    assert str(e.value).startswith("[profile] ") and "infill_percent" in str(e.value)
+    assert len(str(e.value)) <= 500

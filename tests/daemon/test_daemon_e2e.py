@@ -22,11 +22,6 @@ from daemon_helpers import (
 
 from daemon.worker import FAULT_ENV
 
-pytest.importorskip("printer.host")
-pytest.importorskip("printer.virtual")
-pytest.importorskip("repair.pipeline")
-pytest.importorskip("slicer.engine")
-
 QUERY_WORDS = ("M110", "M115", "M105", "M211", "M200", "M862.1", "M208", "M155", "M114",
                "M503", "NOZZLE_DIAMETER")
 
@@ -233,10 +228,8 @@ def test_kill9_during_repair_then_during_print(tmp_path, daemon_factory):
 @pytest.mark.slow
 def test_crashing_hanging_and_greedy_children_fail_only_their_job(tmp_path, daemon_factory):
     faults = "repair:abort:crashme,slice:hang:hangme,repair:oom:oomme"
-    cfg = write_config(tmp_path, extra="slice_timeout = 2\nrepair_memory_mb = 600",
-                       ).read_text().replace("slice_timeout = 120\n", "")
-    (tmp_path / "preflight.toml").write_text(cfg)
-    d = daemon_factory(tmp_path / "preflight.toml", {FAULT_ENV: faults}).start()
+    cfg = write_config(tmp_path, limits={"slice_timeout": 2, "repair_memory_mb": 600})
+    d = daemon_factory(cfg, {FAULT_ENV: faults}).start()
     b = broken_stl(tmp_path / "b.stl").read_bytes()
     for name in ("crashme.stl", "hangme.stl", "oomme.stl", "fine.stl"):
         drop(d.cfg.spool.path, name, b)

@@ -2,12 +2,13 @@
 not the caller; a real repair goes through."""
 
 import os
+import signal
 import threading
 from pathlib import Path
 
 import pytest
 
-from daemon.worker import FAULT_ENV, WorkerCancelled, WorkerFailed, run_task
+from daemon.worker import FAULT_ENV, FORK_SERVER, WorkerCancelled, WorkerFailed, run_task
 
 DATA = Path(__file__).resolve().parents[2] / "daemon" / "data"
 
@@ -50,7 +51,6 @@ def test_cancel_kills_the_child(tmp_path, monkeypatch):
 
 def test_fault_filter_by_name(tmp_path, monkeypatch):
     monkeypatch.setenv(FAULT_ENV, "repair:abort:crashme")
-    pytest.importorskip("repair.pipeline")
     report = run_task("repair", spec(tmp_path, "fine.stl"), work_dir=tmp_path / "w",
                       timeout=300, memory_mb=2048)
     assert report["after"]["triangles"] > 0
@@ -60,22 +60,70 @@ def test_fault_filter_by_name(tmp_path, monkeypatch):
 
 
 def test_real_repair_reports_progress_and_writes_the_mesh(tmp_path):
-    pytest.importorskip("repair.pipeline")
     stages = []
     s = spec(tmp_path)
     report = run_task("repair", s, work_dir=tmp_path / "w", timeout=300, memory_mb=2048,
                       progress=lambda st, f: stages.append((st, f)))
     assert Path(s["out"]).stat().st_size > 84
     assert report["epsilon"] == 0.4
-    assert report["printable"]
+    assert report["printable"]["ok"] is True
+    assert report["printable"]["closed"] is True and report["printable"]["oriented"] is True
+    assert stages and stages[0][0] == "load" and all(0 <= f <= 1 for _, f in stages)
     assert isinstance(report["summary"], str) and report["summary"]
 
 
 def test_bad_input_gives_the_readers_message(tmp_path):
-    pytest.importorskip("repair.pipeline")
     bad = tmp_path / "junk.stl"
     bad.write_bytes(b"\x00" * 10)
     with pytest.raises(WorkerFailed) as e:
         run_task("repair", {"in": str(bad), "out": str(tmp_path / "o.stl"), "epsilon": 0.4},
                  work_dir=tmp_path / "w", timeout=300, memory_mb=2048)
     assert "\n" not in str(e.value)
+
+
+def test_a_killed_fork_server_is_replaced(tmp_path):
+    """kill -9 of the fork server: the next task starts a new one and runs."""
+    run_task("repair", spec(tmp_path, "first.stl"), work_dir=tmp_path / "w1", timeout=300,
+             memory_mb=2048)
+    server = FORK_SERVER.pid
+    assert server is not None
+    os.kill(server, signal.SIGKILL)
+    report = run_task("repair", spec(tmp_path, "second.stl"), work_dir=tmp_path / "w2",
+                      timeout=300, memory_mb=2048)
+    assert report["after"]["triangles"] > 0
+    assert FORK_SERVER.pid not in (None, server)
+
+
+def test_fork_server_forks_from_a_single_thread(monkeypatch):
+    """numpy/OpenBLAS and the other imports leave no thread in the server to be forked,
+    even when the environment asks for a BLAS thread pool."""
+    from daemon.forkserver import ForkServer
+
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "4")
+    server = ForkServer()
+    try:
+        server.ensure_started()
+        assert os.listdir(f"/proc/{server.pid}/task") == [str(server.pid)]
+    finally:
+        server.shutdown()
+
+
+def test_a_task_whose_fork_server_is_killed_fails_with_the_reason(tmp_path, monkeypatch):
+    """kill -9 of the server mid-task: the task's child dies with it, the task fails
+    with a reason (it does not wait for its timeout), and the next task runs."""
+    monkeypatch.setenv(FAULT_ENV, "repair:hang")
+    children = []
+
+    def kill_server(pid):
+        children.append(pid)
+        os.kill(FORK_SERVER.pid, signal.SIGKILL)
+
+    with pytest.raises(WorkerFailed, match="the fork server ended"):
+        run_task("repair", spec(tmp_path), work_dir=tmp_path / "w1", timeout=600,
+                 memory_mb=1024, on_start=kill_server)
+    monkeypatch.delenv(FAULT_ENV)
+    report = run_task("repair", spec(tmp_path, "next.stl"), work_dir=tmp_path / "w2",
+                      timeout=300, memory_mb=2048)
+    assert report["after"]["triangles"] > 0
+    stat = Path(f"/proc/{children[0]}/stat")
+    assert not stat.exists() or stat.read_text().rsplit(")", 1)[1].split()[0] == "Z"
