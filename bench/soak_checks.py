@@ -1,0 +1,225 @@
+"""The soak's checks: every dropped file accounted for once, every print exactly once.
+
+Inputs are what a person could look at after the run: the jobs as ``preflight jobs
+list --all --json`` prints them, each job's transitions from the journal, the spool
+folders and reports, and the log of executed commands that the virtual printer
+process appends to (one command per line, without line number and checksum).
+
+The executed log is cut into segments at each ``M110 N0``: the host sends it at every
+handshake and at the start of every stream, so a print's executed lines are one
+segment. Print attempts (transitions to ``printing``, in journal order) are matched to
+the segments in order; a segment may also be a handshake's queries only.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from daemon.safety import strip_gcode
+from printer.gcode import command_word
+
+#: What the host itself sends outside a job's lines: handshake and info queries, the
+#: lost-ok tickle (``M105``) and the cooldown after a cancelled stream.
+HOST_WORDS = frozenset({"M110", "M115", "M105", "M211", "M200", "M862.1", "M208", "M155"})
+COOLDOWN = frozenset({"M104 S0", "M140 S0", "M107", "M84"})
+FINAL = ("done", "failed", "interrupted")
+ATTEMPTS_REASON = "processing was interrupted"
+
+
+@dataclass
+class Attempt:
+    """One print attempt of a job: from its ``printing`` transition to the next one."""
+
+    job_id: int
+    at: float
+    ended_as: str
+    executed: int = 0
+    segment: int | None = None
+
+
+@dataclass
+class Findings:
+    """Problems found (each one line) and the figures the report prints."""
+
+    problems: list[str] = field(default_factory=list)
+    figures: dict[str, Any] = field(default_factory=dict)
+
+    def add(self, text: str) -> None:
+        self.problems.append(text)
+
+
+def _host_command(command: str) -> bool:
+    return command_word(command) in HOST_WORDS or command in COOLDOWN
+
+
+def split_segments(executed: list[str]) -> list[list[str]]:
+    """The executed log cut at each ``M110 N0`` (the M110 itself dropped)."""
+    segments: list[list[str]] = [[]]
+    for command in executed:
+        if command_word(command) == "M110":
+            segments.append([])
+        else:
+            segments[-1].append(command)
+    return segments
+
+
+def match_prefix(segment: list[str], expected: list[str]) -> tuple[int, str | None]:
+    """How many of ``expected`` the segment executed, in order; and the first command
+    that is neither the next expected line nor one the host sends by itself (a line run
+    twice, out of order or altered), as a one-line problem, or None."""
+    done = 0
+    for position, command in enumerate(segment):
+        if done < len(expected) and command == expected[done]:
+            done += 1
+        elif not _host_command(command):
+            want = expected[done] if done < len(expected) else "(end of file)"
+            return done, (f"executed {command!r} at position {position} where line "
+                          f"{done + 1} {want!r} was due")
+    return done, None
+
+
+def account_files(dropped: dict[str, dict], jobs: list[dict], spool: Path,
+                  found: Findings) -> dict[str, dict]:
+    """Each dropped name must have exactly one job, in a final state, with its files
+    and reports where they belong. Returns name -> job."""
+    by_name: dict[str, list[dict]] = {}
+    for job in jobs:
+        by_name.setdefault(job["source_name"], []).append(job)
+    lost = [name for name in dropped if name not in by_name]
+    duplicated = [name for name, js in by_name.items() if name in dropped and len(js) > 1]
+    stray = [name for name in by_name if name not in dropped]
+    for name in lost:
+        found.add(f"lost: {name} has no job")
+    for name in duplicated:
+        found.add(f"processed twice: {name} has jobs "
+                  f"{', '.join(str(j['id']) for j in by_name[name])}")
+    for name in stray:
+        found.add(f"a job for a file that was never dropped: {name}")
+    found.figures.update(lost=len(lost), duplicated=len(duplicated), stray=len(stray))
+    outcome: dict[str, dict] = {}
+    for name, info in dropped.items():
+        js = by_name.get(name) or []
+        if len(js) != 1:
+            continue
+        job = outcome[name] = js[0]
+        _check_job_files(name, info, job, found)
+    leftovers = [p.name for p in spool.iterdir() if p.is_file()]
+    for name in leftovers:
+        found.add(f"left in the spool: {name}")
+    return outcome
+
+
+def _check_job_files(name: str, info: dict, job: dict, found: Findings) -> None:
+    state = job["state"]
+    if state not in FINAL:
+        found.add(f"{name}: job {job['id']} ended {state}, not done/failed/interrupted")
+        return
+    outputs = job.get("outputs") or {}
+    report = outputs.get("report_json")
+    if not report or not Path(report).is_file():
+        found.add(f"{name}: job {job['id']} ({state}) has no report")
+    elif state != "done":
+        reason = json.loads(Path(report).read_text()).get("reason") or ""
+        text = Path(outputs.get("report_txt", "")).read_text() if outputs.get(
+            "report_txt") else ""
+        if not reason.strip() or reason not in text:
+            found.add(f"{name}: job {job['id']} ({state}) has no human-readable reason")
+    where = {"done": "done", "failed": "failed"}.get(state)
+    kept = outputs.get("input")
+    if where and not (kept and Path(kept).is_file() and Path(kept).parent.name == where):
+        found.add(f"{name}: job {job['id']} is {state} but its file is not in {where}/")
+    if state == "interrupted" and not Path(job.get("input_path") or "").is_file():
+        found.add(f"{name}: job {job['id']} is interrupted but its input is gone")
+    expect = info["expect"]
+    reason = job.get("reason") or ""
+    if expect == "ok" and state == "failed" and ATTEMPTS_REASON not in reason:
+        found.add(f"{name}: a good {info['kind']} file failed: {reason}")
+    if expect == "fail" and state != "failed":
+        found.add(f"{name}: a bad {info['kind']} file ended {state}")
+
+
+def expected_lines(job: dict) -> list[str] | None:
+    """The commands the host streams for this job (its G-code, comments stripped)."""
+    outputs = job.get("outputs") or {}
+    key = "input" if job["kind"] == "gcode" else "gcode"
+    for path in (job.get("gcode_path"), outputs.get(key)):
+        if path and Path(path).is_file():
+            with open(path, encoding="utf-8", errors="replace") as fh:
+                return strip_gcode(fh)
+    return None
+
+
+def print_attempts(histories: dict[int, list[dict]]) -> list[Attempt]:
+    """Every transition to ``printing``, in time order, with the state that ended it."""
+    attempts = []
+    for job_id, history in histories.items():
+        for index, row in enumerate(history):
+            if row["to_state"] != "printing":
+                continue
+            after = history[index + 1]["to_state"] if index + 1 < len(history) else "printing"
+            attempts.append(Attempt(job_id, row["at"], after))
+    return sorted(attempts, key=lambda a: a.at)
+
+
+def check_prints(jobs: list[dict], histories: dict[int, list[dict]], executed: list[str],
+                 found: Findings) -> None:
+    """Match print attempts to executed segments; each line once, done prints whole."""
+    by_id = {job["id"]: job for job in jobs}
+    lines = {job_id: expected_lines(by_id[job_id]) for job_id in histories
+             if any(r["to_state"] == "printing" for r in histories[job_id])}
+    segments = split_segments(executed)
+    attempts = print_attempts(histories)
+    cursor = 0
+    for attempt in attempts:
+        expected = lines.get(attempt.job_id)
+        if expected is None:
+            found.add(f"job {attempt.job_id}: its G-code is gone, cannot check its print")
+            continue
+        if attempt.ended_as == "ready":  # the stream never started: nothing may have run
+            continue
+        probe = cursor
+        while probe < len(segments):
+            done, _ = match_prefix(segments[probe], expected)
+            if done:
+                break
+            if any(not _host_command(c) for c in segments[probe]):
+                probe = len(segments)  # lines of something else: not this attempt's
+                break
+            probe += 1
+        if probe >= len(segments):
+            continue  # no line of it ran (stopped before its first line executed)
+        done, problem = match_prefix(segments[probe], expected)
+        attempt.segment, attempt.executed, cursor = probe, done, probe + 1
+        if problem:
+            found.add(f"job {attempt.job_id}: {problem}")
+        if attempt.ended_as == "done" and done != len(expected):
+            found.add(f"job {attempt.job_id}: printed as done but {done} of {len(expected)} "
+                      "lines executed")
+    _unexplained(segments, attempts, found)
+    _resent(attempts, histories, found)
+    found.figures["print_attempts"] = len(attempts)
+    found.figures["lines_executed"] = sum(a.executed for a in attempts)
+
+
+def _unexplained(segments: list[list[str]], attempts: list[Attempt], found: Findings) -> None:
+    used = {a.segment for a in attempts if a.segment is not None}
+    for index, segment in enumerate(segments):
+        jobs_lines = [c for c in segment if not _host_command(c)]
+        if index not in used and jobs_lines:
+            found.add(f"executed segment {index} ({len(jobs_lines)} lines, first "
+                      f"{jobs_lines[0]!r}) belongs to no print attempt")
+
+
+def _resent(attempts: list[Attempt], histories: dict[int, list[dict]],
+            found: Findings) -> None:
+    """An interrupted print is never started again by itself (the soak never requeues)."""
+    for job_id, history in histories.items():
+        pairs = [(r["from_state"], r["to_state"]) for r in history]
+        if ("interrupted", "ready") in pairs:
+            found.add(f"job {job_id}: an interrupted print went back to ready without a requeue")
+        ran = [a for a in attempts if a.job_id == job_id and a.executed]
+        if len(ran) > 1:
+            found.add(f"job {job_id}: printed {len(ran)} times without a requeue")
