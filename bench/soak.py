@@ -230,7 +230,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                     help="files in the daemon's hands at once (default 3)")
     ap.add_argument("--max-minutes", type=float, default=180.0,
                     help="give up (and fail) after this long (default 180)")
-    ap.add_argument("--warmup", type=float, default=120.0,
+    ap.add_argument("--warmup", type=float, default=30.0,
                     help="seconds after each daemon start left out of the memory trend")
     ap.add_argument("--progress", type=float, default=30.0, help="seconds between progress lines")
     ap.add_argument("--out", type=Path, help="run folder (default: a temporary one)")
