@@ -14,7 +14,7 @@ Then it checks that every dropped file ended exactly once as done, failed (with 
 reason in its report) or interrupted; that no G-code line ran twice within a print
 and every done print ran its whole file once; that no print was re-sent without a
 requeue; and that the daemon's memory stayed flat. It prints the figures and exits 1
-if a check failed (2 if the run could not finish in ``--max-minutes``).
+if a check failed (2 if the run stalled or could not finish in ``--max-minutes``).
 
 Usage: .venv/bin/python bench/soak.py [--jobs 1000] [--seed 1] [--faults 0.1] [--out DIR]
 """
@@ -105,12 +105,20 @@ class Soak:
         """Drop files and inject faults until every file ended; False on timeout."""
         deadline = self.started + 60 * self.args.max_minutes
         next_sample = next_progress = 0.0
+        last_ended, last_change = -1, time.monotonic()
         while True:
             now = time.monotonic()
             states = self.states()
             ended = sum(1 for n in self.dropped if states.get(n) in FINAL)
             if len(self.dropped) == self.args.jobs and ended == len(self.dropped):
                 return True
+            if ended != last_ended:
+                last_ended, last_change = ended, now
+            if now - last_change > 60 * self.args.stall_minutes:
+                busy = {n: s for n, s in states.items() if s not in FINAL}
+                self.problems.append(f"stalled: no file ended for {self.args.stall_minutes:g} "
+                                     f"min; unfinished: {busy}")
+                return False
             if now > deadline:
                 return False
             self.keep_daemon_up()
@@ -163,7 +171,7 @@ class Soak:
         histories = {job["id"]: journal.history(job["id"]) for job in jobs}
         journal.close()
         if not complete:
-            found.add(f"the soak did not finish within {self.args.max_minutes:g} min")
+            found.add("the soak did not finish (stalled or over --max-minutes)")
         account_files(self.dropped, jobs, self.spool, found)
         executed = (self.run / "executed.log").read_text(errors="replace").splitlines()
         check_prints(jobs, histories, executed, found)
@@ -230,6 +238,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                     help="files in the daemon's hands at once (default 3)")
     ap.add_argument("--max-minutes", type=float, default=180.0,
                     help="give up (and fail) after this long (default 180)")
+    ap.add_argument("--stall-minutes", type=float, default=5.0,
+                    help="give up (and fail) when no file ends for this long (default 5)")
     ap.add_argument("--warmup", type=float, default=30.0,
                     help="seconds after each daemon start left out of the memory trend")
     ap.add_argument("--progress", type=float, default=30.0, help="seconds between progress lines")
