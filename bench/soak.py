@@ -210,7 +210,7 @@ def report(found: Findings, run: Path) -> None:
     print(f"lost: {fig.get('lost')}; processed twice: {fig.get('duplicated')}; "
           f"stray jobs: {fig.get('stray')}")
     print(f"print attempts: {fig.get('print_attempts')}; G-code lines executed: "
-          f"{fig.get('lines_executed')}")
+          f"{fig.get('lines_executed')}; interrupted by: {fig.get('interrupted_by')}")
     print(f"faults injected: {fig.get('faults')}")
     if fig.get("missed_faults"):
         print(f"faults that found no moment to fire: {fig.get('missed_faults')}")

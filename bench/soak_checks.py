@@ -109,7 +109,32 @@ def account_files(dropped: dict[str, dict], jobs: list[dict], spool: Path,
     leftovers = [p.name for p in spool.iterdir() if p.is_file()]
     for name in leftovers:
         found.add(f"left in the spool: {name}")
+    kept = {Path(j["work_dir"]).name for j in jobs if j["state"] == "interrupted"
+            and j.get("work_dir")}
+    work = spool / ".preflight" / "work"
+    for folder in sorted(work.iterdir()) if work.is_dir() else ():
+        if folder.name not in kept:
+            found.add(f"work folder left behind: {folder.name} "
+                      f"({', '.join(p.name for p in folder.iterdir())})")
+    found.figures["interrupted_by"] = interrupted_causes(jobs)
     return outcome
+
+
+#: reason fragment -> cause, for the figures
+_CAUSES = (("daemon or the machine stopped", "daemon killed"), ("reset", "printer reset"),
+           ("lost the printer", "unplugged"), ("stopped answering", "printer silent"),
+           ("never accepts", "printer refuses lines"))
+
+
+def interrupted_causes(jobs: list[dict]) -> dict[str, int]:
+    causes: dict[str, int] = {}
+    for job in jobs:
+        if job["state"] != "interrupted":
+            continue
+        reason = job.get("reason") or ""
+        cause = next((c for fragment, c in _CAUSES if fragment in reason), "other")
+        causes[cause] = causes.get(cause, 0) + 1
+    return causes
 
 
 def _check_job_files(name: str, info: dict, job: dict, found: Findings) -> None:
