@@ -10,6 +10,9 @@ G-code, garbage, empty and truncated files, some written slowly. Faults, drawn w
 - unplugs: the printer process killed mid-print (its pty vanishes), replugged later;
 - printers that reset after N lines, corrupt bytes on the line, or lose ``ok``s.
 
+The last ``--calm-share`` of the files runs without daemon kills (the printer faults go
+on), so that one daemon life is long enough to show whether its memory stays flat.
+
 Then it checks that every dropped file ended exactly once as done, failed (with a
 reason in its report) or interrupted; that no G-code line ran twice within a print
 and every done print ran its whole file once; that no print was re-sent without a
@@ -125,7 +128,8 @@ class Soak:
             active = len(self.dropped) - ended
             if len(self.dropped) < self.args.jobs and active < self.args.backlog:
                 name = self.drop_next()
-                self.plan.after_drop(name)
+                calm = len(self.dropped) > self.args.jobs * (1.0 - self.args.calm_share)
+                self.plan.after_drop(name, calm=calm)
             self.plan.tick(states)
             if now >= next_sample:
                 next_sample = now + 2.0
@@ -240,7 +244,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                     help="give up (and fail) after this long (default 180)")
     ap.add_argument("--stall-minutes", type=float, default=5.0,
                     help="give up (and fail) when no file ends for this long (default 5)")
-    ap.add_argument("--warmup", type=float, default=30.0,
+    ap.add_argument("--calm-share", type=float, default=0.25,
+                    help="the last share of the files is dropped without daemon kills, so "
+                         "that one long daemon life shows its memory trend (default 0.25)")
+    ap.add_argument("--warmup", type=float, default=60.0,
                     help="seconds after each daemon start left out of the memory trend")
     ap.add_argument("--progress", type=float, default=30.0, help="seconds between progress lines")
     ap.add_argument("--out", type=Path, help="run folder (default: a temporary one)")

@@ -6,7 +6,8 @@ file lands; one during repair, slicing or printing once a job is in that state; 
 unplug once a print runs. A fault whose moment does not come within ``PATIENCE``
 seconds is counted as missed. Printer faults (a board reset after N lines, line
 noise, lost ``ok``s) swap the printer for one that misbehaves that way (only between
-prints, so that the swap itself is not an unplug).
+prints, so that the swap itself is not an unplug). In the calm tail of a run the daemon
+is no longer killed, so that one daemon life is long enough to judge its memory.
 """
 
 from __future__ import annotations
@@ -61,13 +62,17 @@ class FaultPlan:
     def daemon_down_on_purpose(self) -> bool:
         return self.restart_daemon_at is not None
 
-    def after_drop(self, name: str) -> None:  # noqa: ARG002 - the moment, not the file
+    def after_drop(self, name: str, *, calm: bool = False) -> None:  # noqa: ARG002
+        """A file was dropped: arm a pending intake kill, maybe draw a new fault.
+        ``calm``: the daemon is no longer killed (its memory is being watched)."""
         now = time.monotonic()
         for pending in self.pending:
             if pending.kind == "kill_daemon_intake" and pending.fire_at is None:
                 pending.fire_at = now + self.rng.uniform(0.0, 0.6)
+        if calm:
+            self.pending = [p for p in self.pending if not p.kind.startswith("kill_daemon")]
         if len(self.pending) < 3 and self.rng.random() < self.rate:
-            kinds = list(KINDS)
+            kinds = [k for k in KINDS if not (calm and k.startswith("kill_daemon"))]
             kind = self.rng.choices(kinds, weights=[KINDS[k] for k in kinds])[0]
             self.pending.append(_Pending(kind, now))
 
