@@ -183,6 +183,13 @@ class Journal:
             rows = self._db.execute(q, args).fetchall()
         return [self._row_to_job(r) for r in rows]
 
+    def work_dirs(self) -> set[str]:
+        """The work folders that jobs own (read without decoding every job's reports)."""
+        with self._lock:
+            rows = self._db.execute("SELECT DISTINCT work_dir FROM jobs WHERE work_dir IS NOT"
+                                    " NULL AND work_dir != ''").fetchall()
+        return {r[0] for r in rows}
+
     def counts(self) -> dict[str, int]:
         with self._lock:
             rows = self._db.execute("SELECT state, COUNT(*) FROM jobs GROUP BY state").fetchall()

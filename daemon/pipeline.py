@@ -140,7 +140,7 @@ class Spool:
 
     def recover_orphans(self) -> list[str]:
         """Work folders no job owns (the daemon died mid-intake): give files back to the spool."""
-        owned = {Path(j.work_dir).name for j in self.j.jobs() if j.work_dir}
+        owned = {Path(d).name for d in self.j.work_dirs()}
         given_back = []
         for d in self.cfg.work_dir.iterdir():
             if not d.is_dir() or d.name in owned:
