@@ -180,6 +180,10 @@ class Soak:
         executed = (self.run / "executed.log").read_text(errors="replace").splitlines()
         check_prints(jobs, histories, executed, found)
         self.figures(found, jobs)
+        with open(self.run / "rss.csv", "w") as fh:
+            fh.write("seconds,daemon_start,age_seconds,rss_kb\n")
+            fh.writelines(f"{x.at:.1f},{x.life},{x.age:.1f},{x.kb}\n"
+                          for x in self.procs.samples)
         return found
 
     def jobs_list(self) -> list[dict]:
