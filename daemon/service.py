@@ -25,7 +25,7 @@ from daemon.journal import Journal
 from daemon.notify import notify, watchdog_interval
 from daemon.pipeline import Processor, Spool
 from daemon.printlink import HALF_PRINTED, PrinterLink
-from daemon.states import JobState, TransitionError
+from daemon.states import FINAL, JobState, TransitionError
 from daemon.watcher import SpoolWatcher
 
 log = logging.getLogger("preflight.daemon")
@@ -78,6 +78,10 @@ class Daemon:
             j.transition(job.id, S.INTERRUPTED, reason=reason, note=reason, progress=None)
             self.spool.archive(job.id)
             log.warning("job %d: %s", job.id, reason)
+        for job_id in j.unreported(set(FINAL)):
+            self.spool.archive(job_id)
+            log.warning("job %d: archived its files and reports (the daemon stopped while "
+                        "archiving it)", job_id)
         for name in self.spool.recover_orphans():
             log.warning("gave %s back to the spool (the daemon stopped while taking it)", name)
 

@@ -171,3 +171,26 @@ def test_start_up_recovery_does_not_load_every_job(tmp_path):
     assert given_back == ["lost.stl"]
     assert (cfg.work_dir / "owned7" / "p7.stl").read_bytes() == b"kept"
     assert peak < 1_000_000, f"recovery allocated {peak / 1e6:.1f} MB for 300 jobs"
+
+
+def test_a_job_killed_while_being_archived_is_archived_at_start_up(tmp_path):
+    # Found by the soak: a kill -9 between a print's `done` and the writing of its
+    # reports left a done job without reports (and, earlier still, its files in work/).
+    cfg = make_cfg(tmp_path)
+    d = Daemon(cfg)
+    j = d.journal
+    printed = take(d.spool, "printed.gcode")
+    broken = take(d.spool, "broken.gcode")
+    for state in (S.READY, S.PRINTING, S.DONE):
+        j.transition(printed, state)
+    j.transition(broken, S.FAILED, reason="the G-code file has no commands")
+    work = Path(j.get(printed).work_dir)
+    assert j.unreported(set(S)) == [printed, broken]
+    d.recover()
+    assert j.unreported(set(S)) == []
+    assert (cfg.done_dir / "printed.gcode").read_bytes() == b"G28\nG1 X1\n"
+    assert not work.exists()
+    assert "PRINTED" in (cfg.done_dir / "printed.report.txt").read_text()
+    text = (cfg.failed_dir / "broken.report.txt").read_text()
+    assert "FAILED - the G-code file has no commands" in text
+    assert (cfg.failed_dir / "broken.gcode").exists()
