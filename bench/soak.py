@@ -167,33 +167,20 @@ class Soak:
         for writer in self.writers:
             writer.join(timeout=10)
         found = Findings(problems=list(self.problems))
-        jobs = self.jobs_list()
+        jobs = jobs_list(self.config)
         status = self.procs.stop_all()
         if status not in (0, None):
             found.add(f"the daemon exited with status {status} on SIGTERM")
-        journal = Journal(self.run / "state" / "journal.sqlite", readonly=True)
-        histories = {job["id"]: journal.history(job["id"]) for job in jobs}
-        journal.close()
         if not complete:
             found.add("the soak did not finish (stalled or over --max-minutes)")
-        account_files(self.dropped, jobs, self.spool, found)
-        executed = (self.run / "executed.log").read_text(errors="replace").splitlines()
-        check_prints(jobs, histories, executed, found)
+        (self.run / "dropped.json").write_text(json.dumps(self.dropped, indent=1))
+        check_run(self.run, self.dropped, jobs, found)
         self.figures(found, jobs)
         with open(self.run / "rss.csv", "w") as fh:
             fh.write("seconds,daemon_start,age_seconds,rss_kb\n")
             fh.writelines(f"{x.at:.1f},{x.life},{x.age:.1f},{x.kb}\n"
                           for x in self.procs.samples)
         return found
-
-    def jobs_list(self) -> list[dict]:
-        """The jobs as a person sees them: ``preflight jobs list --all --json``."""
-        out = subprocess.run([*PREFLIGHT, "jobs", "--config", str(self.config), "list",
-                              "--all", "--json"], capture_output=True, text=True, cwd=ROOT,
-                             timeout=120)
-        if out.returncode != 0:
-            raise RuntimeError(f"preflight jobs list failed: {out.stderr.strip()}")
-        return json.loads(out.stdout)
 
     def figures(self, found: Findings, jobs: list[dict]) -> None:
         wall = time.monotonic() - self.started
@@ -211,6 +198,36 @@ class Soak:
             found.add(f"the daemon's memory grew: {found.figures['memory']}")
 
 
+def jobs_list(config: Path) -> list[dict]:
+    """The jobs as a person sees them: ``preflight jobs list --all --json``."""
+    out = subprocess.run([*PREFLIGHT, "jobs", "--config", str(config), "list", "--all",
+                          "--json"], capture_output=True, text=True, cwd=ROOT, timeout=120)
+    if out.returncode != 0:
+        raise RuntimeError(f"preflight jobs list failed: {out.stderr.strip()}")
+    return json.loads(out.stdout)
+
+
+def check_run(run: Path, dropped: dict[str, dict], jobs: list[dict], found: Findings) -> None:
+    """The checks on a finished run folder (the daemon and the printer stopped)."""
+    journal = Journal(run / "state" / "journal.sqlite", readonly=True)
+    histories = {job["id"]: journal.history(job["id"]) for job in jobs}
+    journal.close()
+    account_files(dropped, jobs, run / "spool", found)
+    executed = (run / "executed.log").read_text(errors="replace").splitlines()
+    check_prints(jobs, histories, executed, found)
+
+
+def recheck(run: Path) -> int:
+    """Run the checks again on a finished run folder (e.g. after changing a check)."""
+    dropped = json.loads((run / "dropped.json").read_text())
+    found = Findings()
+    jobs = jobs_list(run / "preflight.toml")
+    check_run(run, dropped, jobs, found)
+    found.figures["jobs"] = len(dropped)
+    report(found, run)
+    return 1 if found.problems else 0
+
+
 def report(found: Findings, run: Path) -> None:
     fig = found.figures
     print("\n=== soak result ===")
@@ -219,6 +236,12 @@ def report(found: Findings, run: Path) -> None:
           f"stray jobs: {fig.get('stray')}")
     print(f"print attempts: {fig.get('print_attempts')}; G-code lines executed: "
           f"{fig.get('lines_executed')}; interrupted by: {fig.get('interrupted_by')}")
+    artefacts = fig.get("noise_artefacts") or []
+    print(f"line-noise artefacts the firmware ran (Marlin protocol limits, not host "
+          f"errors): {len(artefacts)}" + "".join(f"\n  {a}" for a in artefacts[:20]))
+    if fig.get("foreign_segments"):
+        print(f"lines another process sent to the printer's pty (not the daemon's): "
+              f"{fig['foreign_segments']}")
     print(f"faults injected: {fig.get('faults')}")
     if fig.get("missed_faults"):
         print(f"faults that found no moment to fire: {fig.get('missed_faults')}")
@@ -256,12 +279,16 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--progress", type=float, default=30.0, help="seconds between progress lines")
     ap.add_argument("--out", type=Path, help="run folder (default: a temporary one)")
     ap.add_argument("--keep", action="store_true", help="keep the temporary run folder")
+    ap.add_argument("--recheck", type=Path, metavar="DIR",
+                    help="only run the checks again on the finished run folder DIR")
     return ap.parse_args(argv)
 
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     env_ok()
+    if args.recheck:
+        return recheck(args.recheck)
     run = args.out or Path(tempfile.mkdtemp(prefix="preflight-soak-"))
     if args.out:
         if run.exists():

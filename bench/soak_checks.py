@@ -14,6 +14,7 @@ the segments in order; a segment may also be a handshake's queries only.
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -51,8 +52,24 @@ class Findings:
         self.problems.append(text)
 
 
+#: Unnumbered commands the host sends; line noise can alter them (they carry no checksum).
+_HOST_TEXTS = ("M105", "M115", "M211", "M200", "M862.1 Q", "M208", *COOLDOWN)
+
+
+def _noise(command: str) -> bool:
+    """What line noise leaves behind, which the firmware answers "Unknown command": the
+    checksum digits of a line whose start was flushed (Marlin empties its RX buffer
+    after a line error; the tail still on the wire arrives as a line of its own), or an
+    unnumbered host command with a byte or two altered."""
+    if command.isdigit():
+        return True
+    return any(len(command) == len(text) and
+               sum(a != b for a, b in zip(command, text, strict=True)) <= 2
+               for text in _HOST_TEXTS)
+
+
 def _host_command(command: str) -> bool:
-    return command_word(command) in HOST_WORDS or command in COOLDOWN
+    return command_word(command) in HOST_WORDS or command in COOLDOWN or _noise(command)
 
 
 def split_segments(executed: list[str]) -> list[list[str]]:
@@ -66,19 +83,57 @@ def split_segments(executed: list[str]) -> list[list[str]]:
     return segments
 
 
-def match_prefix(segment: list[str], expected: list[str]) -> tuple[int, str | None]:
-    """How many of ``expected`` the segment executed, in order; and the first command
-    that is neither the next expected line nor one the host sends by itself (a line run
-    twice, out of order or altered), as a one-line problem, or None."""
-    done = 0
+@dataclass
+class Match:
+    """What a segment ran of a print: ``done`` lines in order, the first problem (a line
+    run twice, out of order or altered: None if there is none), and the line-noise
+    artefacts the firmware ran (see :func:`_artefact`)."""
+
+    done: int = 0
+    problem: str | None = None
+    artefacts: list[str] = field(default_factory=list)
+
+
+_NOISE_CUT = re.compile(r"[*\x00-\x1f\x7f-\uffff]")
+
+
+def _artefact(command: str, expected: list[str], done: int) -> int | None:
+    """If line noise made ``command``, how many expected lines it stands for; else None.
+
+    Two limits of the Marlin line protocol that no host can avoid show up under noise:
+    a newline turned into another byte glues two lines into one whose 8-bit XOR
+    checksum can still match (the due line runs, altered: 1); and the tail of a line
+    whose start was flushed with the RX buffer after a line error arrives as a line
+    without N, and runs if noise also took its ``*`` (a piece of a line: 0). Only
+    commands that carry noise (a ``*`` or a control/non-ASCII byte) qualify: a clean
+    copy of a line is a line run twice, never an artefact."""
+    if not _NOISE_CUT.search(command):
+        return None
+    head = _NOISE_CUT.split(command)[0].rstrip()
+    if done < len(expected) and head == expected[done]:
+        return 1
+    nearby = expected[max(0, done - 8): done + 1]
+    if head and any(line.endswith(head) for line in nearby):
+        return 0
+    return None
+
+
+def match_prefix(segment: list[str], expected: list[str]) -> Match:
+    """What ``segment`` (one stream's executed commands) ran of ``expected``."""
+    match = Match()
     for position, command in enumerate(segment):
-        if done < len(expected) and command == expected[done]:
-            done += 1
-        elif not _host_command(command):
-            want = expected[done] if done < len(expected) else "(end of file)"
-            return done, (f"executed {command!r} at position {position} where line "
-                          f"{done + 1} {want!r} was due")
-    return done, None
+        if match.done < len(expected) and command == expected[match.done]:
+            match.done += 1
+        elif _host_command(command):
+            continue
+        elif (stands_for := _artefact(command, expected, match.done)) is not None:
+            match.artefacts.append(command)
+            match.done += stands_for
+        elif match.problem is None:
+            want = expected[match.done] if match.done < len(expected) else "(end of file)"
+            match.problem = (f"executed {command!r} at position {position} where line "
+                             f"{match.done + 1} {want!r} was due")
+    return match
 
 
 def account_files(dropped: dict[str, dict], jobs: list[dict], spool: Path,
@@ -197,45 +252,67 @@ def check_prints(jobs: list[dict], histories: dict[int, list[dict]], executed: l
              if any(r["to_state"] == "printing" for r in histories[job_id])}
     segments = split_segments(executed)
     attempts = print_attempts(histories)
+    started = [a for a in attempts if a.ended_as != "ready"]  # "ready": nothing may have run
     cursor = 0
-    for attempt in attempts:
+    artefacts: list[str] = []
+    for index, attempt in enumerate(started):
         expected = lines.get(attempt.job_id)
         if expected is None:
             found.add(f"job {attempt.job_id}: its G-code is gone, cannot check its print")
             continue
-        if attempt.ended_as == "ready":  # the stream never started: nothing may have run
-            continue
-        probe = cursor
-        while probe < len(segments):
-            done, _ = match_prefix(segments[probe], expected)
-            if done:
-                break
-            if any(not _host_command(c) for c in segments[probe]):
-                probe = len(segments)  # lines of something else: not this attempt's
-                break
-            probe += 1
-        if probe >= len(segments):
+        following = lines.get(started[index + 1].job_id) if index + 1 < len(started) else None
+        probe = _find_segment(segments, cursor, expected, following)
+        if probe is None:
             continue  # no line of it ran (stopped before its first line executed)
-        done, problem = match_prefix(segments[probe], expected)
-        attempt.segment, attempt.executed, cursor = probe, done, probe + 1
-        if problem:
-            found.add(f"job {attempt.job_id}: {problem}")
-        if attempt.ended_as == "done" and done != len(expected):
-            found.add(f"job {attempt.job_id}: printed as done but {done} of {len(expected)} "
-                      "lines executed")
-    _unexplained(segments, attempts, found)
+        match = match_prefix(segments[probe], expected)
+        attempt.segment, attempt.executed, cursor = probe, match.done, probe + 1
+        artefacts.extend(f"job {attempt.job_id}: {a!r}" for a in match.artefacts)
+        if match.problem:
+            found.add(f"job {attempt.job_id}: {match.problem}")
+        if attempt.ended_as == "done" and match.done != len(expected):
+            found.add(f"job {attempt.job_id}: printed as done but {match.done} of "
+                      f"{len(expected)} lines executed")
+    _unexplained(segments, attempts, lines, found)
     _resent(attempts, histories, found)
+    found.figures["noise_artefacts"] = artefacts
     found.figures["print_attempts"] = len(attempts)
     found.figures["lines_executed"] = sum(a.executed for a in attempts)
 
 
-def _unexplained(segments: list[list[str]], attempts: list[Attempt], found: Findings) -> None:
+def _find_segment(segments: list[list[str]], cursor: int, expected: list[str],
+                  following: list[str] | None) -> int | None:
+    """The first segment from ``cursor`` on that ran lines of ``expected``. A segment of
+    other lines ends the search if it is the next attempt's (this one ran nothing);
+    otherwise it belongs to no attempt, is skipped here and reported later."""
+    for probe in range(cursor, len(segments)):
+        segment = segments[probe]
+        if match_prefix(segment, expected).done:
+            return probe
+        if following and any(not _host_command(c) for c in segment) and match_prefix(
+                segment, following).done:
+            return None
+    return None
+
+
+def _unexplained(segments: list[list[str]], attempts: list[Attempt],
+                 lines: dict[int, list[str] | None], found: Findings) -> None:
+    """Segments with job lines that no attempt explains. One whose lines are mostly in
+    none of the soak's files came from another process that opened the printer's pty (a stale
+    path to a recycled /dev/pts number on a shared machine): counted, not a failure."""
     used = {a.segment for a in attempts if a.segment is not None}
+    known = set().union(*(ls for ls in lines.values() if ls))
+    foreign = []
     for index, segment in enumerate(segments):
         jobs_lines = [c for c in segment if not _host_command(c)]
-        if index not in used and jobs_lines:
-            found.add(f"executed segment {index} ({len(jobs_lines)} lines, first "
-                      f"{jobs_lines[0]!r}) belongs to no print attempt")
+        if index in used or not jobs_lines:
+            continue
+        if 2 * sum(c not in known for c in jobs_lines) > len(jobs_lines):
+            foreign.append(f"segment {index}: {len(jobs_lines)} lines, first "
+                           f"{jobs_lines[0]!r}")
+            continue
+        found.add(f"executed segment {index} ({len(jobs_lines)} lines, first "
+                  f"{jobs_lines[0]!r}) belongs to no print attempt")
+    found.figures["foreign_segments"] = foreign
 
 
 def _resent(attempts: list[Attempt], histories: dict[int, list[dict]],

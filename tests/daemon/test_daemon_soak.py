@@ -34,10 +34,21 @@ def _gcode_job(tmp_path: Path, job_id: int, state: str) -> dict:
 
 
 def test_a_line_run_twice_is_caught():
-    done, problem = match_prefix(["G28", "M109 S210", "M105", "G1 X1 Y1 E0.1",
-                                  "G1 X1 Y1 E0.1"], PRINT)
-    assert done == 3
-    assert problem and "'G1 X1 Y1 E0.1'" in problem and "line 4" in problem
+    match = match_prefix(["G28", "M109 S210", "M105", "G1 X1 Y1 E0.1", "G1 X1 Y1 E0.1"],
+                         PRINT)
+    assert match.done == 3
+    assert match.problem and "'G1 X1 Y1 E0.1'" in match.problem and "line 4" in match.problem
+
+
+def test_noise_artefacts_are_told_apart_from_lines_run_twice():
+    # a flushed line's tail whose '*' noise changed ran again; two lines glued by a
+    # changed newline ran as the due one; a checksum tail ran as an unknown command
+    segment = ["G28", "M109 S210", "M109 S210\x1176", "G1 X1 Y1 E0.1*106wN5 G1 X2",
+               "121", "G1 X2 Y1 E0.2", "M84"]
+    match = match_prefix(segment, PRINT)
+    assert match.problem is None and match.done == len(PRINT)
+    assert match.artefacts == ["M109 S210\x1176", "G1 X1 Y1 E0.1*106wN5 G1 X2"]
+    assert match_prefix(["G28", "M109 S210", "M109 S210"], PRINT).problem
 
 
 def test_host_tickles_and_a_whole_print_pass(tmp_path):
