@@ -231,7 +231,7 @@ def recheck(run: Path) -> int:
 def report(found: Findings, run: Path) -> None:
     fig = found.figures
     print("\n=== soak result ===")
-    print(f"jobs dropped: {fig.get('jobs')}; outcomes: {fig.get('outcomes')}")
+    print(f"jobs dropped: {fig.get('jobs')}; outcomes: {fig.get('outcomes', '-')}")
     print(f"lost: {fig.get('lost')}; processed twice: {fig.get('duplicated')}; "
           f"stray jobs: {fig.get('stray')}")
     print(f"print attempts: {fig.get('print_attempts')}; G-code lines executed: "
@@ -242,12 +242,13 @@ def report(found: Findings, run: Path) -> None:
     if fig.get("foreign_segments"):
         print(f"lines another process sent to the printer's pty (not the daemon's): "
               f"{fig['foreign_segments']}")
-    print(f"faults injected: {fig.get('faults')}")
-    if fig.get("missed_faults"):
-        print(f"faults that found no moment to fire: {fig.get('missed_faults')}")
-    print(f"daemon starts: {fig.get('daemon_starts')}")
-    print(f"daemon RSS: {json.dumps(fig.get('memory'))}")
-    print(f"wall time: {fig.get('wall_seconds')} s; {fig.get('jobs_per_minute')} jobs/min")
+    if "faults" in fig:  # figures of the run itself (not of a --recheck)
+        print(f"faults injected: {fig.get('faults')}")
+        if fig.get("missed_faults"):
+            print(f"faults that found no moment to fire: {fig.get('missed_faults')}")
+        print(f"daemon starts: {fig.get('daemon_starts')}")
+        print(f"daemon RSS: {json.dumps(fig.get('memory'))}")
+        print(f"wall time: {fig.get('wall_seconds')} s; {fig.get('jobs_per_minute')} jobs/min")
     print(f"run folder: {run}")
     if found.problems:
         print(f"\nFAILED: {len(found.problems)} problem(s):")
