@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from daemon.safety import strip_gcode
-from printer.gcode import command_word
+from printer.gcode import checksum, command_word
 
 #: What the host itself sends outside a job's lines: handshake and info queries, the
 #: lost-ok tickle (``M105``) and the cooldown after a cancelled stream.
@@ -97,6 +97,21 @@ class Match:
 _NOISE_CUT = re.compile(r"[*\x00-\x1f\x7f-\uffff]")
 
 
+def _flushed_tail(command: str, expected: list[str], done: int) -> bool:
+    """``command`` is the tail of a numbered line sent near line ``done + 1`` (lines
+    ahead of it may be in flight), ending in that line's own checksum, whose ``*``
+    noise changed into another byte."""
+    cut = len(command.rstrip("0123456789"))
+    head, digits = command[:cut - 1], command[cut:]
+    if not head or not digits:
+        return False
+    for number in range(max(1, done - 8), min(len(expected), done + 8) + 1):
+        line = expected[number - 1]
+        if line.endswith(head) and digits == str(checksum(f"N{number} {line}")):
+            return True
+    return False
+
+
 def _artefact(command: str, expected: list[str], done: int) -> int | None:
     """If line noise made ``command``, how many expected lines it stands for; else None.
 
@@ -104,17 +119,15 @@ def _artefact(command: str, expected: list[str], done: int) -> int | None:
     a newline turned into another byte glues two lines into one whose 8-bit XOR
     checksum can still match (the due line runs, altered: 1); and the tail of a line
     whose start was flushed with the RX buffer after a line error arrives as a line
-    without N, and runs if noise also took its ``*`` (a piece of a line: 0). Only
-    commands that carry noise (a ``*`` or a control/non-ASCII byte) qualify: a clean
-    copy of a line is a line run twice, never an artefact."""
-    if not _NOISE_CUT.search(command):
-        return None
-    head = _NOISE_CUT.split(command)[0].rstrip()
-    if done < len(expected) and head == expected[done]:
-        return 1
-    nearby = expected[max(0, done - 8): done + 1]
-    if head and any(line.endswith(head) for line in nearby):
+    without N, and runs if noise also changed its ``*`` (a piece of a line again: 0).
+    A clean copy of a line never qualifies (that is a line run twice): a glued line
+    carries a ``*`` or a control byte, a flushed tail ends in its own line's checksum."""
+    if _flushed_tail(command, expected, done):
         return 0
+    if _NOISE_CUT.search(command):
+        head = _NOISE_CUT.split(command)[0].rstrip()
+        if done < len(expected) and head == expected[done]:
+            return 1
     return None
 
 
@@ -279,17 +292,26 @@ def check_prints(jobs: list[dict], histories: dict[int, list[dict]], executed: l
     found.figures["lines_executed"] = sum(a.executed for a in attempts)
 
 
+def _score(match: Match) -> tuple[bool, int]:
+    return match.problem is None, match.done
+
+
 def _find_segment(segments: list[list[str]], cursor: int, expected: list[str],
                   following: list[str] | None) -> int | None:
-    """The first segment from ``cursor`` on that ran lines of ``expected``. A segment of
-    other lines ends the search if it is the next attempt's (this one ran nothing);
-    otherwise it belongs to no attempt, is skipped here and reported later."""
+    """The segment from ``cursor`` on that ran this attempt's lines, or None if it ran
+    none. Prints share their start G-code, so a segment is this attempt's only if it
+    fits it at least as well as the next attempt; one that fits the next attempt better
+    means this one ran nothing. A segment that fits neither belongs to no attempt: it
+    is skipped here and reported later."""
     for probe in range(cursor, len(segments)):
         segment = segments[probe]
-        if match_prefix(segment, expected).done:
+        if all(_host_command(c) for c in segment):
+            continue
+        mine = match_prefix(segment, expected)
+        theirs = match_prefix(segment, following) if following else Match()
+        if mine.done and _score(mine) >= _score(theirs):
             return probe
-        if following and any(not _host_command(c) for c in segment) and match_prefix(
-                segment, following).done:
+        if theirs.done:
             return None
     return None
 

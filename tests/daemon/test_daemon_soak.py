@@ -14,6 +14,8 @@ sys.path.insert(0, str(ROOT / "bench"))
 
 from soak_checks import Findings, account_files, check_prints, match_prefix  # noqa: E402
 
+from printer.gcode import checksum  # noqa: E402
+
 PRINT = ["G28", "M109 S210", "G1 X1 Y1 E0.1", "G1 X2 Y1 E0.2", "M84"]
 
 
@@ -43,12 +45,14 @@ def test_a_line_run_twice_is_caught():
 def test_noise_artefacts_are_told_apart_from_lines_run_twice():
     # a flushed line's tail whose '*' noise changed ran again; two lines glued by a
     # changed newline ran as the due one; a checksum tail ran as an unknown command
-    segment = ["G28", "M109 S210", "M109 S210\x1176", "G1 X1 Y1 E0.1*106wN5 G1 X2",
-               "121", "G1 X2 Y1 E0.2", "M84"]
+    tail = f"09 S210+{checksum('N2 M109 S210')}"
+    segment = ["G28", "M109 S210", f"M109 S210\x11{checksum('N2 M109 S210')}", tail,
+               "G1 X1 Y1 E0.1*106wN5 G1 X2", "121", "G1 X2 Y1 E0.2", "M84"]
     match = match_prefix(segment, PRINT)
     assert match.problem is None and match.done == len(PRINT)
-    assert match.artefacts == ["M109 S210\x1176", "G1 X1 Y1 E0.1*106wN5 G1 X2"]
+    assert match.artefacts == [segment[2], tail, "G1 X1 Y1 E0.1*106wN5 G1 X2"]
     assert match_prefix(["G28", "M109 S210", "M109 S210"], PRINT).problem
+    assert match_prefix(["G28", "M109 S210", "M109 S210+99"], PRINT).problem  # wrong sum
 
 
 def test_host_tickles_and_a_whole_print_pass(tmp_path):
