@@ -193,6 +193,24 @@ class Journal:
             rows = self._db.execute(query, args).fetchall()
         return [self._row_to_job(r) for r in rows]
 
+    def work_dirs(self) -> set[str]:
+        """The work folders that jobs own (read without decoding every job's reports)."""
+        with self._lock:
+            rows = self._db.execute("SELECT DISTINCT work_dir FROM jobs WHERE work_dir IS NOT"
+                                    " NULL AND work_dir != ''").fetchall()
+        return {r[0] for r in rows}
+
+    def unreported(self, states: set[JobState]) -> list[int]:
+        """Ids of jobs in ``states`` whose reports were never written: the daemon died
+        between their last state change and archiving them (reports come last)."""
+        marks = ",".join("?" * len(states))
+        with self._lock:
+            rows = self._db.execute(
+                f"SELECT id FROM jobs WHERE state IN ({marks}) AND (outputs IS NULL OR"
+                " outputs NOT LIKE '%\"report_json\"%') ORDER BY id",
+                [str(s) for s in states]).fetchall()
+        return [int(r[0]) for r in rows]
+
     def counts(self) -> dict[str, int]:
         with self._lock:
             rows = self._db.execute("SELECT state, COUNT(*) FROM jobs GROUP BY state").fetchall()

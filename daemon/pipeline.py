@@ -133,7 +133,7 @@ class Spool:
 
     def recover_orphans(self) -> list[str]:
         """Work folders no job owns (the daemon died mid-intake): give files back to the spool."""
-        owned = {Path(job.work_dir).name for job in self.journal.jobs() if job.work_dir}
+        owned = {Path(d).name for d in self.journal.work_dirs()}
         given_back = []
         for folder in self.cfg.work_dir.iterdir():
             if not folder.is_dir() or folder.name in owned:

@@ -25,7 +25,7 @@ from daemon.journal import Job, Journal
 from daemon.notify import notify, watchdog_interval
 from daemon.pipeline import Processor, Spool
 from daemon.printlink import HALF_PRINTED, PrinterLink
-from daemon.states import JobState, TransitionError
+from daemon.states import FINAL, JobState, TransitionError
 from daemon.watcher import SpoolWatcher
 from daemon.worker import FORK_SERVER, warm_up
 
@@ -69,7 +69,7 @@ class Daemon:
         journal = self.journal
         for job in journal.jobs({JobState.REPAIRING, JobState.SLICING}):
             journal.transition(job.id, JobState.QUEUED, progress=None,
-                         note=f"the daemon stopped while {job.state}; redoing it")
+                               note=f"the daemon stopped while {job.state}; redoing it")
             log.info("job %d: was %s when the daemon stopped; redoing it", job.id, job.state)
         for job in journal.jobs({JobState.PRINTING}):
             reason = ("print interrupted: the daemon or the machine stopped during the print "
@@ -79,6 +79,10 @@ class Daemon:
                                progress=None)
             self.spool.archive(job.id)
             log.warning("job %d: %s", job.id, reason)
+        for job_id in journal.unreported(set(FINAL)):
+            self.spool.archive(job_id)
+            log.warning("job %d: archived its files and reports (the daemon stopped while "
+                        "archiving it)", job_id)
         for name in self.spool.recover_orphans():
             log.warning("gave %s back to the spool (the daemon stopped while taking it)", name)
 

@@ -203,6 +203,12 @@ class Streamer:
                     continue
                 reply = parse_reply(line)
                 host.raise_if_fatal(reply, "before the stream started")
+                if reply.kind in ("resend", "line_error"):
+                    # The M110 was refused (noise): the ok that follows the Resend is
+                    # not its acknowledgement, and the firmware still expects the old
+                    # line numbers. Let that ok go by, then send the M110 again.
+                    self.drain_quiet()
+                    break
                 if reply.kind == "ok" and not reply.temps:
                     self.drain_quiet()
                     return

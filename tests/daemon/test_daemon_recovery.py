@@ -143,3 +143,54 @@ def test_a_name_that_is_not_utf8_is_refused_not_stuck(tmp_path):
     assert job.source_name == "bad\ufffd.gcode"
     assert sorted(os.listdir(d.spool.root)) == [".preflight", "done", "failed"]
     assert (d.cfg.failed_dir / job.name).exists()
+
+
+def test_start_up_recovery_does_not_load_every_job(tmp_path):
+    # Found by the soak: the daemon's memory after each start grew with the journal
+    # (every job and its reports were decoded to learn which work folders are owned).
+    import tracemalloc
+
+    cfg = make_cfg(tmp_path)
+    d = Daemon(cfg)
+    report = {"log": "x" * 20_000}
+    for i in range(300):
+        jid = d.journal.add_job(name=f"p{i}.stl", source_name=f"p{i}.stl", kind="mesh",
+                                work_dir=str(cfg.work_dir / f"owned{i}"), input_path="")
+        d.journal.update(jid, repair_report=report)
+    (cfg.work_dir / "owned7").mkdir(parents=True)
+    (cfg.work_dir / "owned7" / "p7.stl").write_bytes(b"kept")
+    orphan = cfg.work_dir / "orphan"
+    orphan.mkdir()
+    (orphan / "lost.stl").write_bytes(b"x")
+    tracemalloc.start()
+    try:
+        given_back = d.spool.recover_orphans()
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert given_back == ["lost.stl"]
+    assert (cfg.work_dir / "owned7" / "p7.stl").read_bytes() == b"kept"
+    assert peak < 1_000_000, f"recovery allocated {peak / 1e6:.1f} MB for 300 jobs"
+
+
+def test_a_job_killed_while_being_archived_is_archived_at_start_up(tmp_path):
+    # Found by the soak: a kill -9 between a print's `done` and the writing of its
+    # reports left a done job without reports (and, earlier still, its files in work/).
+    cfg = make_cfg(tmp_path)
+    d = Daemon(cfg)
+    j = d.journal
+    printed = take(d.spool, "printed.gcode")
+    broken = take(d.spool, "broken.gcode")
+    for state in (S.READY, S.PRINTING, S.DONE):
+        j.transition(printed, state)
+    j.transition(broken, S.FAILED, reason="the G-code file has no commands")
+    work = Path(j.get(printed).work_dir)
+    assert j.unreported(set(S)) == [printed, broken]
+    d.recover()
+    assert j.unreported(set(S)) == []
+    assert (cfg.done_dir / "printed.gcode").read_bytes() == b"G28\nG1 X1\n"
+    assert not work.exists()
+    assert "PRINTED" in (cfg.done_dir / "printed.report.txt").read_text()
+    text = (cfg.failed_dir / "broken.report.txt").read_text()
+    assert "FAILED - the G-code file has no commands" in text
+    assert (cfg.failed_dir / "broken.gcode").exists()

@@ -16,7 +16,7 @@ from printer.errors import (
     PrinterTimeout,
     StreamCancelled,
 )
-from printer.gcode import clean_line
+from printer.gcode import clean_line, clean_lines
 from printer.host import PrinterHost
 from printer.virtual import Faults, VirtualPrinter
 
@@ -245,3 +245,22 @@ def test_temperature_auto_reports_do_not_hide_a_lost_ok():
         result = host.stream(lines)
         assert result.timeouts > 0
         assert_exactly_once(vp, lines)
+
+
+@pytest.mark.parametrize("mode", ["ping-pong", "buffered"])
+def test_rejected_m110_is_sent_again_before_the_next_stream(mode):
+    # Found by the soak (bench/soak.py) on a noisy line: the M110 that starts a stream
+    # was rejected (Error + Resend + ok) and the host took that ok as the M110's, so the
+    # printer still expected the previous print's next line number and refused every
+    # line of the new print, while the host counted lines as delivered.
+    first, second = program(20), program(30)
+    with VirtualPrinter("marlin", **FAST) as vp, \
+            PrinterHost(vp.port, vp.baud, mode=mode, **HOST) as host:
+        host.stream(first)
+        executed_before = len(streamed(vp))
+        host._serial.write(b"X")  # a noise byte glued to the front of the next line
+        result = host.stream(second)
+        assert result.lines == len(clean_lines(second))
+        again = streamed(vp)[executed_before:]
+        assert [n for n, _ in again] == list(range(1, len(clean_lines(second)) + 1))
+        assert [c for _, c in again] == clean_lines(second)
