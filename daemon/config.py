@@ -80,12 +80,19 @@ class SafetyConfig:
 
 
 @dataclass(frozen=True)
+class WebConfig:
+    listen: str = "0.0.0.0:8080"      # host:port of the slicer-facing HTTP API; "" turns it off
+    max_upload_mb: float = 1024.0
+
+
+@dataclass(frozen=True)
 class Config:
     spool: SpoolConfig = field(default_factory=SpoolConfig)
     printer: PrinterConfig = field(default_factory=PrinterConfig)
     limits: LimitsConfig = field(default_factory=LimitsConfig)
     daemon: DaemonConfig = field(default_factory=DaemonConfig)
     safety: SafetyConfig = field(default_factory=SafetyConfig)
+    web: WebConfig = field(default_factory=WebConfig)
     profile: dict[str, Any] = field(default_factory=dict)  # slicer Profile overrides
     source: str = "built-in defaults"
 
@@ -143,7 +150,7 @@ def _path(section: str, name: str, v: Any, base: Path | None) -> Path:
     return p
 
 
-_SECTIONS = {"spool", "printer", "limits", "daemon", "safety", "profile"}
+_SECTIONS = {"spool", "printer", "limits", "daemon", "safety", "web", "profile"}
 
 
 def parse_config(data: dict[str, Any], *, base: Path | None = None,
@@ -262,9 +269,26 @@ def parse_config(data: dict[str, Any], *, base: Path | None = None,
         forbidden_gcodes=tuple(x.strip().upper() for x in forbidden),
     )
 
+    w = take("web", {"listen", "max_upload_mb"})
+    listen = w.get("listen", WebConfig.listen)
+    if not isinstance(listen, str) or (listen and split_listen(listen) is None):
+        raise ConfigError(f"[web] listen: expected \"host:port\" or \"\" (off), got {listen!r}")
+    web = WebConfig(listen=listen, max_upload_mb=_num(
+        "web", "max_upload_mb", w.get("max_upload_mb", WebConfig.max_upload_mb), lo=0, hi=1e7,
+        open_lo=True))
+
     profile = dict(data.get("profile", {}))
     return Config(spool=spool, printer=printer, limits=limits, daemon=daemon, safety=safety,
-                  profile=profile, source=source)
+                  web=web, profile=profile, source=source)
+
+
+def split_listen(listen: str) -> tuple[str, int] | None:
+    """``"host:port"`` (``"[::]:8080"`` for IPv6) as (host, port), or None if malformed."""
+    host, sep, port = listen.rpartition(":")
+    host = host.strip("[]")
+    if not sep or not host or not port.isdigit() or int(port) > 65535:
+        return None
+    return host, int(port)
 
 
 def load_config(path: str | os.PathLike[str] | None = None) -> Config:

@@ -63,6 +63,9 @@ reconnect_min_seconds = 0.5
 state_dir = "{root / 'state'}"
 auto_print = true
 log_level = "INFO"
+
+[web]
+listen = ""                       # the demo is offline: no HTTP API
 """)
     return cfg
 

@@ -46,6 +46,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true", help="print the status as JSON")
     p.set_defaults(func=cmd_status)
 
+    p = subparsers.add_parser("api-key", help="print the web API key slicers need")
+    _config_arg(p)
+    p.set_defaults(func=cmd_api_key)
+
     p = subparsers.add_parser("jobs", help="list, show, print, requeue or cancel jobs")
     _config_arg(p)
     jsub = p.add_subparsers(dest="jobs_command", metavar="ACTION")
@@ -124,8 +128,9 @@ def cmd_status(args: argparse.Namespace) -> int:
     cfg, j = _journal(args)
     st = j.get_meta("status")
     alive = daemon_alive(st)
+    key = _api_key(cfg)
     if args.json:
-        print(json.dumps({"alive": alive, **(st or {})}, indent=2))
+        print(json.dumps({"alive": alive, **(st or {}), "api_key": key}, indent=2))
         return 0 if alive else 3
     if not alive:
         last = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(st["heartbeat"])) if st else "?"
@@ -146,7 +151,41 @@ def cmd_status(args: argparse.Namespace) -> int:
     elif p.get("message"):
         print(f"printer: {p.get('port')} - {p.get('state')}: {p['message']}")
     print(f"spool: {st['spool']} ({st.get('waiting_files', 0)} file(s) being written)")
+    web = st.get("web") or {}
+    if web:
+        where = web.get("error") or f"{web.get('url')} (listening on {web.get('listen')})"
+        print(f"web API: {where}; API key: {key or 'not made yet'}")
     print("jobs: " + (", ".join(f"{v} {k}" for k, v in sorted(st["jobs"].items())) or "none"))
+    return 0
+
+
+def _api_key(cfg) -> str | None:
+    from daemon.web.auth import read_key
+
+    try:
+        return read_key(cfg.daemon.state_dir)
+    except PermissionError:
+        return None
+
+
+def cmd_api_key(args: argparse.Namespace) -> int:
+    from daemon.config import ConfigError
+    from daemon.web.auth import key_path
+
+    try:
+        cfg = _load(args)
+    except ConfigError as e:
+        return _fail(str(e), 2)
+    try:
+        key = _api_key(cfg)
+    except OSError as e:
+        return _fail(f"cannot read {key_path(cfg.daemon.state_dir)}: {e.strerror}")
+    if key is None:
+        path = key_path(cfg.daemon.state_dir)
+        if path.exists():
+            return _fail(f"cannot read {path}: run this as the daemon's user (or root)")
+        return _fail(f"no API key yet: it is made when the daemon first starts ({path})")
+    print(key)
     return 0
 
 

@@ -34,7 +34,8 @@ skirts = 0
 
 def write_config(tmp: Path, *, port: str = "virtual", extra: str = "", profile: bool = True,
                  speedup: float = 2000.0, auto_print: bool = True,
-                 virtual_log: Path | None = None) -> Path:
+                 virtual_log: Path | None = None, web: str = "listen = \"127.0.0.1:0\"") -> Path:
+    """A test config; the web API listens on a free loopback port (never 0.0.0.0)."""
     text = f"""
 [spool]
 path = "{tmp / 'spool'}"
@@ -57,6 +58,9 @@ log_level = "DEBUG"
 [limits]
 repair_timeout = 120
 slice_timeout = 120
+
+[web]
+{web}
 {extra}
 {FAST_PROFILE if profile else ''}
 """
