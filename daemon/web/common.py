@@ -84,7 +84,7 @@ async def upload_expect(request: web.Request) -> web.StreamResponse | None:
                             backend.cfg.spool.path)
     except Refused as e:
         return refusal(e.status, e.reason)
-    request.writer.write(b"HTTP/1.1 100 Continue\r\n\r\n")
+    await request.writer.write(b"HTTP/1.1 100 Continue\r\n\r\n")
     return None
 
 
