@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from aiohttp import BodyPartReader, web
+from aiohttp.http_exceptions import HttpProcessingError
 
 from daemon.safety import ACCEPTED_SUFFIXES, UnsafeEntry, check_name, sanitise_name
 from daemon.states import JobState
@@ -111,7 +112,7 @@ def check_declared_size(request: web.Request, max_bytes: int, spool: Path) -> No
     length = request.content_length
     if length is not None and length > max_bytes + 64 * 1024:  # multipart framing
         raise Refused(413, f"refused: the upload is {length / 1048576:.1f} MB, over the "
-                           f"limit of {max_bytes / 1048576:g} MB ([web] max_upload_mb)")
+                           f"limit of {max_bytes / 1048576:.4g} MB ([web] max_upload_mb)")
     free = shutil.disk_usage(spool).free
     if free < (length or 0) + FREE_MARGIN:
         raise Refused(507, f"refused: the spool's disk has {free / 1048576:.0f} MB free, "
@@ -137,7 +138,12 @@ async def receive(request: web.Request, spool: Path, max_bytes: int, busy_name: 
     up = Upload()
     try:
         while True:
-            part = await reader.next()
+            try:
+                part = await reader.next()
+            except (HttpProcessingError, ValueError) as e:
+                why = " ".join(str(e).split())
+                raise Refused(400, f"refused: the multipart body is malformed: {why}"[:300]
+                              ) from None
             if part is None:
                 break
             if not isinstance(part, BodyPartReader):
@@ -189,7 +195,7 @@ async def _stream_to_disk(part: BodyPartReader, spool: Path, max_bytes: int,
             up.size += len(chunk)
             if up.size > max_bytes:
                 raise Refused(413, f"refused: the file is over the limit of "
-                                   f"{max_bytes / 1048576:g} MB ([web] max_upload_mb)")
+                                   f"{max_bytes / 1048576:.4g} MB ([web] max_upload_mb)")
             try:
                 view = memoryview(chunk)
                 while view:

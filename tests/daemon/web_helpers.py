@@ -112,8 +112,9 @@ def multipart(parts: list[tuple[str, bytes, str | None, str | None]], boundary: 
     for name, data, filename, ctype in parts:
         out += f"--{boundary}\r\n".encode()
         disp = f'Content-Disposition: form-data; name="{name}"'
-        if filename is not None:
-            disp += f'; filename="{filename}"'
+        if filename is not None:  # quoted-string escapes, as libcurl writes them
+            quoted = filename.replace("\\", "\\\\").replace('"', '\\"')
+            disp += f'; filename="{quoted}"'
         out += disp.encode("utf-8") + b"\r\n"
         if ctype:
             out += f"Content-Type: {ctype}\r\n".encode()
