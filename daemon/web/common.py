@@ -11,7 +11,7 @@ from typing import Any
 from aiohttp import web
 
 from daemon.web.auth import PUBLIC, presented_key
-from daemon.web.uploads import Refused, check_declared_size
+from daemon.web.uploads import Refused, check_declared_size, size_limit
 
 log = logging.getLogger("preflight.web")
 
@@ -80,8 +80,7 @@ async def upload_expect(request: web.Request) -> web.StreamResponse | None:
         return refusal(401, "invalid or missing API key (see `preflight api-key`)")
     backend = request.app[BACKEND]
     try:
-        check_declared_size(request, int(backend.cfg.web.max_upload_mb * 1024 * 1024),
-                            backend.cfg.spool.path)
+        check_declared_size(request, size_limit(backend.cfg), backend.cfg.spool.path)
     except Refused as e:
         return refusal(e.status, e.reason)
     await request.writer.write(b"HTTP/1.1 100 Continue\r\n\r\n")

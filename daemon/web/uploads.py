@@ -106,13 +106,32 @@ def check_folder(folder: str) -> None:
             raise Refused(400, "refused: a folder name in the path is too long")
 
 
-def check_declared_size(request: web.Request, max_bytes: int, spool: Path) -> None:
+@dataclass(frozen=True)
+class SizeLimit:
+    """The largest file an upload may carry, and the config key that sets it."""
+
+    max_bytes: int
+    key: str
+
+    def refusal(self, what: str) -> Refused:
+        return Refused(413, f"refused: {what} is over the limit of "
+                            f"{self.max_bytes / 1048576:.4g} MB ({self.key})")
+
+
+def size_limit(cfg: Any) -> SizeLimit:
+    """``[web] max_upload_mb``, or ``[limits] max_file_mb`` when that is smaller (the
+    spool's intake would refuse the file anyway: better before the body is sent)."""
+    if cfg.limits.max_file_mb < cfg.web.max_upload_mb:
+        return SizeLimit(int(cfg.limits.max_file_mb * 1048576), "[limits] max_file_mb")
+    return SizeLimit(int(cfg.web.max_upload_mb * 1048576), "[web] max_upload_mb")
+
+
+def check_declared_size(request: web.Request, limit: SizeLimit, spool: Path) -> None:
     """Before reading the body: 413 if ``Content-Length`` is over the limit, 507 if the
     spool's file system cannot hold it."""
     length = request.content_length
-    if length is not None and length > max_bytes + 64 * 1024:  # multipart framing
-        raise Refused(413, f"refused: the upload is {length / 1048576:.1f} MB, over the "
-                           f"limit of {max_bytes / 1048576:.4g} MB ([web] max_upload_mb)")
+    if length is not None and length > limit.max_bytes + 64 * 1024:  # multipart framing
+        raise limit.refusal(f"the upload ({length / 1048576:.1f} MB)")
     free = shutil.disk_usage(spool).free
     if free < (length or 0) + FREE_MARGIN:
         raise Refused(507, f"refused: the spool's disk has {free / 1048576:.0f} MB free, "
@@ -126,11 +145,11 @@ def printing_name(journal: Any) -> str | None:
     return None
 
 
-async def receive(request: web.Request, spool: Path, max_bytes: int, busy_name: str | None
+async def receive(request: web.Request, spool: Path, limit: SizeLimit, busy_name: str | None
                   ) -> Upload:
     """Read the multipart body: text fields into ``fields``, the ``file`` part to a hidden
     temp file in the spool. Refuses as soon as what is known allows it."""
-    check_declared_size(request, max_bytes, spool)
+    check_declared_size(request, limit, spool)
     try:
         reader = await request.multipart()
     except (AssertionError, ValueError, KeyError) as e:
@@ -156,7 +175,7 @@ async def receive(request: web.Request, spool: Path, max_bytes: int, busy_name: 
                 if busy_name is not None and sanitise_name(up.name) == busy_name:
                     raise Refused(409, f"refused: {up.name} is printing now; wait for it to "
                                        "finish or cancel it, or upload under another name")
-                await _stream_to_disk(part, spool, max_bytes, up)
+                await _stream_to_disk(part, spool, limit, up)
             else:
                 up.fields[part.name or ""] = await _read_field(part)
                 if part.name == "path":  # refuse traversal before any file byte is stored
@@ -183,7 +202,7 @@ async def _read_field(part: BodyPartReader) -> str:
     return data.decode("utf-8", "replace")
 
 
-async def _stream_to_disk(part: BodyPartReader, spool: Path, max_bytes: int,
+async def _stream_to_disk(part: BodyPartReader, spool: Path, limit: SizeLimit,
                           up: Upload) -> None:
     up.temp = spool / f"{TEMP_PREFIX}{uuid.uuid4().hex}.part"
     fd = os.open(up.temp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
@@ -193,9 +212,8 @@ async def _stream_to_disk(part: BodyPartReader, spool: Path, max_bytes: int,
             if not chunk:
                 break
             up.size += len(chunk)
-            if up.size > max_bytes:
-                raise Refused(413, f"refused: the file is over the limit of "
-                                   f"{max_bytes / 1048576:.4g} MB ([web] max_upload_mb)")
+            if up.size > limit.max_bytes:
+                raise limit.refusal("the file")
             try:
                 view = memoryview(chunk)
                 while view:
@@ -237,8 +255,7 @@ async def accept(request: web.Request, backend: Any, print_requested_field: str 
     """Receive an upload and take it in. Returns (upload, job id, job name).
     ``check_fields`` may refuse the form's fields before the job is recorded."""
     cfg = backend.cfg
-    max_bytes = int(cfg.web.max_upload_mb * 1024 * 1024)
-    up = await receive(request, cfg.spool.path, max_bytes, printing_name(backend.journal))
+    up = await receive(request, cfg.spool.path, size_limit(cfg), printing_name(backend.journal))
     try:
         check_folder(up.fields.get("path", ""))
         if check_fields is not None:

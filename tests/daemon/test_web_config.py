@@ -29,3 +29,15 @@ def test_web_listen_forms():
 def test_bad_web_values_name_the_key(bad, words):
     with pytest.raises(ConfigError, match=words.replace("[", r"\[").replace("]", r"\]")):
         parse_config({"web": bad})
+
+
+def test_upload_limit_is_the_smaller_of_the_web_and_spool_limits():
+    from daemon.web.uploads import size_limit
+
+    cfg = parse_config({})  # [limits] max_file_mb 200 < [web] max_upload_mb 1024
+    assert size_limit(cfg).max_bytes == 200 * 1048576
+    assert "[limits] max_file_mb" in size_limit(cfg).refusal("the file").reason
+    cfg = parse_config({"web": {"max_upload_mb": 10}})
+    assert (size_limit(cfg).max_bytes, size_limit(cfg).key) == (10 * 1048576,
+                                                                "[web] max_upload_mb")
+    assert size_limit(cfg).refusal("the file").status == 413
