@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import socket
 from pathlib import Path
 
@@ -34,21 +35,6 @@ GUARDED = [("GET", "/api/settings"), ("GET", "/api/printer"), ("GET", "/api/job"
            ("GET", "/api/files/local/a.gcode"), ("POST", "/server/files/upload"),
            ("POST", "/printer/print/start"), ("GET", "/printer/info"),
            ("GET", "/no/such/endpoint"), ("POST", "/api/version"), ("GET", "/")]
-
-
-@pytest.fixture
-def web_daemon(tmp_path):
-    made: list[DaemonProc] = []
-
-    def make(**kw) -> tuple[DaemonProc, int, str]:
-        d = DaemonProc(write_config(tmp_path, virtual_log=tmp_path / "printer.log", **kw))
-        made.append(d)
-        port, key = start_web_daemon(d)
-        return d, port, key
-
-    yield make
-    for d in made:
-        d.stop()
 
 
 def upload(port: int, key: str | None, name: str, data: bytes, *, path: str = "",
@@ -245,3 +231,35 @@ def test_kill9_right_after_the_201_keeps_the_job(web_daemon):
         executed_once(log, gcode_commands(Path(done.outputs["input"])))
     finally:
         d2.stop()
+
+
+def test_an_upload_the_disk_cannot_hold_is_507_before_its_body(tmp_path):
+    cfg_path = write_config(tmp_path, web='listen = "127.0.0.1:0"\nmax_upload_mb = 10000000')
+    text = cfg_path.read_text().replace("slice_timeout = 120",
+                                        "slice_timeout = 120\nmax_file_mb = 1000000")
+    cfg_path.write_text(text)
+    d = DaemonProc(cfg_path)
+    port, key = start_web_daemon(d)
+    try:
+        declared = 500 * 10**9  # 500 GB: under both limits, over this disk's free space
+        if shutil.disk_usage(d.cfg.spool.path).free >= declared:
+            pytest.skip("the test disk has more than 500 GB free")
+        boundary = curl_boundary()
+        ans = send_raw(port, upload_head(port, "/api/files/local", boundary, declared, key),
+                       b"", wait_continue=True)
+        assert ans.status == 507 and not ans.continued
+        assert "free" in ans.json()["error"]
+        assert d.alive() and d.jobs() == []
+    finally:
+        d.stop()
+
+
+def test_moonraker_upload_outside_the_gcodes_root_is_400(web_daemon):
+    d, port, key = web_daemon()
+    boundary = curl_boundary()
+    body = multipart([("root", b"config", None, None),
+                      ("file", tiny_gcode().encode(), "printer.cfg.gcode", OCTET)], boundary)
+    ans = send_raw(port, upload_head(port, "/server/files/upload", boundary, len(body), key),
+                   body, wait_continue=True)
+    assert ans.status == 400 and "gcodes" in ans.json()["error"]
+    assert d.jobs() == [] and spool_names(d) == [".preflight", "done", "failed"]

@@ -17,7 +17,6 @@ from daemon_helpers import (
     gcode_commands,
     tiny_gcode,
     write_binary_stl,
-    write_config,
 )
 from web_helpers import (
     curl_boundary,
@@ -25,28 +24,12 @@ from web_helpers import (
     multipart,
     request,
     send_raw,
-    start_web_daemon,
     upload_head,
 )
 
 pytest.importorskip("aiohttp")
 
 OCTET = "application/octet-stream"
-
-
-@pytest.fixture
-def web_daemon(tmp_path):
-    made: list[DaemonProc] = []
-
-    def make(**kw) -> tuple[DaemonProc, int, str]:
-        d = DaemonProc(write_config(tmp_path, virtual_log=tmp_path / "printer.log", **kw))
-        made.append(d)
-        port, key = start_web_daemon(d)
-        return d, port, key
-
-    yield make
-    for d in made:
-        d.stop()
 
 
 def printer_log(d: DaemonProc) -> list[str]:
