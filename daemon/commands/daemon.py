@@ -137,6 +137,8 @@ def cmd_status(args: argparse.Namespace) -> int:
         print(f"preflight daemon: not running (last seen {last})")
         counts = j.counts()
         print("jobs: " + (", ".join(f"{v} {k}" for k, v in sorted(counts.items())) or "none"))
+        if key:
+            print(f"web API key: {key}")
         return 3
     print(f"preflight daemon: running (pid {st['pid']}, since "
           f"{time.strftime('%H:%M:%S', time.localtime(st['started']))}, config {st['config']})")

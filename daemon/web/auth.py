@@ -12,8 +12,10 @@ import os
 import secrets
 from collections.abc import Awaitable, Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from aiohttp import web
+if TYPE_CHECKING:  # the CLI reads the key without loading aiohttp
+    from aiohttp import web
 
 KEY_FILE = "api_key"
 
@@ -65,20 +67,27 @@ def presented_key(request: web.Request) -> str:
     return request.query.get("apikey", "")
 
 
+UNAUTHORISED = "invalid or missing API key (see `preflight api-key`)"
+
+
+def key_ok(request: web.Request, key: str) -> bool:
+    """True for a public endpoint or a request carrying ``key`` (constant-time compare)."""
+    if (request.method, request.path) in PUBLIC:
+        return True
+    return hmac.compare_digest(presented_key(request).encode("utf-8", "replace"),
+                               key.encode("utf-8"))
+
+
 def key_middleware(key: str) -> Callable:
     """An aiohttp middleware answering 401 to every non-public request without the key."""
-    expected = key.encode("utf-8")
+    from aiohttp import web
 
     @web.middleware
     async def check_key(request: web.Request,
                         handler: Callable[[web.Request], Awaitable[web.StreamResponse]]
                         ) -> web.StreamResponse:
-        if (request.method, request.path) not in PUBLIC:
-            given = presented_key(request).encode("utf-8", "replace")
-            if not hmac.compare_digest(given, expected):
-                raise web.HTTPUnauthorized(
-                    text='{"error": "invalid or missing API key (see `preflight api-key`)"}',
-                    content_type="application/json")
+        if not key_ok(request, key):
+            return web.json_response({"error": UNAUTHORISED}, status=401)
         return await handler(request)
 
     return check_key

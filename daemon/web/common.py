@@ -10,7 +10,7 @@ from typing import Any
 
 from aiohttp import web
 
-from daemon.web.auth import PUBLIC, presented_key
+from daemon.web.auth import UNAUTHORISED, key_ok
 from daemon.web.uploads import Refused, check_declared_size, size_limit
 
 log = logging.getLogger("preflight.web")
@@ -72,12 +72,8 @@ async def upload_expect(request: web.Request) -> web.StreamResponse | None:
         if request.headers.get("Expect"):
             return refusal(417, "only Expect: 100-continue is understood")
         return None
-    import hmac
-
-    key = request.app[API_KEY].encode("utf-8")
-    if (request.method, request.path) not in PUBLIC and not hmac.compare_digest(
-            presented_key(request).encode("utf-8", "replace"), key):
-        return refusal(401, "invalid or missing API key (see `preflight api-key`)")
+    if not key_ok(request, request.app[API_KEY]):
+        return refusal(401, UNAUTHORISED)
     backend = request.app[BACKEND]
     try:
         check_declared_size(request, size_limit(backend.cfg), backend.cfg.spool.path)

@@ -73,7 +73,9 @@ class WebServer:
 
     async def _serve(self, key: str) -> None:
         host, port = split_listen(self.listen) or ("", 0)
-        self._runner = web.AppRunner(make_app(self.backend, key), access_log=log,
+        # one line per request only when debugging: Cura polls every two seconds
+        access = log if log.isEnabledFor(logging.DEBUG) else None
+        self._runner = web.AppRunner(make_app(self.backend, key), access_log=access,
                                      handle_signals=False)
         await self._runner.setup()
         site = web.TCPSite(self._runner, host, port, reuse_address=True)
