@@ -32,6 +32,7 @@ log = logging.getLogger("preflight.web")
 
 CHUNK = 256 * 1024
 MAX_FIELD_BYTES = 4096          # a form field (print, select, path, root) is short text
+MAX_FIELDS = 32
 MAX_NAME_BYTES = 255            # one path component on Linux file systems
 FREE_MARGIN = 16 * 1024 * 1024  # keep this much free on the spool's file system
 TEMP_PREFIX = ".upload-"
@@ -177,6 +178,8 @@ async def receive(request: web.Request, spool: Path, limit: SizeLimit, busy_name
                                        "finish or cancel it, or upload under another name")
                 await _stream_to_disk(part, spool, limit, up)
             else:
+                if len(up.fields) >= MAX_FIELDS:
+                    raise Refused(400, f"more than {MAX_FIELDS} form fields")
                 up.fields[part.name or ""] = await _read_field(part)
                 if part.name == "path":  # refuse traversal before any file byte is stored
                     check_folder(up.fields["path"])

@@ -199,6 +199,14 @@ def test_hostile_requests_never_take_the_daemon_down(web_daemon):
     for path, body in (("/api/files/local", b"{}"), ("/api/job", b"[1, 2]"),
                        ("/api/job", b"\xff\xfe"), ("/server/files/upload", b"x")):
         assert request(port, "POST", path, headers=headers, body=body).status in (400, 409)
+    # endless or oversized form fields
+    for parts, words in (([(f"f{i}", b"x", None, None) for i in range(100)], "form fields"),
+                         ([("path", b"a" * 5000, None, None)], "longer than")):
+        boundary = curl_boundary()
+        body = multipart(parts, boundary)
+        ans = send_raw(port, upload_head(port, "/api/files/local", boundary, len(body), key,
+                                         expect=False), body)
+        assert ans.status == 400 and words in ans.json()["error"], ans.body
     d.wait_for(lambda: not any(p.name.startswith(".upload-")
                                for p in d.cfg.spool.path.iterdir()), what="temp file removed")
     assert request(port, "GET", "/api/version").status == 200

@@ -26,10 +26,13 @@ class Answer:
 
 
 def start_web_daemon(d: DaemonProc) -> tuple[int, str]:
-    """Start the daemon; return its web port and API key."""
+    """Start the daemon; once its web API listens and its printer is connected, return
+    the web port and the API key."""
     d.start()
     web = d.wait_for(lambda: (d.status().get("web") or {}).get("port") and d.status()["web"],
                      what="the web server")
+    d.wait_for(lambda: (d.status().get("printer") or {}).get("state") == "connected",
+               what="the printer connected")
     key = read_key(d.cfg.daemon.state_dir)
     assert key
     return int(web["port"]), key
