@@ -75,8 +75,9 @@ class WebServer:
         host, port = split_listen(self.listen) or ("", 0)
         # one line per request only when debugging: Cura polls every two seconds
         access = log if log.isEnabledFor(logging.DEBUG) else None
+        # a stalled upload must not hold up the daemon's shutdown for long
         self._runner = web.AppRunner(make_app(self.backend, key), access_log=access,
-                                     handle_signals=False)
+                                     handle_signals=False, shutdown_timeout=3.0)
         await self._runner.setup()
         site = web.TCPSite(self._runner, host, port, reuse_address=True)
         await site.start()

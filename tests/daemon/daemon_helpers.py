@@ -37,6 +37,9 @@ def write_config(tmp: Path, *, port: str = "virtual", extra: str = "", profile: 
                  virtual_log: Path | None = None, web: str = "listen = \"127.0.0.1:0\"") -> Path:
     """A test config; the web API listens on a free loopback port (never 0.0.0.0)."""
     text = f"""
+[web]
+{web}
+
 [spool]
 path = "{tmp / 'spool'}"
 settle_seconds = 1.0
@@ -58,9 +61,6 @@ log_level = "DEBUG"
 [limits]
 repair_timeout = 120
 slice_timeout = 120
-
-[web]
-{web}
 {extra}
 {FAST_PROFILE if profile else ''}
 """
