@@ -33,6 +33,7 @@ log = logging.getLogger("preflight.web")
 CHUNK = 256 * 1024
 MAX_FIELD_BYTES = 4096          # a form field (print, select, path, root) is short text
 MAX_FIELDS = 32
+MAX_REASON = 300
 MAX_NAME_BYTES = 255            # one path component on Linux file systems
 FREE_MARGIN = 16 * 1024 * 1024  # keep this much free on the spool's file system
 TEMP_PREFIX = ".upload-"
@@ -43,6 +44,10 @@ class Refused(Exception):
     """An upload or request the server answers with ``status`` and a one-line reason."""
 
     def __init__(self, status: int, reason: str) -> None:
+        # names are echoed in reasons: keep an answer to a hostile name one short line
+        reason = " ".join(reason.split())
+        if len(reason) > MAX_REASON:
+            reason = reason[:MAX_REASON - 3] + "..."
         super().__init__(reason)
         self.status = status
         self.reason = reason
