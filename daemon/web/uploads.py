@@ -197,10 +197,18 @@ async def receive(request: web.Request, spool: Path, limit: SizeLimit, busy_name
     return up
 
 
+async def _next_chunk(part: BodyPartReader, size: int) -> bytes:
+    """The next piece of a part; a body that ends inside the part is refused (400)."""
+    try:
+        return await part.read_chunk(size)
+    except (HttpProcessingError, ValueError) as e:
+        raise Refused(400, f"refused: the multipart body is malformed: {e}") from None
+
+
 async def _read_field(part: BodyPartReader) -> str:
     data = bytearray()
     while True:
-        chunk = await part.read_chunk(1024)
+        chunk = await _next_chunk(part, 1024)
         if not chunk:
             break
         data += chunk
@@ -216,7 +224,7 @@ async def _stream_to_disk(part: BodyPartReader, spool: Path, limit: SizeLimit,
     fd = os.open(up.temp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
     try:
         while True:
-            chunk = await part.read_chunk(CHUNK)
+            chunk = await _next_chunk(part, CHUNK)
             if not chunk:
                 break
             up.size += len(chunk)

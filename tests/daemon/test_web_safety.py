@@ -199,6 +199,11 @@ def test_hostile_requests_never_take_the_daemon_down(web_daemon):
     for path, body in (("/api/files/local", b"{}"), ("/api/job", b"[1, 2]"),
                        ("/api/job", b"\xff\xfe"), ("/server/files/upload", b"x")):
         assert request(port, "POST", path, headers=headers, body=body).status in (400, 409)
+    # found by tests/fuzz/test_fuzz_web.py: a body ending inside a part was a 500, not a 400
+    cut = b"--XyZ\n!:\nContent-Transfer-Encoding:base64\n\n/////////////////////////"
+    ans = send_raw(port, upload_head(port, "/api/files/local", "XyZ", len(cut), key,
+                                     expect=False), cut)
+    assert ans.status == 400 and "malformed" in ans.json()["error"], ans.body
     # endless or oversized form fields
     for parts, words in (([(f"f{i}", b"x", None, None) for i in range(100)], "form fields"),
                          ([("path", b"a" * 5000, None, None)], "longer than")):

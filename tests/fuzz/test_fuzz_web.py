@@ -8,9 +8,13 @@ from targets_web import TARGETS
 pytest.importorskip("aiohttp")
 
 
+#: Examples per target: the multipart one runs an event loop per input.
+EXAMPLES = {"upload-name": 1500, "upload-folder": 1500, "upload-multipart": 3000}
+
+
 @pytest.mark.parametrize("target", TARGETS, ids=lambda t: t.name)
 def test_fuzz_web(target):
-    @settings(ci_settings(1500))
+    @settings(ci_settings(EXAMPLES[target.name]))
     @given(target.strategy)
     def run(value):
         check_one(target, value)
