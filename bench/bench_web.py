@@ -3,6 +3,8 @@
 Runs the real daemon (``preflight run``) with its web API on a free loopback port,
 against a virtual printer served on a pty by this process, and prints:
 
+- the idle daemon's resident memory with the web API off, for comparison (importing
+  asyncio and aiohttp is most of the difference);
 - the throughput of a 200 MB G-code upload (``POST /api/files/local``, print=false)
   over loopback, with the daemon's resident memory (VmRSS sampled every 10 ms) at idle
   and at its peak while the body streams to disk;
@@ -39,15 +41,15 @@ from repair.io import write_stl
 
 
 class WebRun:
-    """The daemon with ``[web] listen = "127.0.0.1:0"`` and a virtual printer."""
+    """The daemon with ``[web] listen = "127.0.0.1:0"`` (or ``listen``) and a virtual printer."""
 
-    def __init__(self, speedup: float) -> None:
+    def __init__(self, speedup: float, listen: str = "127.0.0.1:0") -> None:
         self.root = Path(tempfile.mkdtemp(prefix="preflight-bench-web-"))
         self.vp = VirtualPrinter(speedup=speedup, baud=250000, link=self.root / "tty")
         self.vp.start()
         self.cfg_path = config(self.root, str(self.root / "tty"), auto_print=False)
         with open(self.cfg_path, "a") as fh:
-            fh.write('[web]\nlisten = "127.0.0.1:0"\n')
+            fh.write(f'[web]\nlisten = "{listen}"\n')
         self.cfg = load_config(self.cfg_path)
         self.log = open(self.root / "daemon.log", "ab")  # noqa: SIM115
         self.proc = subprocess.Popen(
@@ -61,8 +63,8 @@ class WebRun:
                 self.j = self.j or Journal(self.cfg.journal_path, readonly=True)
                 st = self.j.get_meta("status") or {}
                 if (st.get("printer") or {}).get("state") == "connected" and (
-                        st.get("web") or {}).get("port"):
-                    self.port = int(st["web"]["port"])
+                        not listen or (st.get("web") or {}).get("port")):
+                    self.port = int((st.get("web") or {}).get("port") or 0)
                     break
             time.sleep(0.05)
         self.key = read_key(self.cfg.daemon.state_dir) or ""
@@ -181,6 +183,11 @@ def main() -> int:
     ap.add_argument("--speedup", type=float, default=1000.0, help="virtual printer speed-up")
     args = ap.parse_args()
     print(f"preflight web API benchmark ({os.cpu_count()} cores)")
+    r = WebRun(args.speedup, listen="")
+    time.sleep(1.0)
+    print(f"idle daemon without the web API ([web] listen = \"\"): RSS "
+          f"{rss_kb(r.proc.pid)[0] / 1024:.1f} MB")
+    r.close()
     r = WebRun(args.speedup)
     try:
         bench_upload(r, args.mb)
