@@ -52,7 +52,8 @@ def broken_box(size):
     return v, np.vstack([f, f[:1]])
 
 
-def config(root: Path, port: str, *, auto_print: bool) -> Path:
+def config(root: Path, port: str, *, auto_print: bool, listen: str = "") -> Path:
+    """A daemon config in ``root``; the web API is off unless ``listen`` is given."""
     p = root / "preflight.toml"
     p.write_text(tomli_w.dumps({
         "spool": {"path": str(root / "spool"), "settle_seconds": 1.0,
@@ -61,6 +62,7 @@ def config(root: Path, port: str, *, auto_print: bool) -> Path:
                     "reconnect_max_seconds": 1.0},
         "daemon": {"state_dir": str(root / "state"), "auto_print": auto_print,
                    "log_level": "WARNING"},
+        "web": {"listen": listen},
     }))
     return p
 

@@ -16,6 +16,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import tomli_w
+
 ROOT = Path(__file__).resolve().parents[1]
 # The installed entry point beside this interpreter (``.venv/bin/preflight``), else the module.
 _SCRIPT = Path(sys.executable).parent / "preflight"
@@ -24,40 +26,20 @@ BAUD = 250000
 
 
 def write_config(run: Path, link: Path) -> Path:
-    """A daemon config for the soak: the spool, state and printer link inside ``run``."""
+    """A daemon config for the soak: the spool, state and printer link inside ``run``;
+    small fast prints, and no web API."""
     path = run / "preflight.toml"
-    path.write_text(f"""
-[spool]
-path = "{run / 'spool'}"
-settle_seconds = 1.0
-close_grace_seconds = 0.3
-
-[printer]
-port = "{link}"
-baud = {BAUD}
-reconnect_min_seconds = 0.2
-reconnect_max_seconds = 1.0
-
-[daemon]
-state_dir = "{run / 'state'}"
-auto_print = true
-log_level = "INFO"
-workers = 1
-
-[limits]
-repair_timeout = 120
-slice_timeout = 120
-max_attempts = 3
-
-[profile]
-layer_height = 0.3
-first_layer_height = 0.3
-perimeters = 1
-top_layers = 1
-bottom_layers = 1
-infill_percent = 0
-skirts = 0
-""")
+    path.write_text(tomli_w.dumps({
+        "spool": {"path": str(run / "spool"), "settle_seconds": 1.0, "close_grace_seconds": 0.3},
+        "printer": {"port": str(link), "baud": BAUD, "reconnect_min_seconds": 0.2,
+                    "reconnect_max_seconds": 1.0},
+        "daemon": {"state_dir": str(run / "state"), "auto_print": True, "log_level": "INFO",
+                   "workers": 1},
+        "limits": {"repair_timeout": 120, "slice_timeout": 120, "max_attempts": 3},
+        "web": {"listen": ""},
+        "profile": {"layer_height": 0.3, "first_layer_height": 0.3, "perimeters": 1,
+                    "top_layers": 1, "bottom_layers": 1, "infill_percent": 0, "skirts": 0},
+    }))
     return path
 
 

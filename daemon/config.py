@@ -36,8 +36,8 @@ class ConfigError(ValueError):
 # Every key is a dataclass field declared with setting(): its default, a one-line doc, and
 # how its value is checked. Parsing, validation and the example config come from these.
 
-BOOL, INT, FLOAT, STR, PATH, CHOICE, GCODES = ("bool", "int", "float", "str", "path",
-                                               "choice", "G-code words")
+BOOL, INT, FLOAT, STR, PATH, CHOICE, GCODES, LISTEN = (
+    "bool", "int", "float", "str", "path", "choice", "G-code words", "host:port")
 
 
 @dataclass(frozen=True)
@@ -135,10 +135,19 @@ class SafetyConfig:
                                                 commented=True)
 
 
+@dataclass(frozen=True)
+class WebConfig:
+    listen: str = setting("0.0.0.0:8080", "host:port of the slicers' OctoPrint/Moonraker API; "
+                          '"" turns it off', LISTEN)
+    max_upload_mb: float = setting(1024.0, "MB; a bigger upload is refused (413); [limits] "
+                                   "max_file_mb also applies", FLOAT,
+                                   low=0, high=1e7, above_low=True)
+
+
 #: The sections in the order of the example config; ``[profile]`` is an open table.
 SECTIONS: dict[str, type] = {"spool": SpoolConfig, "printer": PrinterConfig,
                              "daemon": DaemonConfig, "limits": LimitsConfig,
-                             "safety": SafetyConfig}
+                             "safety": SafetyConfig, "web": WebConfig}
 PROFILE = "profile"
 
 
@@ -149,6 +158,7 @@ class Config:
     limits: LimitsConfig = field(default_factory=LimitsConfig)
     daemon: DaemonConfig = field(default_factory=DaemonConfig)
     safety: SafetyConfig = field(default_factory=SafetyConfig)
+    web: WebConfig = field(default_factory=WebConfig)
     profile: dict[str, Any] = field(default_factory=dict)  # slicer Profile overrides
     source: str = "built-in defaults"
 
@@ -230,6 +240,10 @@ def check_value(section: str, name: str, value: Any, rule: Rule, *, base: Path |
                                                   for x in value):
             raise ConfigError(f'{where}: expected a list of G-code words like "M502"')
         return tuple(x.strip().upper() for x in value)
+    if rule.kind == LISTEN:
+        if not isinstance(value, str) or (value and split_listen(value) is None):
+            raise ConfigError(f'{where}: expected "host:port" or "" (off), got {_shown(value)}')
+        return value
     text = _string(where, value)
     if rule.kind == PATH:
         if "\0" in text:
@@ -327,6 +341,15 @@ def example_config() -> str:
         parts.append("\n".join(lines) + "\n")
     parts.append(EXAMPLE_PROFILE)
     return "\n".join(parts)
+
+
+def split_listen(listen: str) -> tuple[str, int] | None:
+    """``"host:port"`` (``"[::]:8080"`` for IPv6) as (host, port), or None if malformed."""
+    host, sep, port = listen.rpartition(":")
+    host = host.strip("[]")
+    if not sep or not host or not port.isdigit() or int(port) > 65535:
+        return None
+    return host, int(port)
 
 
 def load_config(path: str | os.PathLike[str] | None = None) -> Config:

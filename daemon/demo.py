@@ -61,6 +61,7 @@ def write_demo_config(root: Path, *, speedup: float) -> Path:
         "printer": {"port": "virtual", "virtual_firmware": "prusa", "baud": 250000,
                     "virtual_speedup": speedup, "reconnect_min_seconds": 0.5},
         "daemon": {"state_dir": str(root / "state"), "auto_print": True, "log_level": "INFO"},
+        "web": {"listen": ""},  # the demo is offline: no HTTP API
     }))
     return cfg
 

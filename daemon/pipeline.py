@@ -9,6 +9,8 @@ spool at start-up (:meth:`Spool.recover_orphans`).
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import logging
 import os
 import shutil
@@ -110,6 +112,15 @@ class Spool:
             return None
         log.info("job %d: took %s (%s)", job_id, name, kind)
         return job_id
+
+    def intake_upload(self, path: Path, print_requested: bool) -> int | None:
+        """:meth:`intake` for a file the web server received into the spool, recording
+        the uploader's print choice (not ``[daemon] auto_print``) in the same transaction,
+        so that a crash right after it cannot change what becomes of the job."""
+        asked = dataclasses.replace(self.cfg.daemon, auto_print=print_requested)
+        uploader = copy.copy(self)
+        uploader.cfg = dataclasses.replace(self.cfg, daemon=asked)
+        return uploader.intake(path)
 
     def _refuse(self, path: Path, reason: str) -> int:
         """Record a failed job for an entry refused at the door, move it to failed/."""

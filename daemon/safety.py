@@ -46,7 +46,11 @@ def is_partial_name(name: str) -> bool:
 
 def display_name(name: str) -> str:
     """The name as text that can be stored and shown (undecodable bytes become U+FFFD)."""
-    return name.encode("utf-8", "surrogateescape").decode("utf-8", "replace")
+    try:
+        raw = name.encode("utf-8", "surrogateescape")
+    except UnicodeEncodeError:  # a lone surrogate that no file system byte produced
+        raw = name.encode("utf-8", "surrogatepass")
+    return raw.decode("utf-8", "replace")
 
 
 def check_name(name: str) -> None:

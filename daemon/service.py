@@ -62,6 +62,11 @@ class Daemon:
         self._claim = threading.Lock()
         self._active: dict[int, threading.Event] = {}
         self.started = time.time()
+        self.web = None
+        if cfg.web.listen:
+            from daemon.web.server import WebServer
+
+            self.web = WebServer(self)
 
     # -- start-up recovery ----------------------------------------------------------------
     def recover(self) -> None:
@@ -185,6 +190,7 @@ class Daemon:
             "printer": self.printer.status(),
             "jobs": self.journal.counts(),
             "waiting_files": self.watcher.pending(),
+            "web": self.web.status() if self.web else None,
         }
 
     @staticmethod
@@ -224,6 +230,8 @@ class Daemon:
         threading.Thread(target=self._warm_up, name="forkserver-start", daemon=True).start()
         self.watcher.start()
         self.printer.start()
+        if self.web:
+            self.web.start()
         workers = []
         for i in range(self.cfg.daemon.workers):
             processor = Processor(self.cfg, self.journal, self.spool, self.printer.last_info,
@@ -241,6 +249,8 @@ class Daemon:
         notify("STOPPING=1\nSTATUS=stopping")
         log.info("stopping")
         self.watcher.stop()
+        if self.web:
+            self.web.stop()
         for thread in workers:
             thread.join(timeout=30)
         self.printer.join(timeout=60)

@@ -43,6 +43,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true", help="print the status as JSON")
     p.set_defaults(func=cmd_status)
 
+    p = subparsers.add_parser("api-key", help="print the web API key slicers need")
+    _config_arg(p)
+    p.set_defaults(func=cmd_api_key)
+
     p = subparsers.add_parser("jobs", help="list, show, print, requeue or cancel jobs")
     _config_arg(p)
     jsub = p.add_subparsers(dest="jobs_command", metavar="ACTION")
@@ -132,8 +136,9 @@ def cmd_status(args: argparse.Namespace) -> int:
     cfg, journal = _journal(args)
     status = journal.get_meta("status")
     alive = daemon_alive(status)
+    key = _api_key(cfg)
     if args.json:
-        print(json.dumps({"alive": alive, **(status or {})}, indent=2))
+        print(json.dumps({"alive": alive, **(status or {}), "api_key": key}, indent=2))
         return 0 if alive else 3
     if not alive:
         last = (time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(status["heartbeat"]))
@@ -141,6 +146,8 @@ def cmd_status(args: argparse.Namespace) -> int:
         print(f"preflight daemon: not running (last seen {last})")
         counts = journal.counts()
         print("jobs: " + (", ".join(f"{v} {k}" for k, v in sorted(counts.items())) or "none"))
+        if key:
+            print(f"web API key: {key}")
         return 3
     since = time.strftime("%H:%M:%S", time.localtime(status["started"]))
     print(f"preflight daemon: running (pid {status['pid']}, since {since}, "
@@ -156,7 +163,41 @@ def cmd_status(args: argparse.Namespace) -> int:
     elif printer.get("message"):
         print(f"printer: {printer.get('port')} - {printer.get('state')}: {printer['message']}")
     print(f"spool: {status['spool']} ({status.get('waiting_files', 0)} file(s) being written)")
+    web = status.get("web") or {}
+    if web:
+        where = web.get("error") or f"{web.get('url')} (listening on {web.get('listen')})"
+        print(f"web API: {where}; API key: {key or 'not made yet'}")
     print("jobs: " + (", ".join(f"{v} {k}" for k, v in sorted(status["jobs"].items())) or "none"))
+    return 0
+
+
+def _api_key(cfg) -> str | None:
+    from daemon.web.auth import read_key
+
+    try:
+        return read_key(cfg.daemon.state_dir)
+    except PermissionError:
+        return None
+
+
+def cmd_api_key(args: argparse.Namespace) -> int:
+    from daemon.config import ConfigError
+    from daemon.web.auth import key_path
+
+    try:
+        cfg = _load(args)
+    except ConfigError as e:
+        return fail(str(e), 2)
+    try:
+        key = _api_key(cfg)
+    except OSError as e:
+        return fail(f"cannot read {key_path(cfg.daemon.state_dir)}: {e.strerror}")
+    if key is None:
+        path = key_path(cfg.daemon.state_dir)
+        if path.exists():
+            return fail(f"cannot read {path}: run this as the daemon's user (or root)")
+        return fail(f"no API key yet: it is made when the daemon first starts ({path})")
+    print(key)
     return 0
 
 

@@ -6,7 +6,6 @@ import re
 
 import numpy as np
 
-from repair.topology import weld_exact
 from repair.io.base import (
     STL_DTYPE,
     Mesh,
@@ -17,6 +16,7 @@ from repair.io.base import (
     parse_floats,
     sniff_foreign,
 )
+from repair.topology import weld_exact
 
 
 def _stl_soup_to_mesh(tri: np.ndarray, fmt: str, name: str) -> Mesh:

@@ -27,8 +27,9 @@ FAST_PROFILE = {"layer_height": 0.3, "first_layer_height": 0.3, "perimeters": 1,
 
 def write_config(tmp: Path, *, port: str = "virtual", limits: dict | None = None,
                  profile: bool = True, speedup: float = 2000.0, auto_print: bool = True,
-                 virtual_log: Path | None = None) -> Path:
-    """A config for a test daemon in ``tmp``; ``limits`` overrides the [limits] keys."""
+                 virtual_log: Path | None = None, web: dict | None = None) -> Path:
+    """A config for a test daemon in ``tmp``; ``limits`` overrides the [limits] keys,
+    ``web`` the [web] keys. The web API listens on a free loopback port (never 0.0.0.0)."""
     printer = {"port": port, "baud": 250000, "virtual_speedup": speedup,
                "reconnect_min_seconds": 0.2, "reconnect_max_seconds": 1.0}
     if virtual_log:
@@ -39,6 +40,7 @@ def write_config(tmp: Path, *, port: str = "virtual", limits: dict | None = None
         "daemon": {"state_dir": str(tmp / "state"), "auto_print": auto_print,
                    "log_level": "DEBUG"},
         "limits": {"repair_timeout": 120, "slice_timeout": 120, **(limits or {})},
+        "web": {"listen": "127.0.0.1:0", **(web or {})},
     }
     if profile:
         config["profile"] = FAST_PROFILE
