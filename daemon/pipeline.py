@@ -9,8 +9,6 @@ spool at start-up (:meth:`Spool.recover_orphans`).
 
 from __future__ import annotations
 
-import copy
-import dataclasses
 import logging
 import os
 import shutil
@@ -73,9 +71,12 @@ class Spool:
             folder.mkdir(parents=True, exist_ok=True)
 
     # -- intake ---------------------------------------------------------------------------
-    def intake(self, path: Path) -> int | None:
+    def intake(self, path: Path, print_requested: bool | None = None) -> int | None:
         """Take one complete spool entry: a queued job, or a failed one with the reason.
 
+        ``print_requested``: whether the job prints when ready; ``None`` means
+        ``[daemon] auto_print``. An upload passes its uploader's choice, so that it is
+        recorded in the same transaction as the job and a crash cannot change it.
         Returns the job id, or None if the entry vanished.
         """
         name = path.name
@@ -105,22 +106,15 @@ class Spool:
         try:
             job_id = self.journal.add_job(
                 name=safe, source_name=name, kind=kind, work_dir=str(work), input_path=str(dest),
-                print_requested=self.cfg.daemon.auto_print, note="taken from the spool",
+                print_requested=(self.cfg.daemon.auto_print if print_requested is None
+                                 else print_requested),
+                note="taken from the spool",
                 while_recording=lambda: os.rename(path, dest))
         except FileNotFoundError:
             shutil.rmtree(work, ignore_errors=True)
             return None
         log.info("job %d: took %s (%s)", job_id, name, kind)
         return job_id
-
-    def intake_upload(self, path: Path, print_requested: bool) -> int | None:
-        """:meth:`intake` for a file the web server received into the spool, recording
-        the uploader's print choice (not ``[daemon] auto_print``) in the same transaction,
-        so that a crash right after it cannot change what becomes of the job."""
-        asked = dataclasses.replace(self.cfg.daemon, auto_print=print_requested)
-        uploader = copy.copy(self)
-        uploader.cfg = dataclasses.replace(self.cfg, daemon=asked)
-        return uploader.intake(path)
 
     def _refuse(self, path: Path, reason: str) -> int:
         """Record a failed job for an entry refused at the door, move it to failed/."""

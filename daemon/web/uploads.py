@@ -4,7 +4,7 @@ as a job through the spool's intake, so the job is in the journal before the ans
 The body never sits in memory: each chunk goes to ``<spool>/.upload-<uuid>.part``
 (hidden and partial, so the spool watcher ignores it). When the last byte is on disk
 the file is linked under its real name in the spool (``link`` never replaces an
-existing file) and handed to :meth:`daemon.pipeline.Spool.intake_upload`, which
+existing file) and handed to :meth:`daemon.pipeline.Spool.intake` (with the print choice), which
 moves it into a work folder inside the journal transaction that records the job.
 Repair, slicing and the G-code policy run later, as for a spool drop.
 """
@@ -256,10 +256,10 @@ def take_in(spool_obj: Any, up: Upload, print_requested: bool) -> int:
                            "spool; upload under another name") from None
     finally:
         up.discard()
-    job_id = spool_obj.intake_upload(final, print_requested)
+    job_id = spool_obj.intake(final, print_requested)
     if job_id is None:  # someone moved the file away between the link and the intake
         raise Refused(500, f"{up.name} vanished from the spool before it was taken in")
-    job = spool_obj.j.get(job_id)
+    job = spool_obj.journal.get(job_id)
     if job is not None and job.kind == "refused":
         raise Refused(400, job.reason or "refused")
     return job_id

@@ -129,7 +129,7 @@ def test_traversal_in_the_name_or_the_path_is_400_and_nothing_is_written_outside
 
 
 def test_over_size_is_413_declared_or_counted(web_daemon):
-    d, port, key = web_daemon(web='listen = "127.0.0.1:0"\nmax_upload_mb = 0.05')
+    d, port, key = web_daemon(web={"max_upload_mb": 0.05})
     big = tiny_gcode(moves=20000).encode()
     assert len(big) > 4 * 0.05 * 1048576
     ans = upload(port, key, "big.gcode", big)  # Content-Length known: refused before the body
