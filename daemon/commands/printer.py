@@ -53,6 +53,9 @@ def register(subparsers) -> None:
     pp.add_argument("file", help="G-code file")
     _port_args(pp)
     pp.add_argument("--mode", default="auto", choices=("auto", "ping-pong", "buffered"))
+    pp.add_argument("--allow-firmware-commands", action="store_true",
+                    help="send EEPROM, firmware-update, SD-card file and network commands "
+                         "too (refused by default, as in the daemon)")
     pp.set_defaults(func=_print)
 
 
@@ -154,6 +157,23 @@ class _Progress:
             sys.stderr.flush()
 
 
+def _policy_refusal(args, build_volume) -> str | None:
+    """Why the daemon's G-code policy refuses the file for this printer, or None."""
+    from daemon.config import DEFAULT_FORBIDDEN_GCODES
+    from daemon.safety import UnsafeEntry, check_gcode
+
+    try:
+        with open(args.file, encoding="utf-8", errors="replace") as fh:
+            check_gcode(fh, forbidden=DEFAULT_FORBIDDEN_GCODES,
+                        allow_firmware=args.allow_firmware_commands, build_volume=build_volume)
+    except UnsafeEntry as exc:
+        hint = ("" if args.allow_firmware_commands or "firmware-altering" not in str(exc)
+                else " (--allow-firmware-commands sends it anyway)")
+        return f"{args.file}: {exc}".replace(
+            "; set [safety] allow_firmware_commands = true to allow it", "") + hint
+    return None
+
+
 def _print(args) -> int:
     from printer.errors import PrinterError
 
@@ -162,6 +182,9 @@ def _print(args) -> int:
             lines = fh.read().splitlines()
     except OSError as exc:
         return fail(f"cannot read {args.file}: {exc.strerror}")
+    refusal = _policy_refusal(args, None)  # before the port is even opened
+    if refusal:
+        return fail(refusal)
     cancel = threading.Event()
     previous = {}
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -169,6 +192,9 @@ def _print(args) -> int:
     progress = _Progress()
     try:
         with _host(args, args.mode) as host:
+            refusal = _policy_refusal(args, host.query_info().build_volume)
+            if refusal:
+                return fail(refusal)
             result = host.stream(lines, progress=progress, cancel=cancel)
     except PrinterError as exc:
         progress.finish()
