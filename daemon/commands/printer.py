@@ -38,6 +38,9 @@ def register(subparsers) -> None:
     vp.add_argument("--reconnect-after", type=float,
                     help="seconds after a disconnect to come back on a new pty")
     vp.add_argument("--garbage", action="store_true", help="send line noise (wrong baud)")
+    vp.add_argument("--event", action="append", default=[], metavar="N:WHAT",
+                    help="after N lines: kill, thermal_runaway, runout:SECONDS, or a line "
+                         "starting with // sent as it is (e.g. 3000://action:cancel)")
     vp.add_argument("--seed", type=int, default=1)
     vp.set_defaults(func=_virtual_printer)
 
@@ -73,10 +76,15 @@ def _port_args(parser: argparse.ArgumentParser) -> None:
 def _virtual_printer(args) -> int:
     from printer.virtual import Faults, VirtualPrinter
 
+    try:
+        events = tuple((int(spec.split(":", 1)[0]), spec.split(":", 1)[1]) for spec in args.event)
+    except (ValueError, IndexError):
+        return fail(f"--event takes N:WHAT, e.g. 500:kill (got {' '.join(args.event)})", 2)
     faults = Faults(
         corrupt=args.corrupt, drop_ok=args.drop_ok, busy_seconds=args.busy,
         reset_after=args.reset_after, disconnect_after=args.disconnect_after,
         reconnect_after=args.reconnect_after, garbage=args.garbage, seed=args.seed,
+        events=events,
     )
     try:
         vp = VirtualPrinter(
