@@ -72,26 +72,47 @@ class PausePoint:
     feed: float | None
 
 
-def modal_state(commands: Sequence[str], upto: int) -> tuple[bool, bool, float | None]:
-    """(relative XYZ, relative E, last feed rate) after ``commands[:upto]``, as Marlin
-    keeps them: G90/G91 set every axis including E, M82/M83 then set E alone."""
+def modal_state(commands: Sequence[str], upto: int) -> tuple[bool, bool, float | None,
+                                                              dict[str, float]]:
+    """(relative XYZ, relative E, last feed rate, tracked position) after
+    ``commands[:upto]``, as Marlin keeps them: G90/G91 set every axis including E,
+    M82/M83 then set E alone. The tracked position holds the axes the G-code itself fixes
+    (an absolute move or G92, then relative moves), exactly; homing forgets them."""
     relative = relative_e = False
     feed = None
+    pos: dict[str, float] = {}
     for command in commands[:upto]:
-        head = command[:6].replace(" ", "").upper()
-        if head[:3] in ("G90", "G91", "M82", "M83") and not head[3:4].isdigit():
-            word = lex(command).word
-            if word in ("G90", "G91"):
-                relative = relative_e = word == "G91"
-            elif word in ("M82", "M83"):
-                relative_e = word == "M83"
-    for command in reversed(commands[:upto]):
-        if "F" in command or "f" in command:
-            lexed = lex(command)
-            if lexed.word in ("G0", "G1", "G2", "G3") and lexed.value("F"):
-                feed = lexed.value("F")
-                break
-    return relative, relative_e, feed
+        lexed = lex(command)
+        word = lexed.word
+        if word in ("G0", "G1", "G2", "G3"):
+            for axis, value in lexed.params:
+                if axis == "F" and value:
+                    feed = value
+                elif axis in "XYZE" and value is not None:
+                    rel = relative_e if axis == "E" else relative
+                    if not rel:
+                        pos[axis] = value
+                    elif axis in pos:
+                        pos[axis] += value
+        elif word in ("G90", "G91"):
+            relative = relative_e = word == "G91"
+        elif word in ("M82", "M83"):
+            relative_e = word == "M83"
+        elif word == "G92":
+            pos.update({a: v for a, v in lexed.params if a in "XYZE" and v is not None})
+        elif word in ("G28", "G29"):
+            pos = {a: v for a, v in pos.items() if a == "E"}
+    return relative, relative_e, feed, pos
+
+
+def pause_position(reported: dict[str, float] | None,
+                   tracked: dict[str, float]) -> dict[str, float] | None:
+    """The printer's M114 position, refined by the exactly known one where they agree to
+    M114's rounding (it prints 2 decimals: a resumed absolute E must not drift)."""
+    if reported is None:
+        return None
+    return {axis: tracked[axis] if axis in tracked and abs(tracked[axis] - value) <= 0.011
+            else value for axis, value in reported.items()}
 
 
 def pause_moves(point: PausePoint, park: ParkSettings) -> list[str]:
@@ -223,8 +244,8 @@ class PrintControl:
         position = None
         for line in host.query("M114"):
             position = position or parse_position(line)
-        relative, relative_e, feed = modal_state(streamer.commands, streamer.limit)
-        self.point = PausePoint(position, relative, relative_e, feed)
+        relative, relative_e, feed, tracked = modal_state(streamer.commands, streamer.limit)
+        self.point = PausePoint(pause_position(position, tracked), relative, relative_e, feed)
         for command in pause_moves(self.point, self.park):
             host.query(command)
         self.state = "paused"

@@ -16,7 +16,6 @@ from printer.host import PrinterHost
 from printer.replies import host_action, parse_position, parse_reply, waiting_for_user
 from printer.virtual import Faults, VirtualPrinter
 
-
 # --- the parsers, on real reply strings ----------------------------------------------------
 
 @pytest.mark.parametrize("line, expected", [
