@@ -218,9 +218,8 @@ class PrintControl:
             action, by = asked
             if action == "stop":
                 streamer.host.emergency_stop()
-                raise EmergencyStopped(
-                    f"emergency stop (M112) by {by} after {streamer.delivered()} of "
-                    f"{streamer.total} lines; reset the printer before printing again")
+                raise EmergencyStopped(f"emergency stop (M112) by {by}: the printer must be "
+                                       "reset before it prints again")
             if action == "cancel":
                 self.cancelled_by = by
                 streamer.cancelled()

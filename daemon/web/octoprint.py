@@ -75,7 +75,7 @@ async def job(request: web.Request) -> web.Response:
     current = control.current_job(backend.journal)
     summary = control.job_summary(backend.journal, current)
     state = printer_state(backend)
-    printing = summary["state"] == "printing"
+    printing = summary["state"] in ("printing", "paused")
     progress = summary["progress"] if printing else None
     return web.json_response({
         "job": {"file": {"name": summary["name"], "path": summary["name"],
@@ -98,7 +98,9 @@ def _secs(value: float | None) -> int | None:
 
 async def job_command(request: web.Request) -> web.Response:
     body = await json_body(request)
-    await control.job_command(request.app[BACKEND].journal, str(body.get("command", "")))
+    action = body.get("action")
+    await control.job_command(request.app[BACKEND].journal, str(body.get("command", "")),
+                              str(action) if action is not None else None)
     return web.Response(status=204)
 
 
