@@ -1,0 +1,91 @@
+"""Print control end to end: the real daemon, the CLI, and a virtual printer on a real
+pty that the test holds (so it can make the printer cancel, halt or run out of filament)."""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from daemon_helpers import DaemonProc, drop, tiny_gcode, write_config
+
+from printer.gcode import clean_lines
+from printer.virtual import Faults, VirtualPrinter
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "printer"))
+from printer_helpers import streamed  # noqa: E402
+
+
+def job_state(d: DaemonProc, name: str) -> str | None:
+    return d.states().get(name)
+
+
+def run_of(vp: VirtualPrinter, before: int) -> list[tuple[int, str]]:
+    """The numbered lines the printer ran since ``before`` lines had run (one stream)."""
+    return streamed(vp)[before:]
+
+
+@pytest.fixture
+def daemon_and_printer(tmp_path):
+    link = tmp_path / "ttyPRINTER"
+    vp = VirtualPrinter("marlin", speedup=10, baud=250000, link=link, keepalive=0.2)
+    vp.start()
+    d = DaemonProc(write_config(tmp_path, port=str(link)))
+    try:
+        d.start()
+        yield d, vp
+    finally:
+        d.stop()
+        vp.stop()
+
+
+def test_pause_resume_cancel_halt_through_the_daemon(daemon_and_printer):
+    d, vp = daemon_and_printer
+    spool = d.cfg.spool.path
+
+    # 1. pause and resume from the CLI: the printer runs the file exactly once
+    text = tiny_gcode(moves=600)
+    drop(spool, "paused.gcode", text.encode())
+    d.wait_for(lambda: job_state(d, "paused.gcode") == "printing", what="printing")
+    job = next(j for j in d.jobs() if j.source_name == "paused.gcode")
+    d.wait_for(lambda: len(streamed(vp)) > 20, what="lines running")
+    out = d.cli("jobs", "pause", str(job.id))
+    assert out.returncode == 0, out.stderr
+    d.wait_for(lambda: job_state(d, "paused.gcode") == "paused", what="paused")
+    held = len(streamed(vp))
+    time.sleep(0.5)
+    assert len(streamed(vp)) == held < len(clean_lines(text.splitlines()))
+    assert vp.machine.motion.position["Y"] == 200.0  # parked (Y max - 10)
+    assert "paused" in d.cli("status").stdout
+    out = d.cli("jobs", "resume", str(job.id))
+    assert out.returncode == 0, out.stderr
+    d.wait_for(lambda: job_state(d, "paused.gcode") == "done", what="done")
+    ran = run_of(vp, 0)
+    assert [c for _, c in ran] == clean_lines(text.splitlines())
+    assert [n for n, _ in ran] == list(range(1, len(ran) + 1))
+    history = [h["to_state"] for h in d.journal.history(job.id)]
+    assert history[-3:] == ["paused", "printing", "done"]
+
+    # 2. the printer says //action:cancel: the job ends cancelled, heaters off
+    before = len(streamed(vp))
+    vp.faults = Faults(events=((vp.machine.numbered_done + 30, "//action:cancel"),))
+    drop(spool, "runout.gcode", tiny_gcode(moves=300).encode())
+    d.wait_for(lambda: job_state(d, "runout.gcode") == "cancelled", what="cancelled")
+    job = next(j for j in d.jobs() if j.source_name == "runout.gcode")
+    assert "cancelled by the printer (//action:cancel)" in job.reason
+    assert vp.machine.heaters.target == {"T": 0.0, "B": 0.0}
+    assert 30 <= len(run_of(vp, before)) < len(clean_lines(tiny_gcode(moves=300).splitlines()))
+
+    # 3. a kill() halt: failed with the firmware's words, never sent again
+    before = len(streamed(vp))
+    vp.faults = Faults(events=((vp.machine.numbered_done + 30, "kill"),))
+    drop(spool, "halted.gcode", tiny_gcode(moves=300).encode())
+    d.wait_for(lambda: job_state(d, "halted.gcode") == "failed", what="failed")
+    job = next(j for j in d.jobs() if j.source_name == "halted.gcode")
+    assert "Error:Printer halted. kill() called!" in job.reason
+    time.sleep(2.0)  # the daemon reconnects meanwhile; nothing is re-sent
+    assert job_state(d, "halted.gcode") == "failed"
+    assert len(run_of(vp, before)) == 30
+    out = d.cli("jobs", "resume", str(job.id))
+    assert out.returncode != 0 and "only a paused job" in out.stderr
