@@ -89,3 +89,26 @@ def test_pause_resume_cancel_halt_through_the_daemon(daemon_and_printer):
     assert len(run_of(vp, before)) == 30
     out = d.cli("jobs", "resume", str(job.id))
     assert out.returncode != 0 and "only a paused job" in out.stderr
+
+
+def test_moonraker_pause_resume_and_cancel(web_daemon, tmp_path):
+    from web_helpers import request
+
+    d, port, key = web_daemon(speedup=20)
+    headers = {"X-Api-Key": key}
+    nothing = request(port, "POST", "/printer/print/pause", headers=headers)
+    assert nothing.status == 409 and "no print to pause" in nothing.json()["error"]
+    drop(d.cfg.spool.path, "long.gcode", tiny_gcode(moves=3000).encode())
+    d.wait_for(lambda: job_state(d, "long.gcode") == "printing", what="printing")
+    ans = request(port, "POST", "/printer/print/pause", headers=headers)
+    assert ans.status == 200 and ans.json() == {"result": "ok"}
+    d.wait_for(lambda: job_state(d, "long.gcode") == "paused", what="paused")
+    assert "G1 X10 Y200 F6000" in (tmp_path / "printer.log").read_text().splitlines()
+    ans = request(port, "POST", "/printer/print/resume", headers=headers)
+    assert ans.status == 200, ans.body
+    d.wait_for(lambda: job_state(d, "long.gcode") == "printing", what="printing again")
+    ans = request(port, "POST", "/printer/print/cancel", headers=headers)
+    assert ans.status == 200, ans.body
+    d.wait_for(lambda: job_state(d, "long.gcode") == "cancelled", what="cancelled")
+    log = (tmp_path / "printer.log").read_text().splitlines()
+    assert log[-4:] == ["M104 S0", "M140 S0", "M107", "M84"]
