@@ -194,18 +194,25 @@ class GcodePolicy:
             self.plane = _PLANES[cmd]
 
     def _move(self, cmd: str, lexed) -> None:
-        start = [self.pos[k] + self.offset[k] for k in range(3)]
+        pos, offset, lo, hi = self.pos, self.offset, self.lo, self.hi
+        arc = cmd in ("G2", "G3")
+        start = [pos[k] + offset[k] for k in range(3)] if arc else None
         for axis, val in lexed.params:
-            k = "XYZ".find(axis)
-            if k >= 0 and val is not None:
-                self.pos[k] = val if self.absolute else self.pos[k] + val
+            k = _AXES.get(axis)
+            if k is not None and val is not None:
+                pos[k] = val if self.absolute else pos[k] + val
                 self.moved = True
-        end = [self.pos[k] + self.offset[k] for k in range(3)]
-        self._include(end)
-        if cmd in ("G2", "G3"):
-            lo, hi = arc_extents(start, end, lexed, clockwise=cmd == "G2", plane=self.plane)
-            self._include(lo)
-            self._include(hi)
+        for k in (0, 1, 2):
+            m = pos[k] + offset[k]
+            if m < lo[k]:
+                lo[k] = m
+            if m > hi[k]:
+                hi[k] = m
+        if start is not None:
+            end = [pos[k] + offset[k] for k in range(3)]
+            box = arc_extents(start, end, lexed, clockwise=cmd == "G2", plane=self.plane)
+            for point in box:
+                self._include(point)
 
     def _include(self, point: Sequence[float]) -> None:
         for k in range(3):
@@ -233,6 +240,7 @@ class GcodePolicy:
 #: Marlin's arc planes (CNC_WORKSPACE_PLANES): the (P, Q) axes an arc turns in.
 _PLANES = {"G17": (0, 1), "G18": (2, 0), "G19": (1, 2)}
 _OFFSET_LETTERS = "IJK"  # the centre offset along X, Y, Z
+_AXES = {"X": 0, "Y": 1, "Z": 2}
 
 
 def arc_extents(start: Sequence[float], end: Sequence[float], lexed, *, clockwise: bool,

@@ -183,6 +183,7 @@ def _policy_refusal(args, build_volume) -> str | None:
 
 
 def _print(args) -> int:
+    from printer.control import ParkSettings, PrintControl
     from printer.errors import PrinterError
 
     try:
@@ -200,10 +201,12 @@ def _print(args) -> int:
     progress = _Progress()
     try:
         with _host(args, args.mode) as host:
-            refusal = _policy_refusal(args, host.query_info().build_volume)
+            volume = host.query_info().build_volume
+            refusal = _policy_refusal(args, volume)
             if refusal:
                 return fail(refusal)
-            result = host.stream(lines, progress=progress, cancel=cancel)
+            control = PrintControl(ParkSettings(build_volume=volume))  # Ctrl-C parks in it
+            result = host.stream(lines, progress=progress, cancel=cancel, control=control)
     except PrinterError as exc:
         progress.finish()
         return fail(str(exc), 130 if cancel.is_set() else 1)
