@@ -26,6 +26,17 @@ def run_of(vp: VirtualPrinter, before: int) -> list[tuple[int, str]]:
     return streamed(vp)[before:]
 
 
+def print_with_event(d: DaemonProc, vp: VirtualPrinter, name: str, event: str, end: str):
+    """Drop a file; the printer does ``event`` after its 30th line; wait for ``end``.
+    Returns the job and the numbered lines the printer ran for it."""
+    before = len(streamed(vp))
+    vp.faults = Faults(events=((vp.machine.numbered_done + 30, event),))
+    drop(d.cfg.spool.path, name, tiny_gcode(moves=300).encode())
+    d.wait_for(lambda: job_state(d, name) == end, what=end)
+    job = next(j for j in d.jobs() if j.source_name == name)
+    return job, run_of(vp, before)
+
+
 @pytest.fixture
 def daemon_and_printer(tmp_path):
     link = tmp_path / "ttyPRINTER"
@@ -68,25 +79,18 @@ def test_pause_resume_cancel_halt_through_the_daemon(daemon_and_printer):
     assert history[-3:] == ["paused", "printing", "done"]
 
     # 2. the printer says //action:cancel: the job ends cancelled, heaters off
-    before = len(streamed(vp))
-    vp.faults = Faults(events=((vp.machine.numbered_done + 30, "//action:cancel"),))
-    drop(spool, "runout.gcode", tiny_gcode(moves=300).encode())
-    d.wait_for(lambda: job_state(d, "runout.gcode") == "cancelled", what="cancelled")
-    job = next(j for j in d.jobs() if j.source_name == "runout.gcode")
+    job, ran = print_with_event(d, vp, "printer_cancel.gcode", "//action:cancel", "cancelled")
     assert "cancelled by the printer (//action:cancel)" in job.reason
     assert vp.machine.heaters.target == {"T": 0.0, "B": 0.0}
-    assert 30 <= len(run_of(vp, before)) < len(clean_lines(tiny_gcode(moves=300).splitlines()))
+    assert 30 <= len(ran) < len(clean_lines(tiny_gcode(moves=300).splitlines()))
 
     # 3. a kill() halt: failed with the firmware's words, never sent again
-    before = len(streamed(vp))
-    vp.faults = Faults(events=((vp.machine.numbered_done + 30, "kill"),))
-    drop(spool, "halted.gcode", tiny_gcode(moves=300).encode())
-    d.wait_for(lambda: job_state(d, "halted.gcode") == "failed", what="failed")
-    job = next(j for j in d.jobs() if j.source_name == "halted.gcode")
+    job, ran = print_with_event(d, vp, "halted.gcode", "kill", "failed")
     assert "Error:Printer halted. kill() called!" in job.reason
+    before = len(streamed(vp))
     time.sleep(2.0)  # the daemon reconnects meanwhile; nothing is re-sent
     assert job_state(d, "halted.gcode") == "failed"
-    assert len(run_of(vp, before)) == 30
+    assert len(ran) == 30 and len(streamed(vp)) == before
     out = d.cli("jobs", "resume", str(job.id))
     assert out.returncode != 0 and "only a paused job" in out.stderr
 

@@ -257,3 +257,35 @@ def test_filament_runout_the_firmware_handles_holds_the_stream_then_goes_on():
         assert not any(c.startswith("G1 X10 Y200") for c in vp.executed)  # no host park
     assert states[0] == "waiting" or states[0] == "paused"
     assert "paused" in states and states[-1] == "printing"
+
+
+@pytest.mark.parametrize("commands, relative, relative_e, feed, tracked", [
+    (["G90", "M82", "G92 E0", "G1 X10 Y20 Z0.2 E1.5 F1800", "G1 X12 E1.75"],
+     False, False, 1800.0, {"X": 12.0, "Y": 20.0, "Z": 0.2, "E": 1.75}),
+    (["G90", "M83", "G1 X10 Y20 Z0.3 F600", "G1 X11 E0.4", "G1 X12 E0.4 F1200"],
+     False, True, 1200.0, {"X": 12.0, "Y": 20.0, "Z": 0.3}),
+    (["G28", "G91", "G1 Z5", "G1 X10 E1"], True, True, None, {}),       # homed: unknown
+    (["G90", "G1 X5 Y5 Z1", "G91", "G1 X2 Y-1", "M82"], True, False, None,
+     {"X": 7.0, "Y": 4.0, "Z": 1.0}),
+    (["G1 X1 Y1 Z1", "g 92 x0 e5", "G1 X+2"], False, False, None,
+     {"X": 2.0, "Y": 1.0, "Z": 1.0, "E": 5.0}),
+])
+def test_modal_state_follows_the_sent_gcode(commands, relative, relative_e, feed, tracked):
+    from printer.control import modal_state
+
+    assert modal_state(commands, len(commands)) == (relative, relative_e, feed, tracked)
+
+
+def test_resume_restores_relative_modes_and_never_moves_to_an_unknown_point():
+    from printer.control import PausePoint, pause_moves, resume_moves
+
+    park = ParkSettings(build_volume=(250, 210, 220))
+    point = PausePoint({"X": 12.0, "Y": 20.0, "Z": 215.0, "E": 3.25}, True, True, 900.0)
+    assert pause_moves(point, park) == ["M83", "G1 E-2 F2400", "G90", "G1 Z220.000 F600",
+                                        "G1 X10 Y200 F6000"]  # the lift is capped at Z max
+    assert resume_moves(point, park) == [
+        "G90", "G1 X12.000 Y20.000 F6000", "G1 Z215.000 F600", "M83", "G1 E2 F2400",
+        "G92 E3.25000", "G91", "M83", "G1 F900"]
+    unknown = PausePoint(None, False, False, None)
+    assert pause_moves(unknown, park) == ["M83", "G1 E-2 F2400"]
+    assert resume_moves(unknown, park) == ["M83", "G1 E2 F2400", "G90", "M82"]
