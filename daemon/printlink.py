@@ -241,6 +241,12 @@ class PrinterLink(threading.Thread):
         from printer.control import ParkSettings, PrintControl
 
         def on_state(state: str, why: str) -> None:
+            try:
+                journal_state(state, why)
+            except TransitionError as e:  # e.g. the job was ended meanwhile: keep printing
+                log.warning("job %d: %s (%s)", job.id, e, why)
+
+        def journal_state(state: str, why: str) -> None:
             if state == "paused":
                 self.journal.transition(job.id, JobState.PAUSED, expect=JobState.PRINTING,
                                         note=why)

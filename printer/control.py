@@ -214,6 +214,8 @@ class PrintControl:
 
     def step(self, streamer: Streamer) -> None:
         """Act on the requests asked for since the last turn of the stream loop."""
+        if not self._asked and self.state == "printing":
+            return  # the common case, once per line: no lock taken
         while (asked := self._take()) is not None:
             action, by = asked
             if action == "stop":
@@ -226,6 +228,9 @@ class PrintControl:
             if action == "pause" and self.state == "printing":
                 self.state, self.paused_by = "pausing", by
                 streamer.limit = streamer.max_sent
+            elif action == "resume" and self.state == "pausing":
+                self.state = "printing"  # not parked yet: just go on sending
+                streamer.limit = streamer.total
             elif action == "resume" and self.state == "paused_by_printer":
                 self.state = "printing"  # the user presses resume on the host: go on
                 streamer.limit = streamer.total
