@@ -95,7 +95,7 @@ def test_pause_resume_cancel_halt_through_the_daemon(daemon_and_printer):
     assert out.returncode != 0 and "only a paused job" in out.stderr
 
 
-def test_moonraker_pause_resume_and_cancel(web_daemon, tmp_path):
+def test_moonraker_pause_resume_cancel_and_octoprint_emergency_stop(web_daemon, tmp_path):
     from web_helpers import request
 
     d, port, key = web_daemon(speedup=20)
@@ -116,3 +116,16 @@ def test_moonraker_pause_resume_and_cancel(web_daemon, tmp_path):
     d.wait_for(lambda: job_state(d, "long.gcode") == "cancelled", what="cancelled")
     log = (tmp_path / "printer.log").read_text().splitlines()
     assert log[-4:] == ["M104 S0", "M140 S0", "M107", "M84"]
+    # OctoPrint's emergency stop: M112 through /api/printer/command; other G-code refused
+    drop(d.cfg.spool.path, "stopped.gcode", tiny_gcode(moves=3000).encode())
+    d.wait_for(lambda: job_state(d, "stopped.gcode") == "printing", what="printing")
+    json_headers = {**headers, "Content-Type": "application/json"}
+    ans = request(port, "POST", "/api/printer/command", headers=json_headers,
+                  body=b'{"commands": ["G28"]}')
+    assert ans.status == 409 and "only M112" in ans.json()["error"]
+    ans = request(port, "POST", "/api/printer/command", headers=json_headers,
+                  body=b'{"command": "M112"}')
+    assert ans.status == 204, ans.body
+    d.wait_for(lambda: job_state(d, "stopped.gcode") == "failed", what="failed")
+    job = next(j for j in d.jobs() if j.source_name == "stopped.gcode")
+    assert "emergency stop (M112)" in job.reason and "reset" in job.reason

@@ -34,6 +34,8 @@ GUARDED = [("GET", "/api/settings"), ("GET", "/api/printer"), ("GET", "/api/job"
            ("POST", "/api/files/local"), ("POST", "/api/files/local/a.gcode"),
            ("GET", "/api/files/local/a.gcode"), ("POST", "/server/files/upload"),
            ("POST", "/printer/print/start"), ("GET", "/printer/info"),
+           ("POST", "/api/printer/command"), ("POST", "/printer/print/pause"),
+           ("POST", "/printer/print/resume"), ("POST", "/printer/print/cancel"),
            ("GET", "/no/such/endpoint"), ("POST", "/api/version"), ("GET", "/")]
 
 
