@@ -20,9 +20,11 @@ from typing import Any
 DEFAULT_CONFIG_PATH = Path("/etc/preflight/preflight.toml")
 
 #: Firmware-altering G-codes refused unless ``[safety] allow_firmware_commands``:
-#: EEPROM save/load/reset, firmware update, network / Wi-Fi configuration.
+#: EEPROM save/load/reset, firmware update, SD-card file operations (write, delete,
+#: select and start a file, log to a file), network / Wi-Fi configuration.
 DEFAULT_FORBIDDEN_GCODES = (
     "M500", "M501", "M502", "M504", "M997",
+    "M23", "M24", "M28", "M29", "M30", "M32", "M928",
     "M540", "M550", "M551", "M552", "M553", "M554", "M555", "M556",
     "M587", "M588", "M589",
 )
@@ -128,8 +130,8 @@ class LimitsConfig:
 
 @dataclass(frozen=True)
 class SafetyConfig:
-    allow_firmware_commands: bool = setting(False, "true: allow M500/M502/M997/Wi-Fi... in "
-                                            "dropped G-code", BOOL)
+    allow_firmware_commands: bool = setting(False, "true: allow M500/M502/M997/SD "
+                                            "writes/Wi-Fi... in G-code", BOOL)
     forbidden_gcodes: tuple[str, ...] = setting(DEFAULT_FORBIDDEN_GCODES, "G-code words refused "
                                                 "unless allow_firmware_commands", GCODES,
                                                 commented=True)

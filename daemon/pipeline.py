@@ -31,7 +31,6 @@ from daemon.safety import (
     display_name,
     safe_output_path,
     sanitise_name,
-    strip_gcode,
 )
 from daemon.states import JobState
 from daemon.worker import WorkerCancelled, WorkerFailed, run_task
@@ -367,7 +366,7 @@ class Processor:
         summary = (out or {}).get("summary") or {}
         try:
             with open(gcode, encoding="utf-8", errors="replace") as f:
-                check_gcode(strip_gcode(f), forbidden=self.cfg.safety.forbidden_gcodes,
+                check_gcode(f, forbidden=self.cfg.safety.forbidden_gcodes,
                             allow_firmware=self.cfg.safety.allow_firmware_commands,
                             build_volume=None)
         except UnsafeEntry as e:
@@ -381,7 +380,7 @@ class Processor:
         build_volume = (info or {}).get("build_volume")
         try:
             with open(job.input_path or "", encoding="utf-8", errors="replace") as f:
-                checked = check_gcode(strip_gcode(f), forbidden=self.cfg.safety.forbidden_gcodes,
+                checked = check_gcode(f, forbidden=self.cfg.safety.forbidden_gcodes,
                                       allow_firmware=self.cfg.safety.allow_firmware_commands,
                                       build_volume=build_volume)
         except UnsafeEntry as e:

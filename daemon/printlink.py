@@ -20,7 +20,7 @@ from daemon.config import Config
 from daemon.journal import Job, Journal
 from daemon.pipeline import AnyEvent, Spool
 from daemon.safety import UnsafeEntry, check_gcode, strip_gcode
-from daemon.states import JobState, TransitionError
+from daemon.states import ON_PRINTER, JobState, TransitionError
 
 log = logging.getLogger("preflight.printer")
 
@@ -41,6 +41,7 @@ class PrinterLink(threading.Thread):
         self._status: dict[str, Any] = {"state": "starting", "port": cfg.printer.port}
         self._info: dict[str, Any] | None = None
         self._cancel: dict[int, threading.Event] = {}
+        self._controls: dict[int, Any] = {}  # job id -> printer.control.PrintControl
         self.virtual = None
         self.host = None
         self.connections = 0
@@ -69,6 +70,22 @@ class PrinterLink(threading.Thread):
             return False
         cancel.set()
         return True
+
+    def control_job(self, job_id: int, action: str) -> bool:
+        """Ask the running print of ``job_id`` to pause, resume or stop (M112); False
+        when this thread is not printing it."""
+        with self._lock:
+            control = self._controls.get(job_id)
+        if control is None:
+            return False
+        control.ask(action)
+        return True
+
+    def control_state(self, job_id: int) -> str | None:
+        """``printing``, ``pausing``, ``paused`` or ``paused_by_printer``; None if not printing."""
+        with self._lock:
+            control = self._controls.get(job_id)
+        return None if control is None else control.state
 
     # -- the thread -----------------------------------------------------------------------
     def run(self) -> None:
@@ -219,10 +236,43 @@ class PrinterLink(threading.Thread):
                 return None
         return lines
 
+    def _print_control(self, job: Job) -> Any:
+        """The job's PrintControl: pauses and resumes are journalled as they happen."""
+        from printer.control import ParkSettings, PrintControl
+
+        def on_state(state: str, why: str) -> None:
+            try:
+                journal_state(state, why)
+            except TransitionError as e:  # e.g. the job was ended meanwhile: keep printing
+                log.warning("job %d: %s (%s)", job.id, e, why)
+
+        def journal_state(state: str, why: str) -> None:
+            if state == "paused":
+                self.journal.transition(job.id, JobState.PAUSED, expect=JobState.PRINTING,
+                                        note=why)
+                self._set_status(state="paused", message=why)
+                log.info("job %d: %s", job.id, why)
+            elif state == "printing":
+                current = self.journal.get(job.id)
+                if current is not None and current.state == JobState.PAUSED:
+                    self.journal.transition(job.id, JobState.PRINTING, expect=JobState.PAUSED,
+                                            note=why)
+                    log.info("job %d: %s", job.id, why)
+                self._set_status(state="printing", message=None)
+            else:  # waiting: M600 waits for the user at the printer
+                self._set_status(message=why)
+                log.info("job %d: %s", job.id, why)
+
+        volume = (self.last_info() or {}).get("build_volume")
+        control = PrintControl(ParkSettings(build_volume=volume), on_state=on_state)
+        with self._lock:
+            self._controls[job.id] = control
+        return control
+
     def _stream(self, job: Job, lines: list[str], cancel: threading.Event) -> None:
-        """Stream a printing job's lines; the job ends done, cancelled, interrupted or
-        broken off."""
-        from printer.errors import PrinterError, StreamCancelled
+        """Stream a printing job's lines; the job ends done, cancelled, failed (a firmware
+        halt, an emergency stop), interrupted or broken off."""
+        from printer.errors import EmergencyStopped, PrinterError, PrinterHalted, StreamCancelled
 
         acked = [0]
         last = [0.0]
@@ -244,18 +294,31 @@ class PrinterLink(threading.Thread):
                     "seconds": time.monotonic() - started, **more}
 
         log.info("job %d: printing %d lines", job.id, total)
+        control = self._print_control(job)
         try:
             result = self.host.stream(lines, progress=progress,
-                                      cancel=AnyEvent(cancel, self.stop_event))
+                                      cancel=AnyEvent(cancel, self.stop_event), control=control)
         except StreamCancelled as e:
-            if cancel.is_set():
-                self._end(job.id, JobState.CANCELLED, "cancelled by user during the print "
-                          "(cooled down, motors off); " + HALF_PRINTED.format(id=job.id),
+            by = control.cancelled_by or ("the user" if cancel.is_set() else None)
+            if by is not None:
+                who = "user" if by == "the user" else by
+                self._end(job.id, JobState.CANCELLED, f"cancelled by {who} during the print "
+                          "(parked, cooled down, motors off); " + HALF_PRINTED.format(id=job.id),
                           outcome(acked[0], error=str(e)))
             else:
                 self._end(job.id, JobState.INTERRUPTED, "the daemon was stopped during the "
                           "print (cooled down, motors off); " + HALF_PRINTED.format(id=job.id),
                           outcome(acked[0], error=str(e)))
+            return
+        except (PrinterHalted, EmergencyStopped) as e:
+            # The firmware stopped (kill(), thermal runaway, M112): failed with its words,
+            # never retried by itself; the board needs a reset, so reconnect.
+            self._disconnect()
+            reason = (f"{e}" + ("" if "after" in str(e) else f" after {acked[0]} of {total} "
+                      "lines") + "; check the printer, then clear the bed: `preflight jobs "
+                      f"requeue {job.id}` prints it again from the start")
+            self._end(job.id, JobState.FAILED, reason, outcome(acked[0], error=str(e)))
+            log.error("job %d: %s", job.id, reason)
             return
         except PrinterError as e:
             print_result = outcome(acked[0], error=str(e))
@@ -266,8 +329,9 @@ class PrinterLink(threading.Thread):
         finally:
             with self._lock:
                 self._cancel.pop(job.id, None)
+                self._controls.pop(job.id, None)
             self._set_status(state="connected" if self.host else "waiting", job=None,
-                             progress=None, lines_done=None, lines_total=None)
+                             progress=None, lines_done=None, lines_total=None, message=None)
         print_result = outcome(total, result=_result_dict(result))
         self._end(job.id, JobState.DONE, None, print_result)
         log.info("job %d: printed %d lines in %.1f s", job.id, total, print_result["seconds"])
@@ -303,9 +367,9 @@ class PrinterLink(threading.Thread):
         """End a print that broke off. ``sent`` is how many of its lines reached the
         port (None: unknown, so assume the print started)."""
         job = self.journal.get(job_id)
-        if job is None or job.state != JobState.PRINTING:
+        if job is None or job.state not in ON_PRINTER:
             return
-        if sent == 0:
+        if sent == 0 and job.state == JobState.PRINTING:
             self.journal.transition(job_id, JobState.READY, note=f"not started: {why}",
                                     progress=None)
             log.warning("job %d: the print did not start (%s); it stays ready", job_id, why)

@@ -25,7 +25,7 @@ from daemon.journal import Job, Journal
 from daemon.notify import notify, watchdog_interval
 from daemon.pipeline import Processor, Spool
 from daemon.printlink import HALF_PRINTED, PrinterLink
-from daemon.states import FINAL, JobState, TransitionError
+from daemon.states import FINAL, ON_PRINTER, JobState, TransitionError
 from daemon.watcher import SpoolWatcher
 from daemon.worker import FORK_SERVER, warm_up
 
@@ -76,10 +76,13 @@ class Daemon:
             journal.transition(job.id, JobState.QUEUED, progress=None,
                                note=f"the daemon stopped while {job.state}; redoing it")
             log.info("job %d: was %s when the daemon stopped; redoing it", job.id, job.state)
-        for job in journal.jobs({JobState.PRINTING}):
-            reason = ("print interrupted: the daemon or the machine stopped during the print "
-                      f"(about {100 * (job.progress or 0):.0f}% acknowledged); "
-                      + HALF_PRINTED.format(id=job.id))
+        for job in journal.jobs({JobState.PRINTING, JobState.PAUSED}):
+            when = "while the print was paused" if job.state == JobState.PAUSED else \
+                "during the print"
+            reason = (f"print interrupted: the daemon or the machine stopped {when} "
+                      f"(about {100 * (job.progress or 0):.0f}% acknowledged); a paused print "
+                      "cannot be resumed after that (the printer may have reset, cooled down "
+                      "or lost its position); " + HALF_PRINTED.format(id=job.id))
             journal.transition(job.id, JobState.INTERRUPTED, reason=reason, note=reason,
                                progress=None)
             self.spool.archive(job.id)
@@ -112,7 +115,8 @@ class Daemon:
         job = self.journal.get(job_id)
         if job is None:
             return False, f"there is no job {job_id}"
-        handlers = {"print": self._print, "requeue": self._requeue, "cancel": self._cancel}
+        handlers = {"print": self._print, "requeue": self._requeue, "cancel": self._cancel,
+                    "pause": self._pause, "resume": self._resume, "stop": self._stop}
         if action not in handlers:
             return False, f"unknown request {action!r}"
         return handlers[action](job)
@@ -168,12 +172,37 @@ class Daemon:
                 return False, f"job {job.id} is {job.state} but no worker holds it; try again"
             cancel.set()
             return True, f"job {job.id} is being cancelled"
-        if job.state == JobState.PRINTING:
+        if job.state in ON_PRINTER:
             if self.printer.cancel_job(job.id):
                 return True, (f"job {job.id}: stopping the print (cooldown and motors off "
                               "will be sent)")
             return False, f"job {job.id} is printing but the printer thread does not hold it"
         return False, f"job {job.id} is {job.state}; nothing to cancel"
+
+    def _pause(self, job: Job) -> tuple[bool, str]:
+        if job.state == JobState.PAUSED:
+            return True, f"job {job.id} is already paused"
+        if job.state != JobState.PRINTING:
+            return False, f"job {job.id} is {job.state}; only a printing job can be paused"
+        if not self.printer.control_job(job.id, "pause"):
+            return False, f"job {job.id} is printing but the printer thread does not hold it"
+        return True, (f"job {job.id}: pausing (the lines already sent finish, then the head "
+                      "retracts and parks; the heaters stay on)")
+
+    def _resume(self, job: Job) -> tuple[bool, str]:
+        state = self.printer.control_state(job.id)
+        if job.state == JobState.PRINTING and state == "printing":
+            return True, f"job {job.id} is printing, not paused"
+        if job.state not in ON_PRINTER or state is None:
+            return False, f"job {job.id} is {job.state}; only a paused job can be resumed"
+        self.printer.control_job(job.id, "resume")
+        return True, f"job {job.id}: resuming (back to where it paused, then the next line)"
+
+    def _stop(self, job: Job) -> tuple[bool, str]:
+        if job.state not in ON_PRINTER or not self.printer.control_job(job.id, "stop"):
+            return False, f"job {job.id} is {job.state}; nothing is printing to stop"
+        return True, (f"job {job.id}: emergency stop (M112) sent; the printer must be reset "
+                      "before it prints again")
 
     # -- status ---------------------------------------------------------------------------
     def status(self) -> dict[str, Any]:
@@ -199,8 +228,10 @@ class Daemon:
         jobs = status.get("jobs") or {}
         active = ", ".join(f"{jobs[k]} {k}" for k in ("queued", "repairing", "slicing", "ready",
                                                       "printing") if jobs.get(k))
-        if printer.get("state") == "printing":
-            doing = f"printing job {printer.get('job')} {100 * (printer.get('progress') or 0):.0f}%"
+        if printer.get("state") in ("printing", "paused"):
+            doing = (f"{printer['state']} job {printer.get('job')} "
+                     f"{100 * (printer.get('progress') or 0):.0f}%"
+                     + (f" ({printer['message']})" if printer.get("message") else ""))
         elif printer.get("state") == "connected":
             info = printer.get("info") or {}
             doing = (f"printer ready ({info.get('firmware') or '?'}, nozzle "

@@ -2,6 +2,10 @@
 
 Happy path: queued -> repairing -> slicing -> ready -> printing -> done.
 G-code files skip repair and slicing: queued -> ready.
+A print can be paused (by the user, or by the printer: a filament runout) and resumed:
+printing <-> paused. A paused print ends like a printing one (cancelled, failed,
+interrupted); a daemon restart finds it interrupted (the printer may have reset or
+cooled down meanwhile: its position is not to be trusted).
 Terminal-ish states: failed, cancelled, interrupted (a print that stopped part-way:
 a half-printed part may be on the bed; it is re-sent only by an explicit requeue).
 """
@@ -17,6 +21,7 @@ class JobState(StrEnum):
     SLICING = "slicing"
     READY = "ready"
     PRINTING = "printing"
+    PAUSED = "paused"
     DONE = "done"
     FAILED = "failed"
     CANCELLED = "cancelled"
@@ -24,7 +29,8 @@ class JobState(StrEnum):
 
 
 # the table below reads better with the bare state names
-QUEUED, REPAIRING, SLICING, READY, PRINTING, DONE, FAILED, CANCELLED, INTERRUPTED = JobState
+QUEUED, REPAIRING, SLICING, READY, PRINTING, PAUSED, DONE, FAILED, CANCELLED, INTERRUPTED = \
+    JobState
 
 #: from-state -> the states it may move to.
 ALLOWED: dict[JobState, frozenset[JobState]] = {
@@ -35,7 +41,8 @@ ALLOWED: dict[JobState, frozenset[JobState]] = {
     # ready -> queued: the printer's nozzle/volume changed, re-process
     READY: frozenset({PRINTING, QUEUED, FAILED, CANCELLED}),
     # printing -> ready: the stream never started (no line acknowledged)
-    PRINTING: frozenset({DONE, FAILED, CANCELLED, INTERRUPTED, READY}),
+    PRINTING: frozenset({DONE, FAILED, CANCELLED, INTERRUPTED, READY, PAUSED}),
+    PAUSED: frozenset({PRINTING, FAILED, CANCELLED, INTERRUPTED}),
     DONE: frozenset(),
     # requeue: failed/cancelled start over, interrupted is re-sent from the start
     FAILED: frozenset({QUEUED}),
@@ -43,7 +50,9 @@ ALLOWED: dict[JobState, frozenset[JobState]] = {
     INTERRUPTED: frozenset({READY, CANCELLED}),
 }
 
-ACTIVE = frozenset({QUEUED, REPAIRING, SLICING, READY, PRINTING})
+ACTIVE = frozenset({QUEUED, REPAIRING, SLICING, READY, PRINTING, PAUSED})
+#: A print under way: its job holds the printer.
+ON_PRINTER = frozenset({PRINTING, PAUSED})
 FINAL = frozenset({DONE, FAILED, CANCELLED, INTERRUPTED})
 
 

@@ -47,3 +47,7 @@ class PrinterTimeout(PrinterError):
 
 class StreamCancelled(PrinterError):
     """The stream was cancelled; cooldown and motors-off have been sent."""
+
+
+class EmergencyStopped(PrinterError):
+    """M112 was sent: the firmware stopped at once and must be reset before printing."""

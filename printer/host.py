@@ -37,6 +37,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 
+from printer.control import PrintControl
 from printer.errors import (
     PortBusy,
     PortNotFound,
@@ -377,14 +378,17 @@ class PrinterHost:
         *,
         progress: Callable[[int, int], None] | None = None,
         cancel: threading.Event | None = None,
+        control: PrintControl | None = None,
     ) -> StreamResult:
         """Deliver the commands of ``lines`` (comments/blank lines dropped) exactly once,
         in order. Returns when the firmware has acknowledged every one; raises a
         PrinterError subclass otherwise (StreamCancelled after cooldown + motors off),
         whose ``lines_sent`` attribute counts the job's lines written to the port.
+        ``control``: pause / resume / cancel / emergency stop while it runs (see
+        :mod:`printer.control`); the printer's host actions are obeyed either way.
         """
         commands = clean_lines(lines)
-        streamer = Streamer(self, commands, progress, cancel)
+        streamer = Streamer(self, commands, progress, cancel, control)
         try:
             return streamer.run()
         except PrinterError as exc:

@@ -249,3 +249,46 @@ def parse_nozzle_reply(text: str) -> float | None:
     if value is None or not 0.05 <= value <= 3.0:
         return None
     return value
+
+
+# --- host actions, waiting for the user, the position ---------------------------------
+
+#: The host actions a printer asks of its host (Marlin HOST_ACTION_COMMANDS, Prusa MK3's
+#: ``// action:``, Klipper's ``RESPOND TYPE=command``): pause/resume/cancel ask the host to
+#: do it; paused/resumed say the firmware did it itself (M600, a filament runout).
+HOST_ACTIONS = frozenset({"pause", "paused", "resume", "resumed", "cancel"})
+_ACTION_RE = re.compile(r"^//\s*action:\s*([a-z_]+)\b\s*(.*)$", re.IGNORECASE)
+
+
+def host_action(line: str) -> tuple[str, str] | None:
+    """``"//action:pause"`` -> ``("pause", "")``; ``"// action:paused filament_runout"``
+    -> ``("paused", "filament_runout")``. None for any other line, and for actions that
+    ask nothing of a print (``prompt_begin``, ``notification``, ``out_of_filament``...)."""
+    m = _ACTION_RE.match(line.strip())
+    if m is None or m.group(1).lower() not in HOST_ACTIONS:
+        return None
+    return m.group(1).lower(), m.group(2).strip()
+
+
+def waiting_for_user(line: str) -> bool:
+    """True for Marlin's / Prusa's keep-alive while M600 (or M0/M1) waits for the user:
+    ``echo:busy: paused for user`` or ``echo:busy: paused for input``."""
+    low = line.strip().lower()
+    return "busy:" in low and "paused for" in low
+
+
+_POSITION_RE = re.compile(rf"(?<![A-Za-z0-9])([XYZE]):\s*({_NUM})")
+
+
+def parse_position(text: str) -> dict[str, float] | None:
+    """The logical position of an M114 reply (mm), the part before ``Count``.
+
+    Marlin ``"X:10.00 Y:20.00 Z:0.20 E:1.23 Count X:800 Y:1600 Z:80"``, Klipper
+    ``"X:10.000 Y:20.000 Z:0.200 E:1.230"``, RRF ``"X:10.000 Y:20.000 Z:0.200 E:1.230
+    E0:1.2 Count 800 1600 80 Machine ..."``. None unless X, Y and Z are all there.
+    """
+    head = re.split(r"\bCount\b", text, maxsplit=1)[0]
+    found: dict[str, float] = {}
+    for axis, value in _POSITION_RE.findall(head):
+        found.setdefault(axis, float(value))
+    return found if all(a in found for a in "XYZ") else None

@@ -15,6 +15,7 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from typing import TYPE_CHECKING
 
+from printer.control import PrintControl
 from printer.errors import PrinterError, PrinterTimeout, StreamCancelled
 from printer.gcode import command_word, frame
 from printer.replies import Reply, parse_reply
@@ -45,10 +46,13 @@ class Streamer:
 
     def __init__(self, host: PrinterHost, commands: list[str],
                  progress: Callable[[int, int], None] | None,
-                 cancel: threading.Event | None) -> None:
+                 cancel: threading.Event | None, control: PrintControl | None = None) -> None:
         self.host = host
         self.commands = commands
         self.total = len(commands)
+        #: Lines up to this one may be sent (held below ``total`` while pausing).
+        self.limit = self.total
+        self.control = control or PrintControl()
         self.progress = progress
         self.cancel = cancel
         self.mode = host.chosen_mode()
@@ -122,7 +126,7 @@ class Streamer:
             self.pop_inflight()
 
     def can_send(self) -> bool:
-        if self.tickle_tries or self.next_n > self.total:
+        if self.tickle_tries or self.next_n > self.limit:
             return False
         if self.probe_until and self.delivered() >= self.probe_until:
             self.probe_until = 0
@@ -158,6 +162,7 @@ class Streamer:
             while self.next_n <= self.total or self.inflight:
                 if self.cancel is not None and self.cancel.is_set():
                     self.cancelled()
+                self.control.step(self)
                 while self.can_send():
                     self.send_next()
                 now = time.monotonic()
@@ -228,6 +233,8 @@ class Streamer:
         after_resend, self.after_resend = self.after_resend, False
         if kind in ("start", "fatal"):
             self.host.raise_if_fatal(reply, "during the print")
+        if kind in ("comment", "busy", "ok"):
+            self.control.on_reply(self, reply)  # host actions, M600 waiting for the user
         if kind == "temperature" and not reply.waiting:
             return  # auto-report: not a sign that our lines are moving
         self.last_life = time.monotonic()
@@ -356,6 +363,7 @@ class Streamer:
                 if reply.kind == "ok" and not reply.temps:
                     self.on_ok(reply, False)
         host.drain(0.05)
+        self.control.park_for_cancel(self)
         host.cooldown()
         raise StreamCancelled(
             f"print cancelled after {done} of {self.total} lines; heaters off, motors released"

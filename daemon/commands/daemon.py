@@ -47,7 +47,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     _config_arg(p)
     p.set_defaults(func=cmd_api_key)
 
-    p = subparsers.add_parser("jobs", help="list, show, print, requeue or cancel jobs")
+    p = subparsers.add_parser("jobs", help="list, show, print, requeue, cancel, pause, resume "
+                                           "or stop jobs")
     _config_arg(p)
     jsub = p.add_subparsers(dest="jobs_command", metavar="ACTION")
     q = jsub.add_parser("list", help="list jobs (newest last)")
@@ -63,8 +64,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     for action, text in (("print", "print a ready job (when auto_print is off)"),
                          ("requeue", "re-send an interrupted print, or redo a failed/cancelled "
                                      "job"),
-                         ("cancel", "cancel a job; a running print stops with cooldown and "
-                                    "motors off")):
+                         ("cancel", "cancel a job; a running print stops, parks, cools down "
+                                    "and releases the motors (never resumable)"),
+                         ("pause", "pause a print: the lines sent finish, then retract and "
+                                   "park; the heaters stay on"),
+                         ("resume", "resume a paused print where it stopped"),
+                         ("stop", "emergency stop: M112 now (the printer must be reset)")):
         q = jsub.add_parser(action, help=text)
         _config_arg(q, suppress=True)
         q.add_argument("id", type=int)
@@ -203,7 +208,8 @@ def cmd_api_key(args: argparse.Namespace) -> int:
 
 def _job_line(job) -> str:
     prog = ""
-    if job.progress is not None and str(job.state) in ("repairing", "slicing", "printing"):
+    if job.progress is not None and str(job.state) in ("repairing", "slicing", "printing",
+                                                       "paused"):
         prog = f" {100 * job.progress:.0f}%"
     when = time.strftime("%m-%d %H:%M", time.localtime(job.updated))
     reason = f"  {job.reason}" if job.reason and str(job.state) != "done" else ""
@@ -252,6 +258,9 @@ def cmd_jobs_request(args: argparse.Namespace) -> int:
     if journal.get(args.id) is None:
         return fail(f"there is no job {args.id}")
     writer = Journal(cfg.journal_path)
+    if args.action in ("pause", "resume", "stop") and not daemon_alive(writer.get_meta("status")):
+        # never left to act later: a stale pause or stop would hit the next print
+        return fail(f"the daemon is not running; nothing is printing to {args.action}", 3)
     request_id = writer.add_request(args.id, args.action)
     if not daemon_alive(writer.get_meta("status")):
         return fail(f"the daemon is not running; the {args.action} request for job {args.id} "

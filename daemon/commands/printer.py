@@ -38,6 +38,9 @@ def register(subparsers) -> None:
     vp.add_argument("--reconnect-after", type=float,
                     help="seconds after a disconnect to come back on a new pty")
     vp.add_argument("--garbage", action="store_true", help="send line noise (wrong baud)")
+    vp.add_argument("--event", action="append", default=[], metavar="N:WHAT",
+                    help="after N lines: kill, thermal_runaway, runout:SECONDS, or a line "
+                         "starting with // sent as it is (e.g. 3000://action:cancel)")
     vp.add_argument("--seed", type=int, default=1)
     vp.set_defaults(func=_virtual_printer)
 
@@ -53,6 +56,9 @@ def register(subparsers) -> None:
     pp.add_argument("file", help="G-code file")
     _port_args(pp)
     pp.add_argument("--mode", default="auto", choices=("auto", "ping-pong", "buffered"))
+    pp.add_argument("--allow-firmware-commands", action="store_true",
+                    help="send EEPROM, firmware-update, SD-card file and network commands "
+                         "too (refused by default, as in the daemon)")
     pp.set_defaults(func=_print)
 
 
@@ -70,10 +76,15 @@ def _port_args(parser: argparse.ArgumentParser) -> None:
 def _virtual_printer(args) -> int:
     from printer.virtual import Faults, VirtualPrinter
 
+    try:
+        events = tuple((int(spec.split(":", 1)[0]), spec.split(":", 1)[1]) for spec in args.event)
+    except (ValueError, IndexError):
+        return fail(f"--event takes N:WHAT, e.g. 500:kill (got {' '.join(args.event)})", 2)
     faults = Faults(
         corrupt=args.corrupt, drop_ok=args.drop_ok, busy_seconds=args.busy,
         reset_after=args.reset_after, disconnect_after=args.disconnect_after,
         reconnect_after=args.reconnect_after, garbage=args.garbage, seed=args.seed,
+        events=events,
     )
     try:
         vp = VirtualPrinter(
@@ -154,7 +165,25 @@ class _Progress:
             sys.stderr.flush()
 
 
+def _policy_refusal(args, build_volume) -> str | None:
+    """Why the daemon's G-code policy refuses the file for this printer, or None."""
+    from daemon.config import DEFAULT_FORBIDDEN_GCODES
+    from daemon.safety import UnsafeEntry, check_gcode
+
+    try:
+        with open(args.file, encoding="utf-8", errors="replace") as fh:
+            check_gcode(fh, forbidden=DEFAULT_FORBIDDEN_GCODES,
+                        allow_firmware=args.allow_firmware_commands, build_volume=build_volume)
+    except UnsafeEntry as exc:
+        hint = ("" if args.allow_firmware_commands or "firmware-altering" not in str(exc)
+                else " (--allow-firmware-commands sends it anyway)")
+        return f"{args.file}: {exc}".replace(
+            "; set [safety] allow_firmware_commands = true to allow it", "") + hint
+    return None
+
+
 def _print(args) -> int:
+    from printer.control import ParkSettings, PrintControl
     from printer.errors import PrinterError
 
     try:
@@ -162,6 +191,9 @@ def _print(args) -> int:
             lines = fh.read().splitlines()
     except OSError as exc:
         return fail(f"cannot read {args.file}: {exc.strerror}")
+    refusal = _policy_refusal(args, None)  # before the port is even opened
+    if refusal:
+        return fail(refusal)
     cancel = threading.Event()
     previous = {}
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -169,7 +201,12 @@ def _print(args) -> int:
     progress = _Progress()
     try:
         with _host(args, args.mode) as host:
-            result = host.stream(lines, progress=progress, cancel=cancel)
+            volume = host.query_info().build_volume
+            refusal = _policy_refusal(args, volume)
+            if refusal:
+                return fail(refusal)
+            control = PrintControl(ParkSettings(build_volume=volume))  # Ctrl-C parks in it
+            result = host.stream(lines, progress=progress, cancel=cancel, control=control)
     except PrinterError as exc:
         progress.finish()
         return fail(str(exc), 130 if cancel.is_set() else 1)

@@ -100,10 +100,12 @@ def printer_state(backend: Any) -> dict[str, Any]:
     st = backend.printer.status() or {}
     link = st.get("state")
     printing = link == "printing"
-    operational = link in ("connected", "printing")
-    text = "Printing" if printing else ("Operational" if operational else
-                                        "Offline" if link != "connecting" else "Connecting")
-    return {"text": text, "operational": operational, "ready": operational and not printing,
-            "printing": printing, "paused": False, "pausing": False, "cancelling": False,
+    paused = link == "paused"
+    operational = link in ("connected", "printing", "paused")
+    text = "Printing" if printing else "Paused" if paused else (
+        "Operational" if operational else "Offline" if link != "connecting" else "Connecting")
+    return {"text": text, "operational": operational,
+            "ready": operational and not printing and not paused,
+            "printing": printing, "paused": paused, "pausing": False, "cancelling": False,
             "error": False, "closedOrError": not operational, "message": st.get("message"),
             "temperature": _temperature(st.get("info") or {}), "info": st.get("info") or {}}

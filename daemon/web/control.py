@@ -8,7 +8,7 @@ import time
 from typing import Any
 
 from daemon.journal import Job, Journal
-from daemon.states import ACTIVE, JobState
+from daemon.states import ACTIVE, ON_PRINTER, JobState
 from daemon.web.uploads import Refused
 
 S = JobState
@@ -16,9 +16,6 @@ S = JobState
 #: How long a web request waits for the daemon's main loop to answer (it polls every 0.2 s).
 ANSWER_WAIT = 15.0
 
-PAUSE_UNSUPPORTED = ("pausing is not supported: preflight's printer link streams the job "
-                     "without a pause point yet; cancel stops the print with cooldown and "
-                     "motors off")
 
 
 async def ask_daemon(journal: Journal, job_id: int, action: str) -> tuple[bool, str]:
@@ -34,7 +31,8 @@ async def ask_daemon(journal: Journal, job_id: int, action: str) -> tuple[bool, 
 
 
 def printing_job(journal: Journal) -> Job | None:
-    jobs = journal.jobs({S.PRINTING})
+    """The job on the printer (printing or paused), if any."""
+    jobs = journal.jobs(set(ON_PRINTER))
     return jobs[0] if jobs else None
 
 
@@ -63,7 +61,7 @@ def job_by_name(journal: Journal, name: str) -> Job | None:
 async def start_printing(journal: Journal, job: Job) -> str:
     """Have ``job`` print when it is ready; idempotent (a job already printing or
     already going to print is fine)."""
-    if job.state == S.PRINTING or (job.print_requested and job.state in ACTIVE):
+    if job.state in ON_PRINTER or (job.print_requested and job.state in ACTIVE):
         return f"job {job.id} is already printing or going to print"
     if job.state not in (S.READY, S.QUEUED, S.REPAIRING, S.SLICING):
         raise Refused(409, f"job {job.id} ({job.name}) is {job.state}"
@@ -74,8 +72,20 @@ async def start_printing(journal: Journal, job: Job) -> str:
     return msg
 
 
-async def job_command(journal: Journal, command: str) -> str:
-    """OctoPrint's ``POST /api/job`` commands on the current job."""
+async def control_print(journal: Journal, action: str) -> str:
+    """Pause, resume, cancel or emergency-stop (``stop``) the print on the printer."""
+    job = printing_job(journal)
+    if job is None:
+        raise Refused(409, f"there is no print to {action}")
+    ok, msg = await ask_daemon(journal, job.id, action)
+    if not ok:
+        raise Refused(409, msg)
+    return msg
+
+
+async def job_command(journal: Journal, command: str, action: str | None = None) -> str:
+    """OctoPrint's ``POST /api/job`` commands on the current job (``pause`` takes the
+    ``action`` pause, resume or toggle, as OctoPrint's does; toggle when absent)."""
     if command == "start":
         ready = [j for j in journal.jobs({S.READY}) if not j.print_requested]
         if not ready:
@@ -89,14 +99,23 @@ async def job_command(journal: Journal, command: str) -> str:
         if not ok:
             raise Refused(409, msg)
         return msg
-    if command in ("pause", "restart"):
-        raise Refused(409, PAUSE_UNSUPPORTED)
+    if command == "pause":
+        action = action or "toggle"
+        if action not in ("pause", "resume", "toggle"):
+            raise Refused(400, f"unknown pause action {action!r} (known: pause, resume, toggle)")
+        if action == "toggle":
+            job = printing_job(journal)
+            action = "resume" if job is not None and job.state == S.PAUSED else "pause"
+        return await control_print(journal, action)
+    if command == "restart":
+        raise Refused(409, "restarting a paused print from the start is not supported: cancel "
+                           "it, clear the bed, then `preflight jobs requeue ID`")
     raise Refused(400, f"unknown job command {command!r} (known: start, cancel, pause)")
 
 
 def print_times(journal: Journal, job: Job) -> tuple[float | None, float | None]:
     """(seconds printing so far, linear estimate of the seconds left) for a printing job."""
-    if job.state != S.PRINTING:
+    if job.state not in ON_PRINTER:
         return None, None
     started = [h["at"] for h in journal.history(job.id) if h["to_state"] == str(S.PRINTING)]
     if not started:

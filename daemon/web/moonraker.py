@@ -53,6 +53,14 @@ async def print_start(request: web.Request) -> web.Response:
     return web.json_response({"result": "ok"})
 
 
+def _print_control(action: str):
+    async def handler(request: web.Request) -> web.Response:
+        """``POST /printer/print/pause|resume|cancel``."""
+        await control.control_print(request.app[BACKEND].journal, action)
+        return web.json_response({"result": "ok"})
+    return handler
+
+
 async def printer_info(request: web.Request) -> web.Response:
     state = printer_state(request.app[BACKEND])
     info = state["info"]
@@ -67,3 +75,5 @@ def add_routes(app: web.Application, upload_expect: object) -> None:
     app.router.add_get("/printer/info", printer_info)
     app.router.add_route("POST", "/server/files/upload", upload, expect_handler=upload_expect)
     app.router.add_post("/printer/print/start", print_start)
+    for action in ("pause", "resume", "cancel"):
+        app.router.add_post(f"/printer/print/{action}", _print_control(action))

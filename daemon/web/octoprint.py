@@ -12,6 +12,7 @@ from daemon import __version__
 from daemon.web import control
 from daemon.web.common import BACKEND, json_body, printer_state
 from daemon.web.uploads import Refused, accept
+from printer.gcode import lex
 
 OCTOPRINT_VERSION = "1.10.0"
 
@@ -75,7 +76,7 @@ async def job(request: web.Request) -> web.Response:
     current = control.current_job(backend.journal)
     summary = control.job_summary(backend.journal, current)
     state = printer_state(backend)
-    printing = summary["state"] == "printing"
+    printing = summary["state"] in ("printing", "paused")
     progress = summary["progress"] if printing else None
     return web.json_response({
         "job": {"file": {"name": summary["name"], "path": summary["name"],
@@ -98,7 +99,24 @@ def _secs(value: float | None) -> int | None:
 
 async def job_command(request: web.Request) -> web.Response:
     body = await json_body(request)
-    await control.job_command(request.app[BACKEND].journal, str(body.get("command", "")))
+    action = body.get("action")
+    await control.job_command(request.app[BACKEND].journal, str(body.get("command", "")),
+                              str(action) if action is not None else None)
+    return web.Response(status=204)
+
+
+async def printer_command(request: web.Request) -> web.Response:
+    """``POST /api/printer/command``: only the emergency stop (M112) of the print on the
+    printer; other G-code is not sent behind the journal's back."""
+    body = await json_body(request)
+    commands = body.get("commands") or [body.get("command")]
+    if not isinstance(commands, list) or not commands:
+        raise Refused(400, "commands must be a list of G-code lines")
+    words = {lex(str(c or "")).word for c in commands}
+    if words != {"M112"}:
+        raise Refused(409, "only M112 (emergency stop) is accepted here: preflight sends the "
+                           "printer nothing but its jobs' G-code")
+    await control.control_print(request.app[BACKEND].journal, "stop")
     return web.Response(status=204)
 
 
@@ -150,6 +168,7 @@ def add_routes(app: web.Application, upload_expect: Any) -> None:
     app.router.add_get("/api/settings", settings)
     app.router.add_get("/api/printerprofiles", printer_profiles)
     app.router.add_get("/api/printer", printer)
+    app.router.add_post("/api/printer/command", printer_command)
     app.router.add_get("/api/job", job)
     app.router.add_post("/api/job", job_command)
     app.router.add_route("POST", "/api/files/local", upload, expect_handler=upload_expect)

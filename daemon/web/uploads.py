@@ -145,8 +145,8 @@ def check_declared_size(request: web.Request, limit: SizeLimit, spool: Path) -> 
 
 
 def printing_name(journal: Any) -> str | None:
-    """The (sanitised) name of the file printing now, if any."""
-    for job in journal.jobs({JobState.PRINTING}):
+    """The (sanitised) name of the file printing (or paused) now, if any."""
+    for job in journal.jobs({JobState.PRINTING, JobState.PAUSED}):
         return job.name
     return None
 

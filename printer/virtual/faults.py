@@ -18,6 +18,11 @@ class Faults:
     (prints ``start``) / the port hangs up. reconnect_after: seconds after a
     disconnect the printer comes back on a new pty (the link is re-pointed).
     garbage: every byte sent to the host is noise (what a wrong baud rate looks like).
+    events: (N, what) pairs: after N executed numbered lines the firmware does ``what``:
+    ``kill`` (a kill() halt), ``thermal_runaway`` (Marlin's runaway error, then the halt),
+    ``runout:S`` (a filament runout: it pauses itself with ``//action:paused``, waits S
+    real seconds for the user with busy keep-alives, then ``//action:resumed``), or a line
+    starting with ``//`` sent as it is (``//action:cancel``, ``//action:pause``).
     """
 
     corrupt: float = 0.0
@@ -28,4 +33,5 @@ class Faults:
     reconnect_after: float | None = None
     garbage: bool = False
     seed: int = 1
+    events: tuple[tuple[int, str], ...] = ()
 

@@ -80,6 +80,8 @@ class FirmwareModel:
         self.autoreport = 0.0
         self.next_report = 0.0
         self.numbered_done = 0
+        self.paused_until = 0.0  # a runout: the firmware waits for the user until then
+        self.next_paused_note = 0.0
 
     # ----------------------------------------------------------------- replies
     def send(self, text: str) -> None:
@@ -212,6 +214,8 @@ class FirmwareModel:
             self.log.write(command + "\n")
 
     def execute(self, now: float) -> None:
+        if self.paused_until and self.user_wait(now):
+            return
         while self.queue:
             if self.current is None:
                 self.current = begin(self, self.queue[0][1], now)
@@ -227,7 +231,7 @@ class FirmwareModel:
                 self.ok(current.get("ok_extra", ""))
             if number is not None and command_word(command) != "M110":
                 self.numbered_done += 1
-                if self.fault_after_line(now):
+                if self.fault_after_line(now) or self.event_after_line(now):
                     return
 
     def fault_after_line(self, now: float) -> bool:
@@ -253,6 +257,47 @@ class FirmwareModel:
             self.wire.hang_up()
             return True
         return False
+
+    def event_after_line(self, now: float) -> bool:
+        """The ``Faults.events`` due after this line; True when execution must stop."""
+        for after, what in self.faults.events:
+            if after != self.numbered_done:
+                continue
+            if what.startswith("//"):
+                self.send(what)
+            elif what == "kill":
+                self.kill("Error:Printer halted. kill() called!")
+                return True
+            elif what == "thermal_runaway":
+                self.kill("Error:Thermal Runaway, system stopped! Heater_ID: 0",
+                          "Error:Printer halted. kill() called!")
+                return True
+            elif what.startswith("runout:"):
+                self.send("//action:paused filament_runout")
+                self.paused_until = now + float(what.split(":", 1)[1])
+                return True
+        return False
+
+    def user_wait(self, now: float) -> bool:
+        """A runout pause: busy keep-alives until the user is done. True while waiting."""
+        if now < self.paused_until:
+            if now >= self.next_paused_note:
+                self.next_paused_note = now + self.settings.keepalive
+                self.send("echo:busy: paused for user")
+            return True
+        self.paused_until = 0.0
+        self.send("//action:resumed")
+        return False
+
+    def kill(self, *lines: str) -> None:
+        """A firmware halt (kill()): heaters off, nothing more runs until a reset."""
+        self.halted = True
+        self.queue.clear()
+        self.current = None
+        self.wire.clear_receive_buffer()
+        self.heaters.switch_off()
+        for line in lines:
+            self.send(line)
 
     def progress(self, state: dict, now: float) -> bool:
         """Advance the head command; True once it has finished."""

@@ -194,3 +194,32 @@ def test_a_job_killed_while_being_archived_is_archived_at_start_up(tmp_path):
     text = (cfg.failed_dir / "broken.report.txt").read_text()
     assert "FAILED - the G-code file has no commands" in text
     assert (cfg.failed_dir / "broken.gcode").exists()
+
+
+def test_a_paused_print_is_interrupted_at_start_up_and_never_resumed(tmp_path):
+    """The printer may have reset or cooled down while the daemon was away: the paused
+    print cannot go on from its pause point."""
+    d = Daemon(make_cfg(tmp_path))
+    j = d.journal
+    jid = take(d.spool, "p.gcode")
+    j.transition(jid, S.READY)
+    j.transition(jid, S.PRINTING, progress=0.25)
+    j.transition(jid, S.PAUSED, note="paused by the user")
+    d.recover()
+    job = j.get(jid)
+    assert job.state == S.INTERRUPTED
+    assert "while the print was paused" in job.reason and "25%" in job.reason
+    assert "cannot be resumed" in job.reason
+    for action in ("resume", "pause", "stop"):
+        ok, msg = d._handle(action, jid)
+        assert not ok and "interrupted" in msg
+    ok, _ = d._handle("requeue", jid)
+    assert ok and j.get(jid).state == S.READY
+
+
+def test_pause_requests_need_a_print(tmp_path):
+    d = Daemon(make_cfg(tmp_path))
+    jid = take(d.spool, "q.gcode")
+    for action in ("pause", "resume", "stop"):
+        ok, msg = d._handle(action, jid)
+        assert not ok and "queued" in msg

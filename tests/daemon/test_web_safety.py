@@ -34,6 +34,8 @@ GUARDED = [("GET", "/api/settings"), ("GET", "/api/printer"), ("GET", "/api/job"
            ("POST", "/api/files/local"), ("POST", "/api/files/local/a.gcode"),
            ("GET", "/api/files/local/a.gcode"), ("POST", "/server/files/upload"),
            ("POST", "/printer/print/start"), ("GET", "/printer/info"),
+           ("POST", "/api/printer/command"), ("POST", "/printer/print/pause"),
+           ("POST", "/printer/print/resume"), ("POST", "/printer/print/cancel"),
            ("GET", "/no/such/endpoint"), ("POST", "/api/version"), ("GET", "/")]
 
 
@@ -149,7 +151,7 @@ def test_over_size_is_413_declared_or_counted(web_daemon):
     assert upload(port, key, "small.gcode", small).status == 201
 
 
-def test_second_upload_over_the_printing_file_is_409_then_cancel_and_pause(web_daemon):
+def test_second_upload_over_the_printing_file_is_409_then_pause_resume_cancel(web_daemon):
     d, port, key = web_daemon(speedup=20)
     ans = upload(port, key, "long.gcode", tiny_gcode(moves=3000).encode())
     assert ans.status == 201
@@ -159,10 +161,18 @@ def test_second_upload_over_the_printing_file_is_409_then_cancel_and_pause(web_d
     assert again.status == 409 and "printing now" in again.json()["error"]
     assert len(d.jobs()) == 1
     headers = {"X-Api-Key": key, "Content-Type": "application/json"}
-    pause = request(port, "POST", "/api/job", headers=headers, body=b'{"command": "pause"}')
-    assert pause.status == 409 and "pausing is not supported" in pause.json()["error"]
     flags = request(port, "GET", "/api/printer", headers=headers).json()["state"]["flags"]
     assert flags["printing"] and not flags["ready"]
+    # OctoPrint's pause command: toggle when no action is given, then an explicit resume
+    pause = request(port, "POST", "/api/job", headers=headers, body=b'{"command": "pause"}')
+    assert pause.status == 204, pause.body
+    d.wait_for(lambda: str(d.journal.get(job_id).state) == "paused", what="paused")
+    flags = request(port, "GET", "/api/printer", headers=headers).json()["state"]["flags"]
+    assert flags["paused"] and not flags["printing"] and not flags["ready"]
+    resume = request(port, "POST", "/api/job", headers=headers,
+                     body=b'{"command": "pause", "action": "resume"}')
+    assert resume.status == 204, resume.body
+    d.wait_for(lambda: str(d.journal.get(job_id).state) == "printing", what="printing again")
     cancel = request(port, "POST", "/api/job", headers=headers, body=b'{"command": "cancel"}')
     assert cancel.status == 204, cancel.body
     d.wait_for(lambda: str(d.journal.get(job_id).state) == "cancelled", what="cancelled")

@@ -129,3 +129,27 @@ def test_progress_line_on_a_terminal(virtual_printer, tmp_path):
     text = seen.decode()
     assert "\rprinting" in text and "lines/s" in text and "ETA" in text
     assert "100.0%" in text
+
+
+def test_print_applies_the_daemon_policy(virtual_printer, tmp_path):
+    """``preflight print`` refuses what the daemon refuses, before sending a line of it."""
+    port, log, _ = virtual_printer()
+    forbidden = tmp_path / "sd.gcode"
+    forbidden.write_text("G28\nG1 X10 Y10\nM 28 evil.gco ; write to the SD card\nG1 X20\n")
+    out = cli("print", str(forbidden), "--port", port, "--baud", "250000")
+    assert out.returncode == 1
+    assert "M28" in out.stderr and "--allow-firmware-commands" in out.stderr
+    assert not log.exists() or "G28" not in log.read_text().split()
+    # an arc whose end points are on the bed but whose sweep leaves it (X to 270 mm)
+    arc = tmp_path / "arc.gcode"
+    arc.write_text("G28\nG90\nG1 X220 Y50 Z1\nG3 X220 Y150 I0 J50\nG1 X10\n")
+    out = cli("print", str(arc), "--port", port, "--baud", "250000")
+    assert out.returncode == 1 and "X from" in out.stderr and "outside" in out.stderr
+    assert "G28" not in log.read_text().splitlines()  # only the host's queries ran
+    # the override sends a firmware command (M500 here) as written
+    allowed = tmp_path / "save.gcode"
+    allowed.write_text("G28\nG1 X10 Y10\nM500\nG1 X20\n")
+    out = cli("print", str(allowed), "--port", port, "--baud", "250000",
+              "--allow-firmware-commands")
+    assert out.returncode == 0, out.stderr
+    assert log.read_text().splitlines()[-4:] == ["G28", "G1 X10 Y10", "M500", "G1 X20"]
