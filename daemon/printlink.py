@@ -128,20 +128,58 @@ class PrinterLink(threading.Thread):
             log.info("virtual printer on %s", self.virtual_port)
         return self.virtual_port
 
+    def _make_host(self, port: str, baud: int):
+        from printer.host import PrinterHost
+
+        printer_config = self.cfg.printer
+        return PrinterHost(port, baud, mode=printer_config.mode,
+                           nozzle_fallback=printer_config.nozzle_diameter,
+                           nozzle_macro=printer_config.nozzle_macro,
+                           handshake_timeout=max(printer_config.probe_seconds, 5.0))
+
+    def _open_host(self):
+        """A connected host and its port: the configured port, the virtual printer, or
+        (``port = "auto"``) the printer a scan finds, the remembered one first."""
+        printer_config = self.cfg.printer
+        if printer_config.port != "auto":
+            port = self._port()
+            host = self._make_host(port, printer_config.baud)
+            try:
+                host.connect()
+            except BaseException:
+                host.close()
+                raise
+            return host, port
+        from printer.discovery import discover, remember, remembered_choice
+        from printer.errors import PortNotFound
+
+        state_dir = self.cfg.daemon.state_dir
+        self._set_status(state="searching", message="looking for a printer on "
+                         + ", ".join(printer_config.scan))
+
+        def make_probe_host(path: str, baud: int):
+            host = self._make_host(path, baud)
+            host.handshake_timeout = printer_config.probe_seconds
+            return host
+
+        found = discover(printer_config.scan, remembered=remembered_choice(state_dir),
+                         make_host=make_probe_host, keep_open=True)
+        self._set_status(discovery=[c.line() for c in found.candidates])
+        if found.host is None:
+            raise PortNotFound(found.summary())
+        remember(state_dir, found.chosen)
+        log.info("printer: %s", found.summary())
+        self._set_status(port=found.chosen.path)
+        return found.host, found.chosen.path
+
     def _connect(self) -> str | None:
         """Open and handshake, query the info. Returns an error message or None."""
         from printer.errors import PrinterError
-        from printer.host import PrinterHost
 
         self._set_status(state="connecting", message=None)
         host = None
         try:
-            port = self._port()
-            printer_config = self.cfg.printer
-            host = PrinterHost(port, printer_config.baud, mode=printer_config.mode,
-                               nozzle_fallback=printer_config.nozzle_diameter,
-                               nozzle_macro=printer_config.nozzle_macro)
-            host.connect()
+            host, port = self._open_host()
             info = host.query_info().to_dict()
         except Exception as e:  # PrinterError, OSError, or a bug: never kill the thread
             if not isinstance(e, (PrinterError, OSError)):

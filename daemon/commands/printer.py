@@ -1,4 +1,4 @@
-"""CLI for the printer link: ``virtual-printer``, ``printer info`` and ``print``."""
+"""CLI for the printer link: ``virtual-printer``, ``printer info|list`` and ``print``."""
 
 from __future__ import annotations
 
@@ -47,6 +47,18 @@ def register(subparsers) -> None:
     _port_args(info)
     info.add_argument("--json", action="store_true", help="print JSON")
     info.set_defaults(func=_printer_info)
+    found = psub.add_parser("list", help="scan the serial ports for printers and say why each "
+                            "was or was not taken")
+    found.add_argument("--scan", action="append", metavar="GLOB",
+                       help="where to look, in order (repeatable; default "
+                            "/dev/serial/by-id/*, /dev/ttyACM*, /dev/ttyUSB*)")
+    found.add_argument("--baud", type=int, action="append", metavar="BAUD",
+                       help="baud rates to try, in order (repeatable; default 115200, "
+                            "250000, 230400, 57600)")
+    found.add_argument("--probe-seconds", type=float, default=3.0,
+                       help="how long each port and baud rate may take to answer")
+    found.add_argument("--json", action="store_true", help="print JSON")
+    found.set_defaults(func=_printer_list)
     pr.set_defaults(func=lambda args: (pr.print_help(sys.stderr), 2)[1])
 
     pp = subparsers.add_parser("print", help="stream a G-code file to a printer")
@@ -126,6 +138,26 @@ def _printer_info(args) -> int:
     caps = ", ".join(k for k, v in sorted(info["capabilities"].items()) if v) or "none reported"
     print(f"capabilities:      {caps}")
     return 0
+
+
+def _printer_list(args) -> int:
+    from printer.discovery import PROBE_BAUDS, SCAN_GLOBS, default_host, discover
+
+    if args.probe_seconds <= 0:
+        return fail("--probe-seconds must be > 0")
+    chatty = sys.stderr.isatty() and not args.json
+    found = discover(args.scan or SCAN_GLOBS, args.baud or PROBE_BAUDS,
+                     make_host=default_host(args.probe_seconds), scan_all=True,
+                     progress=(lambda text: print(text, file=sys.stderr)) if chatty else None)
+    if args.json:
+        print(json.dumps({"scanned": list(found.scanned),
+                          "candidates": [c.to_dict() for c in found.candidates]}, indent=2))
+    elif not found.candidates:
+        print(found.summary())
+    else:
+        for candidate in found.candidates:
+            print(candidate.line())
+    return 0 if found.chosen is not None else 1
 
 
 class _Progress:
