@@ -175,12 +175,14 @@ class PrinterLink(threading.Thread):
     def _connect(self) -> str | None:
         """Open and handshake, query the info. Returns an error message or None."""
         from printer.errors import PrinterError
+        from printer.identify import query_info
 
         self._set_status(state="connecting", message=None)
         host = None
         try:
             host, port = self._open_host()
-            info = host.query_info().to_dict()
+            info = query_info(host, klipper_socket=self.cfg.printer.klipper_api_socket,
+                              klipper_config=self.cfg.printer.klipper_config).to_dict()
         except Exception as e:  # PrinterError, OSError, or a bug: never kill the thread
             if not isinstance(e, (PrinterError, OSError)):
                 log.exception("connecting to the printer")

@@ -46,6 +46,10 @@ def register(subparsers) -> None:
     info = psub.add_parser("info", help="print firmware, nozzle, build volume, filament")
     _port_args(info)
     info.add_argument("--json", action="store_true", help="print JSON")
+    info.add_argument("--klipper-socket", default="/tmp/klippy_uds",
+                      help="Klipper's API socket (nozzle and build volume of a Klipper printer)")
+    info.add_argument("--klipper-config", default=None,
+                      help="Klipper's printer.cfg, read when the API socket is not there")
     info.set_defaults(func=_printer_info)
     found = psub.add_parser("list", help="scan the serial ports for printers and say why each "
                             "was or was not taken")
@@ -120,10 +124,12 @@ def _host(args, mode: str = "auto"):
 
 def _printer_info(args) -> int:
     from printer.errors import PrinterError
+    from printer.identify import query_info
 
     try:
         with _host(args) as host:
-            info = host.query_info().to_dict()
+            info = query_info(host, klipper_socket=args.klipper_socket,
+                              klipper_config=args.klipper_config).to_dict()
     except PrinterError as exc:
         return fail(str(exc))
     if args.json:

@@ -54,6 +54,9 @@ def test_auto_port_waits_for_a_printer_and_finds_it_again_after_an_unplug(tmp_pa
         assert any(": taken: Marlin" in line for line in status["discovery"])
         executed = (tmp_path / "a.log").read_text().splitlines()
         assert executed[-len(clean_lines(first.splitlines())):] == clean_lines(first.splitlines())
+        report = d.wait_for(lambda: next(d.cfg.done_dir.glob("first*.report.txt"), None),
+                            what="the report").read_text()
+        assert "build volume 250 x 210 x 220 mm (from M211)" in report  # names its source
         remembered = json.loads((d.cfg.daemon.state_dir / "printer_port.json").read_text())
         assert remembered["port"] == str(by_id / "usb-Virtual_A-if00")
         assert remembered["baud"] == 250000
