@@ -10,6 +10,7 @@ import threading
 import time
 
 from daemon.commands import fail
+from daemon.commands.daemon import _config_arg, _load
 
 
 def register(subparsers) -> None:
@@ -54,14 +55,16 @@ def register(subparsers) -> None:
     found = psub.add_parser("list", help="scan the serial ports for printers and say why each "
                             "was or was not taken")
     found.add_argument("--scan", action="append", metavar="GLOB",
-                       help="where to look, in order (repeatable; default "
-                            "/dev/serial/by-id/*, /dev/ttyACM*, /dev/ttyUSB*)")
+                       help="where to look, in order (repeatable; default: the config's "
+                            "[printer] scan, /dev/serial/by-id/*, /dev/ttyACM*, /dev/ttyUSB*)")
     found.add_argument("--baud", type=int, action="append", metavar="BAUD",
                        help="baud rates to try, in order (repeatable; default 115200, "
                             "250000, 230400, 57600)")
-    found.add_argument("--probe-seconds", type=float, default=3.0,
-                       help="how long each port and baud rate may take to answer")
+    found.add_argument("--probe-seconds", type=float, default=None,
+                       help="how long each port and baud rate may take to answer "
+                            "(default: the config's, 3 s)")
     found.add_argument("--json", action="store_true", help="print JSON")
+    _config_arg(found)
     found.set_defaults(func=_printer_list)
     pr.set_defaults(func=lambda args: (pr.print_help(sys.stderr), 2)[1])
 
@@ -147,13 +150,22 @@ def _printer_info(args) -> int:
 
 
 def _printer_list(args) -> int:
-    from printer.discovery import PROBE_BAUDS, SCAN_GLOBS, default_host, discover
+    """Scan like the daemon does with ``port = "auto"`` (its config's ``scan`` and its
+    remembered port first), but probe every port and say why each was (not) taken."""
+    from daemon.config import ConfigError
+    from printer.discovery import PROBE_BAUDS, default_host, discover, remembered_choice
 
-    if args.probe_seconds <= 0:
+    try:
+        cfg = _load(args)
+    except ConfigError as exc:
+        return fail(str(exc), 2)
+    probe_seconds = args.probe_seconds or cfg.printer.probe_seconds
+    if probe_seconds <= 0:
         return fail("--probe-seconds must be > 0")
     chatty = sys.stderr.isatty() and not args.json
-    found = discover(args.scan or SCAN_GLOBS, args.baud or PROBE_BAUDS,
-                     make_host=default_host(args.probe_seconds), scan_all=True,
+    found = discover(args.scan or cfg.printer.scan, args.baud or PROBE_BAUDS,
+                     remembered=remembered_choice(cfg.daemon.state_dir),
+                     make_host=default_host(probe_seconds), scan_all=True,
                      progress=(lambda text: print(text, file=sys.stderr)) if chatty else None)
     if args.json:
         print(json.dumps({"scanned": list(found.scanned),

@@ -13,6 +13,7 @@ import time
 import tty
 
 import pytest
+import tomli_w
 
 from printer.discovery import candidate_ports, discover, remember, remembered_choice
 from printer.discovery import default_host as probe_hosts
@@ -56,6 +57,18 @@ def test_printer_list_finds_a_printer_it_did_not_start_at_250000_baud(printer_pr
     assert ": taken: Marlin 2.1.2.1" in line and "at 250000 baud" in line
     # 115200 is tried first; the printer's reply at the wrong speed is noise
     assert "garbage at 115200" in line
+    # without --scan it looks where the daemon's config says, and exits 1 if nothing
+    config = tmp_path / "preflight.toml"
+    config.write_text(tomli_w.dumps({"printer": {"scan": [str(tmp_path / "ttyACM*")]},
+                                     "daemon": {"state_dir": str(tmp_path / "state")}}))
+    out = cli("printer", "list", "--config", str(config), "--baud", "250000")
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.startswith(f"{acm} -> /dev/") and ": taken: Marlin" in out.stdout
+    (tmp_path / "empty").mkdir()
+    config.write_text(tomli_w.dumps({"printer": {"scan": [str(tmp_path / "empty" / "*")]}}))
+    out = cli("printer", "list", "--config", str(config))
+    assert out.returncode == 1
+    assert out.stdout.strip() == f"no printer found: no serial port matches {tmp_path}/empty/*"
 
 
 def test_candidates_that_answer_garbage_or_nothing_are_reported(tmp_path):
