@@ -19,7 +19,7 @@ import glob
 import json
 import os
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -207,11 +207,11 @@ def discover(globs: Iterable[str] = SCAN_GLOBS, bauds: Sequence[int] = PROBE_BAU
         want_open = keep_open and found.chosen is None
         candidate, host = probe(path, device, order, make_host, keep_open=want_open)
         if candidate.answers and candidate.firmware and found.chosen is None:
-            candidate = Candidate(**{**candidate.to_dict(), "taken": True})
+            candidate = replace(candidate, taken=True)
             found.host = host
         elif candidate.answers and candidate.firmware:
-            candidate = Candidate(**{**candidate.to_dict(), "reason": candidate.reason +
-                                     f"; another printer was taken first ({found.chosen.path})"})
+            candidate = replace(candidate, reason=candidate.reason +
+                                f"; another printer was taken first ({found.chosen.path})")
         found.candidates.append(candidate)
     return found
 
