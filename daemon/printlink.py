@@ -12,6 +12,7 @@ once a line is on the wire the firmware may have run it, acknowledged or not.
 from __future__ import annotations
 
 import logging
+import os
 import threading
 import time
 from typing import Any
@@ -101,6 +102,8 @@ class PrinterLink(threading.Thread):
                 delay = self.cfg.printer.reconnect_min_seconds
             job = self._next_job()
             if job is None:
+                if self._unplugged():
+                    continue
                 self.wake.wait(0.3)
                 self.wake.clear()
                 continue
@@ -111,6 +114,18 @@ class PrinterLink(threading.Thread):
                 self._finish_broken(job.id, f"internal error while printing: "
                                             f"{type(e).__name__}: {e}", sent=None)
                 self._disconnect()
+
+    def _unplugged(self) -> bool:
+        """An idle printer whose port went away (USB unplugged): drop the connection, so
+        the status says so and the next connect finds it again (``port = "auto"``: on
+        whatever port it comes back)."""
+        port = getattr(self.host, "port", None)
+        if port is None or os.path.exists(port):
+            return False
+        log.warning("printer: %s disappeared (unplugged?)", port)
+        self._disconnect()
+        self._set_status(state="waiting", message=f"{port} disappeared (unplugged?)", info=None)
+        return True
 
     def _port(self) -> str:
         port = self.cfg.printer.port
@@ -154,7 +169,7 @@ class PrinterLink(threading.Thread):
         from printer.errors import PortNotFound
 
         state_dir = self.cfg.daemon.state_dir
-        self._set_status(state="searching", message="looking for a printer on "
+        self._set_status(state="searching", port="auto", message="looking for a printer on "
                          + ", ".join(printer_config.scan))
 
         def make_probe_host(path: str, baud: int):

@@ -62,6 +62,8 @@ def test_auto_port_waits_for_a_printer_and_finds_it_again_after_an_unplug(tmp_pa
         assert remembered["baud"] == 250000
 
         procs.pop().terminate()  # unplugged: its link goes away
+        d.wait_for(lambda: "printer: auto - waiting: no printer found" in d.cli("status").stdout,
+                   what="the unplug is noticed while idle, and said")
         procs.append(plug_in(by_id / "usb-Virtual_B-if00", tmp_path / "b.log", 115200))
         second = tiny_gcode(moves=40)
         drop(d.cfg.spool.path, "second.gcode", second.encode())
