@@ -38,8 +38,8 @@ class ConfigError(ValueError):
 # Every key is a dataclass field declared with setting(): its default, a one-line doc, and
 # how its value is checked. Parsing, validation and the example config come from these.
 
-BOOL, INT, FLOAT, STR, PATH, CHOICE, GCODES, LISTEN = (
-    "bool", "int", "float", "str", "path", "choice", "G-code words", "host:port")
+BOOL, INT, FLOAT, STR, PATH, CHOICE, GCODES, LISTEN, GLOBS = (
+    "bool", "int", "float", "str", "path", "choice", "G-code words", "host:port", "globs")
 
 
 @dataclass(frozen=True)
@@ -77,16 +77,25 @@ class SpoolConfig:
 
 @dataclass(frozen=True)
 class PrinterConfig:
-    port: str = setting("virtual", 'a serial device (best under /dev/serial/by-id/), or '
-                        '"virtual"', STR, example="/dev/serial/by-id/usb-Prusa_Research__"
-                        "prusa3d.com__Original_Prusa_i3_MK3-if00")
-    baud: int = setting(115200, "serial speed", INT, low=300, high=4_000_000)
+    port: str = setting("auto", '"auto" (find it: see scan), a serial device (best under '
+                        '/dev/serial/by-id/), or "virtual" (a simulator)', STR)
+    baud: int = setting(115200, "serial speed (port = \"auto\" finds its own)", INT, low=300,
+                        high=4_000_000)
+    scan: tuple[str, ...] = setting(("/dev/serial/by-id/*", "/dev/ttyACM*", "/dev/ttyUSB*"),
+                                    'with port "auto": where to look, in order', GLOBS)
+    probe_seconds: float = setting(3.0, 'port = "auto": how long each port and baud rate may '
+                                   "take to answer", FLOAT, low=0.2, high=60)
     nozzle_diameter: float = setting(0.4, "mm, used when the printer cannot report its nozzle",
                                      FLOAT, low=0.05, high=3.0, above_low=True)
     mode: str = setting("auto", "how G-code is streamed", CHOICE,
                         choices=("auto", "ping-pong", "buffered"))
     nozzle_macro: str | None = setting(None, "Klipper: a macro that reports the nozzle", STR,
                                        optional=True, example="GET_NOZZLE")
+    klipper_api_socket: Path = setting(Path("/tmp/klippy_uds"), "Klipper: its API socket, "
+                                       "for the nozzle and build volume", PATH)
+    klipper_config: Path | None = setting(None, "Klipper: printer.cfg, read when the API "
+                                          "socket is not there", PATH, optional=True,
+                                          example="/home/pi/printer_data/config/printer.cfg")
     reconnect_min_seconds: float = setting(1.0, "first wait before reconnecting", FLOAT,
                                            low=0.01, high=3600)
     reconnect_max_seconds: float = setting(60.0, "longest wait between reconnects", FLOAT,
@@ -242,6 +251,11 @@ def check_value(section: str, name: str, value: Any, rule: Rule, *, base: Path |
                                                   for x in value):
             raise ConfigError(f'{where}: expected a list of G-code words like "M502"')
         return tuple(x.strip().upper() for x in value)
+    if rule.kind == GLOBS:
+        if not isinstance(value, list) or not all(isinstance(x, str) and x.strip()
+                                                  for x in value):
+            raise ConfigError(f'{where}: expected a list of paths or globs like "/dev/ttyACM*"')
+        return tuple(os.path.expanduser(x.strip()) for x in value)
     if rule.kind == LISTEN:
         if not isinstance(value, str) or (value and split_listen(value) is None):
             raise ConfigError(f'{where}: expected "host:port" or "" (off), got {_shown(value)}')

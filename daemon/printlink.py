@@ -12,6 +12,7 @@ once a line is on the wire the firmware may have run it, acknowledged or not.
 from __future__ import annotations
 
 import logging
+import os
 import threading
 import time
 from typing import Any
@@ -118,6 +119,8 @@ class PrinterLink(threading.Thread):
                 delay = self.cfg.printer.reconnect_min_seconds
             job = self._next_job()
             if job is None:
+                if self._unplugged():
+                    continue
                 self.wake.wait(0.3)
                 self.wake.clear()
                 continue
@@ -128,6 +131,18 @@ class PrinterLink(threading.Thread):
                 self._finish_broken(job.id, f"internal error while printing: "
                                             f"{type(e).__name__}: {e}", sent=None)
                 self._disconnect()
+
+    def _unplugged(self) -> bool:
+        """An idle printer whose port went away (USB unplugged): drop the connection, so
+        the status says so and the next connect finds it again (``port = "auto"``: on
+        whatever port it comes back)."""
+        port = getattr(self.host, "port", None)
+        if port is None or os.path.exists(port):
+            return False
+        log.warning("printer: %s disappeared (unplugged?)", port)
+        self._disconnect()
+        self._set_status(state="waiting", message=f"{port} disappeared (unplugged?)", info=None)
+        return True
 
     def _port(self) -> str:
         port = self.cfg.printer.port
@@ -145,21 +160,61 @@ class PrinterLink(threading.Thread):
             log.info("virtual printer on %s", self.virtual_port)
         return self.virtual_port
 
+    def _make_host(self, port: str, baud: int):
+        from printer.host import PrinterHost
+
+        printer_config = self.cfg.printer
+        return PrinterHost(port, baud, mode=printer_config.mode,
+                           nozzle_fallback=printer_config.nozzle_diameter,
+                           nozzle_macro=printer_config.nozzle_macro,
+                           handshake_timeout=max(printer_config.probe_seconds, 5.0))
+
+    def _open_host(self):
+        """A connected host and its port: the configured port, the virtual printer, or
+        (``port = "auto"``) the printer a scan finds, the remembered one first."""
+        printer_config = self.cfg.printer
+        if printer_config.port != "auto":
+            port = self._port()
+            host = self._make_host(port, printer_config.baud)
+            try:
+                host.connect()
+            except BaseException:
+                host.close()
+                raise
+            return host, port
+        from printer.discovery import discover, remember, remembered_choice
+        from printer.errors import PortNotFound
+
+        state_dir = self.cfg.daemon.state_dir
+        self._set_status(state="searching", port="auto", message="looking for a printer on "
+                         + ", ".join(printer_config.scan))
+
+        def make_probe_host(path: str, baud: int):
+            host = self._make_host(path, baud)
+            host.handshake_timeout = printer_config.probe_seconds
+            return host
+
+        found = discover(printer_config.scan, remembered=remembered_choice(state_dir),
+                         make_host=make_probe_host, keep_open=True)
+        self._set_status(discovery=[c.line() for c in found.candidates])
+        if found.host is None:
+            raise PortNotFound(found.summary())
+        remember(state_dir, found.chosen)
+        log.info("printer: %s", found.summary())
+        self._set_status(port=found.chosen.path)
+        return found.host, found.chosen.path
+
     def _connect(self) -> str | None:
         """Open and handshake, query the info. Returns an error message or None."""
         from printer.errors import PrinterError
-        from printer.host import PrinterHost
+        from printer.identify import query_info
 
         self._set_status(state="connecting", message=None)
         host = None
         try:
-            port = self._port()
-            printer_config = self.cfg.printer
-            host = PrinterHost(port, printer_config.baud, mode=printer_config.mode,
-                               nozzle_fallback=printer_config.nozzle_diameter,
-                               nozzle_macro=printer_config.nozzle_macro)
-            host.connect()
-            info = host.query_info().to_dict()
+            host, port = self._open_host()
+            info = query_info(host, klipper_socket=self.cfg.printer.klipper_api_socket,
+                              klipper_config=self.cfg.printer.klipper_config).to_dict()
         except Exception as e:  # PrinterError, OSError, or a bug: never kill the thread
             if not isinstance(e, (PrinterError, OSError)):
                 log.exception("connecting to the printer")

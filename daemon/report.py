@@ -50,7 +50,9 @@ def report_text(job: Job, history: list[dict[str, Any]]) -> str:
         volume_text = " x ".join(f"{v:g}" for v in volume) + " mm" if volume else "unknown"
         lines.append(f"Printer: {info.get('firmware') or 'unknown firmware'}, nozzle "
                      f"{info.get('nozzle_diameter')} mm (from {info.get('nozzle_source')}), "
-                     f"build volume {volume_text}")
+                     f"build volume {volume_text}"
+                     + (f" (from {info['build_volume_source']})"
+                        if volume and info.get("build_volume_source") else ""))
     if job.epsilon is not None:
         lines.append(f"Epsilon: {job.epsilon:g} mm ({job.epsilon_source})")
     repair = job.repair_report

@@ -1,18 +1,24 @@
 """Who the printer is and what it can do: the M115 report and read-only capability queries.
 
-Nozzle: Prusa's ``M862.1 Q``, a Klipper macro, else the configured or default value.
-Build volume: RepRapFirmware's M208, Marlin's M211 soft endstops, the M115 ``area:``
-report, else a Prusa model's nominal volume. Filament: M200. Temperatures: M105.
-Never a command that changes anything (never ``M862.1 P``).
+Nozzle: Prusa's ``M862.1 Q``; for Klipper its API socket or ``printer.cfg``
+(:mod:`printer.klipper_api`), then a Klipper macro; else the configured or default value.
+Build volume: RepRapFirmware's object model (``M409 K"move.axes"``), else its M208;
+Klipper's stepper limits (API socket or ``printer.cfg``); Marlin's M211 soft endstops,
+the M115 ``area:`` report, else a Prusa model's nominal volume. Filament: M200.
+Temperatures: M105. Every value comes with its source. Never a command that changes
+anything (never ``M862.1 P``).
 """
 
 from __future__ import annotations
 
+import json
+import os
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from printer.firmware import family_of
 from printer.info import PrinterInfo
+from printer.klipper_api import DEFAULT_SOCKET, KlipperCapabilities, klipper_capabilities
 from printer.replies import (
     parse_area,
     parse_axis_limits,
@@ -92,11 +98,13 @@ def _first_value(host: PrinterHost, command: str, parse) -> float | None:
     return None
 
 
-def _nozzle(host: PrinterHost) -> tuple[float, str]:
+def _nozzle(host: PrinterHost, klipper: KlipperCapabilities | None) -> tuple[float, str]:
     if host.flavour in ("prusa", "buddy", "marlin"):
         value = _first_value(host, "M862.1 Q", parse_nozzle_reply)
         if value is not None:
             return value, "M862.1"
+    if klipper is not None and klipper.nozzle_diameter is not None:
+        return klipper.nozzle_diameter, klipper.source
     if host.nozzle_macro:
         value = _first_value(host, host.nozzle_macro, parse_nozzle_reply)
         if value is not None:
@@ -106,14 +114,48 @@ def _nozzle(host: PrinterHost) -> tuple[float, str]:
     return DEFAULT_NOZZLE, "default"
 
 
-def _build_volume(host: PrinterHost) -> tuple[list[float] | None, str | None]:
+def parse_object_model_axes(lines: list[str]) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
+    """RepRapFirmware 3's reply to ``M409 K"move.axes"``: the JSON line
+    ``{"key":"move.axes","flags":"","result":[{"letter":"X","min":0,"max":235,...},...]}``
+    -> ((xmin, ymin, zmin), (xmax, ymax, zmax)) in mm, or None."""
+    for line in lines:
+        text = line.strip()
+        if not text.startswith("{"):
+            continue
+        try:
+            reply = json.loads(text)
+        except ValueError:
+            continue
+        if not isinstance(reply, dict) or not isinstance(reply.get("result"), list):
+            continue
+        axes = {}
+        for axis in reply["result"]:
+            if isinstance(axis, dict) and axis.get("letter") in ("X", "Y", "Z"):
+                low, high = axis.get("min"), axis.get("max")
+                if all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                       for v in (low, high)) and high > low:
+                    axes[axis["letter"]] = (float(low), float(high))
+        if len(axes) == 3:
+            return tuple(axes[a][0] for a in "XYZ"), tuple(axes[a][1] for a in "XYZ")
+    return None
+
+
+def _build_volume(host: PrinterHost,
+                  klipper: KlipperCapabilities | None) -> tuple[list[float] | None, str | None]:
     volume, source = None, None
     if host.flavour == "rrf":
-        for line in host.query("M208"):
-            limits = parse_axis_limits(line)
-            if limits:
-                volume, source = extent(limits), "M208"
-    elif host.flavour != "klipper":
+        limits = parse_object_model_axes(host.query('M409 K"move.axes"'))
+        if limits:
+            volume, source = extent(limits), 'M409 K"move.axes"'
+        else:
+            for line in host.query("M208"):
+                limits = parse_axis_limits(line)
+                if limits:
+                    volume, source = extent(limits), "M208"
+    elif host.flavour == "klipper":
+        if klipper is not None and klipper.limits is not None:
+            volume, source = extent(klipper.limits), klipper.source
+    else:
         for line in host.query("M211"):
             limits = parse_soft_endstops(line)
             if limits:
@@ -140,10 +182,15 @@ def _filament(host: PrinterHost) -> tuple[float, str]:
     return host.filament_fallback, "default"
 
 
-def query_info(host: PrinterHost) -> PrinterInfo:
-    """Ask the printer behind ``host`` what it is (read-only queries)."""
-    nozzle, nozzle_source = _nozzle(host)
-    volume, volume_source = _build_volume(host)
+def query_info(host: PrinterHost, *, klipper_socket: str | os.PathLike | None = DEFAULT_SOCKET,
+               klipper_config: str | os.PathLike | None = None) -> PrinterInfo:
+    """Ask the printer behind ``host`` what it is (read-only queries). For Klipper, its
+    API socket ``klipper_socket`` is asked, else ``klipper_config`` (printer.cfg) read."""
+    klipper = None
+    if host.flavour == "klipper":
+        klipper, _problems = klipper_capabilities(klipper_socket, klipper_config)
+    nozzle, nozzle_source = _nozzle(host, klipper)
+    volume, volume_source = _build_volume(host, klipper)
     filament, filament_source = _filament(host)
     temperatures: dict[str, list[float | None]] = {}
     for line in host.query("M105"):

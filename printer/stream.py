@@ -237,6 +237,9 @@ class Streamer:
             self.control.on_reply(self, reply)  # host actions, M600 waiting for the user
         if kind == "temperature" and not reply.waiting:
             return  # auto-report: not a sign that our lines are moving
+        if kind == "other" and reply.text == "wait":
+            self.on_idle()
+            return
         self.last_life = time.monotonic()
         self.nudged = False
         if kind == "ok":
@@ -305,6 +308,14 @@ class Streamer:
         # Nothing else on the wire (ping-pong): no echo can follow, resend at once.
         settle = stale * 10.0 / self.host.baud + self.host.resend_settle
         self.hold_until = now + settle if stale else 0.0
+
+    def on_idle(self) -> None:
+        """``wait``: the firmware (Repetier, OctoPrint's virtual printer) is idle with an
+        empty queue. It is no sign that our lines move (it came once a second forever
+        while an ``ok`` was lost, and the stream hung); with lines in flight it means
+        their ``ok`` was lost, so the lost-``ok`` recovery starts now."""
+        if self.inflight and not self.tickle_tries:
+            self.on_timeout()
 
     def nudge(self) -> None:
         """Send a bare newline. If noise ate the end of our last line, the firmware is

@@ -164,7 +164,9 @@ def cmd_status(args: argparse.Namespace) -> int:
         bv = info.get("build_volume")
         print(f"printer: {printer.get('port')} - {info.get('firmware')}, nozzle "
               f"{info.get('nozzle_diameter')} mm ({info.get('nozzle_source')}), build volume "
-              f"{' x '.join(f'{v:g}' for v in bv) + ' mm' if bv else 'unknown'}")
+              f"{' x '.join(f'{v:g}' for v in bv) + ' mm' if bv else 'unknown'}"
+              + (f" ({info['build_volume_source']})" if bv and info.get("build_volume_source")
+                 else ""))
     elif printer.get("message"):
         print(f"printer: {printer.get('port')} - {printer.get('state')}: {printer['message']}")
     print(f"spool: {status['spool']} ({status.get('waiting_files', 0)} file(s) being written)")

@@ -1,4 +1,4 @@
-"""CLI for the printer link: ``virtual-printer``, ``printer info`` and ``print``."""
+"""CLI for the printer link: ``virtual-printer``, ``printer info|list`` and ``print``."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ import threading
 import time
 
 from daemon.commands import fail
+from daemon.commands.daemon import _config_arg, _load
 
 
 def register(subparsers) -> None:
@@ -49,7 +50,25 @@ def register(subparsers) -> None:
     info = psub.add_parser("info", help="print firmware, nozzle, build volume, filament")
     _port_args(info)
     info.add_argument("--json", action="store_true", help="print JSON")
+    info.add_argument("--klipper-socket", default="/tmp/klippy_uds",
+                      help="Klipper's API socket (nozzle and build volume of a Klipper printer)")
+    info.add_argument("--klipper-config", default=None,
+                      help="Klipper's printer.cfg, read when the API socket is not there")
     info.set_defaults(func=_printer_info)
+    found = psub.add_parser("list", help="scan the serial ports for printers and say why each "
+                            "was or was not taken")
+    found.add_argument("--scan", action="append", metavar="GLOB",
+                       help="where to look, in order (repeatable; default: the config's "
+                            "[printer] scan, /dev/serial/by-id/*, /dev/ttyACM*, /dev/ttyUSB*)")
+    found.add_argument("--baud", type=int, action="append", metavar="BAUD",
+                       help="baud rates to try, in order (repeatable; default 115200, "
+                            "250000, 230400, 57600)")
+    found.add_argument("--probe-seconds", type=float, default=None,
+                       help="how long each port and baud rate may take to answer "
+                            "(default: the config's, 3 s)")
+    found.add_argument("--json", action="store_true", help="print JSON")
+    _config_arg(found)
+    found.set_defaults(func=_printer_list)
     pr.set_defaults(func=lambda args: (pr.print_help(sys.stderr), 2)[1])
 
     pp = subparsers.add_parser("print", help="stream a G-code file to a printer")
@@ -119,10 +138,12 @@ def _host(args, mode: str = "auto"):
 
 def _printer_info(args) -> int:
     from printer.errors import PrinterError
+    from printer.identify import query_info
 
     try:
         with _host(args) as host:
-            info = host.query_info().to_dict()
+            info = query_info(host, klipper_socket=args.klipper_socket,
+                              klipper_config=args.klipper_config).to_dict()
     except PrinterError as exc:
         return fail(str(exc))
     if args.json:
@@ -137,6 +158,35 @@ def _printer_info(args) -> int:
     caps = ", ".join(k for k, v in sorted(info["capabilities"].items()) if v) or "none reported"
     print(f"capabilities:      {caps}")
     return 0
+
+
+def _printer_list(args) -> int:
+    """Scan like the daemon does with ``port = "auto"`` (its config's ``scan`` and its
+    remembered port first), but probe every port and say why each was (not) taken."""
+    from daemon.config import ConfigError
+    from printer.discovery import PROBE_BAUDS, default_host, discover, remembered_choice
+
+    try:
+        cfg = _load(args)
+    except ConfigError as exc:
+        return fail(str(exc), 2)
+    probe_seconds = args.probe_seconds or cfg.printer.probe_seconds
+    if probe_seconds <= 0:
+        return fail("--probe-seconds must be > 0")
+    chatty = sys.stderr.isatty() and not args.json
+    found = discover(args.scan or cfg.printer.scan, args.baud or PROBE_BAUDS,
+                     remembered=remembered_choice(cfg.daemon.state_dir),
+                     make_host=default_host(probe_seconds), scan_all=True,
+                     progress=(lambda text: print(text, file=sys.stderr)) if chatty else None)
+    if args.json:
+        print(json.dumps({"scanned": list(found.scanned),
+                          "candidates": [c.to_dict() for c in found.candidates]}, indent=2))
+    elif not found.candidates:
+        print(found.summary())
+    else:
+        for candidate in found.candidates:
+            print(candidate.line())
+    return 0 if found.chosen is not None else 1
 
 
 class _Progress:

@@ -9,6 +9,7 @@ motion to plan), ``drain`` (wait for the planner to empty), ``until`` / ``busy_f
 
 from __future__ import annotations
 
+import json
 import re
 from typing import TYPE_CHECKING
 
@@ -110,6 +111,8 @@ def _report(model: FirmwareModel, word: str, lexed: GcodeLine,
     if word == "M211" and firmware in ("marlin", "buddy") and not params:
         return ["echo:; Soft Endstops:", "echo:  M211 S1 ; ON",
                 f"echo:    Min:  X0.00 Y0.00 Z0.00   Max:  X{x:.2f} Y{y:.2f} Z{z:.2f}"]
+    if word == "M409" and firmware == "rrf":
+        return [object_model_reply(model, lexed.raw)]
     if word == "M208" and firmware == "rrf" and not params:
         return [f"Axis limits (mm) X0.0:{x:.1f}, Y0.0:{y:.1f}, Z0.0:{z:.1f}"]
     if word == "M200" and firmware in ("marlin", "buddy"):
@@ -125,6 +128,23 @@ def _report(model: FirmwareModel, word: str, lexed: GcodeLine,
     if firmware == "klipper" and word == model.settings.nozzle_macro:
         return [f"// nozzle_diameter: {model.settings.nozzle:.3f}"]
     return None
+
+
+def object_model_reply(model: FirmwareModel, command: str) -> str:
+    """RepRapFirmware 3's one-line JSON answer to ``M409 K"key"``; only ``move.axes`` has
+    a result here (the build volume as the axis limits), other keys answer null."""
+    found = re.search(r'K\s*"([^"]*)"', command)
+    key = found.group(1) if found else ""
+    result = None
+    if key == "move.axes":
+        result = [{"acceleration": 1000.0, "babystep": 0, "current": 800, "drivers": [f"0.{i}"],
+                   "homed": False, "jerk": 900.0, "letter": letter, "max": limit,
+                   "maxProbed": False, "microstepping": {"interpolated": True, "value": 16},
+                   "min": 0, "minProbed": False, "speed": 6000.0, "stepsPerMm": 80.0,
+                   "userPosition": 0, "visible": True, "workplaceOffsets": [0] * 9}
+                  for i, (letter, limit) in enumerate(zip("XYZ", model.settings.build_volume,
+                                                          strict=True))]
+    return json.dumps({"key": key, "flags": "", "result": result}, separators=(",", ":"))
 
 
 def is_known(model: FirmwareModel, word: str) -> bool:

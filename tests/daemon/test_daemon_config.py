@@ -25,7 +25,8 @@ def write(tmp_path: Path, text: str) -> Path:
 
 def test_defaults_without_a_file():
     cfg = parse_config({})
-    assert cfg.printer.port == "virtual"
+    assert cfg.printer.port == "auto"  # a printer is searched for; "virtual" only when asked
+    assert cfg.printer.scan[0] == "/dev/serial/by-id/*"
     assert cfg.printer.baud == 115200
     assert cfg.daemon.auto_print is True
     assert cfg.spool.path == Path("/var/spool/preflight")
@@ -95,7 +96,8 @@ def test_missing_and_broken_files(tmp_path):
 def test_shipped_example_config_is_valid():
     cfg = load_config(ROOT / "systemd" / "preflight.toml")
     assert cfg.spool.path == Path("/var/spool/preflight")
-    assert cfg.printer.port.startswith("/dev/serial/by-id/")
+    assert cfg.printer.port == "auto"
+    assert cfg.printer.scan == ("/dev/serial/by-id/*", "/dev/ttyACM*", "/dev/ttyUSB*")
 
 
 def test_run_with_bad_config_prints_one_line(tmp_path):
@@ -140,7 +142,10 @@ def test_example_config_shows_every_key_with_its_default():
             if rule.example is None:
                 assert getattr(getattr(cfg, name), key) == default, key
                 assert getattr(getattr(defaults, name), key) == default, key
-    assert cfg.printer.port == rules(SECTIONS["printer"])[0][2].example
+    assert cfg.printer.port == "auto"
+    examples = {key: rule.example for key, _, rule in rules(SECTIONS["printer"]) if rule.example}
+    assert cfg.printer.klipper_config == Path(examples["klipper_config"])
+    assert cfg.printer.nozzle_macro == examples["nozzle_macro"]
 
 
 def test_paths_with_quotes_and_backslashes_round_trip(tmp_path):

@@ -103,8 +103,8 @@ def test_silence_is_a_timeout_that_mentions_baud(tmp_path):
         ("klipper", {"nozzle_macro": "NOZZLE_DIAMETER"}, 0.6, "macro:NOZZLE_DIAMETER", None,
          None, "default"),
         ("klipper", {}, 0.4, "default", None, None, "default"),
-        ("rrf", {"nozzle_fallback": 0.8}, 0.8, "config", [250.0, 210.0, 220.0], "M208",
-         "default"),
+        ("rrf", {"nozzle_fallback": 0.8}, 0.8, "config", [250.0, 210.0, 220.0],
+         'M409 K"move.axes"', "default"),
     ],
 )
 def test_query_info(firmware, kwargs, nozzle, source, volume, volume_source, filament_source):
