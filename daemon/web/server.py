@@ -14,7 +14,7 @@ from typing import Any
 from aiohttp import web
 
 from daemon.config import split_listen
-from daemon.web import moonraker, octoprint
+from daemon.web import moonraker, octoprint, page
 from daemon.web.auth import key_middleware, load_or_create_key
 from daemon.web.common import API_KEY, BACKEND, refusals, upload_expect
 from daemon.web.uploads import remove_stale_temps
@@ -29,6 +29,7 @@ def make_app(backend: Any, api_key: str) -> web.Application:
     app[API_KEY] = api_key
     octoprint.add_routes(app, upload_expect)
     moonraker.add_routes(app, upload_expect)
+    page.add_routes(app)
     return app
 
 
