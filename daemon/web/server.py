@@ -17,6 +17,7 @@ from daemon.config import split_listen
 from daemon.web import moonraker, octoprint, page
 from daemon.web.auth import key_middleware, load_or_create_key
 from daemon.web.common import API_KEY, BACKEND, refusals, upload_expect
+from daemon.web.discovery import Advertiser, advertise_in_background
 from daemon.web.uploads import remove_stale_temps
 
 log = logging.getLogger("preflight.web")
@@ -45,6 +46,7 @@ class WebServer:
         self._runner: web.AppRunner | None = None
         self._thread: threading.Thread | None = None
         self._started = threading.Event()
+        self.advertiser: Advertiser | None = None
 
     def start(self) -> None:
         """Start listening; returns once the socket is bound (or binding failed)."""
@@ -67,6 +69,8 @@ class WebServer:
             log.error("web server: %s", self.error)
             self._started.set()
             return
+        self.advertiser = advertise_in_background((split_listen(self.listen) or ("", 0))[0],
+                                                  self.port or 0)
         self._started.set()
         loop.run_forever()
         loop.run_until_complete(self._shutdown())
@@ -92,6 +96,8 @@ class WebServer:
             await self._runner.cleanup()
 
     def stop(self) -> None:
+        if self.advertiser is not None:
+            self.advertiser.close()
         if self._loop is not None and self._loop.is_running():
             self._loop.call_soon_threadsafe(self._loop.stop)
         if self._thread is not None:
@@ -100,5 +106,8 @@ class WebServer:
     def status(self) -> dict[str, Any]:
         host = (split_listen(self.listen) or ("", 0))[0]
         shown = "127.0.0.1" if host in ("0.0.0.0", "::", "") else host
+        adv = self.advertiser
+        mdns = None if adv is None else {"name": adv.name, "addresses": adv.addresses,
+                                         "registered": adv.registered, "error": adv.error}
         return {"listen": self.listen, "port": self.port, "error": self.error,
-                "url": f"http://{shown}:{self.port}" if self.port else None}
+                "url": f"http://{shown}:{self.port}" if self.port else None, "mdns": mdns}
