@@ -119,7 +119,7 @@ function renderPrinter(p) {
 
 function renderNow(state) {
   const body = $("now-body");
-  const job = state.queue.find((j) => j.state === "printing");
+  const job = state.queue.find((j) => j.state === "printing" || j.state === "paused");
   if (!job) { body.replaceChildren(el("p", { className: "muted", textContent: "Nothing is printing." })); return; }
   const pct = Math.round(1000 * (job.progress || 0)) / 10;
   body.replaceChildren(
@@ -150,14 +150,19 @@ function renderJobs(list, jobs, empty) {
 }
 
 // -- actions -------------------------------------------------------------------------------
+function printerPaused() {
+  const p = lastState && lastState.printer;
+  return Boolean(p && (p.state === "paused" || p.state === "pausing" || p.paused));
+}
+
 const ACTIONS = {
   print: { label: "Print", when: (j) => j.state === "ready" && !j.print_requested },
-  pause: { label: "Pause", when: (j) => j.state === "printing", quiet: true },
-  resume: { label: "Resume", when: (j) => j.state === "printing", quiet: true },
+  pause: { label: "Pause", when: (j) => j.state === "printing" && !printerPaused(), quiet: true },
+  resume: { label: "Resume", when: (j) => j.state === "paused" || (j.state === "printing" && printerPaused()), quiet: true },
   requeue: { label: "Requeue", when: (j) => ["interrupted", "failed", "cancelled"].includes(j.state), quiet: true,
              confirm: (j) => j.state === "interrupted" &&
                `Job ${j.id} (${j.name}) stopped part-way through its print. Clear the bed first: it will be printed again from the start. Is the bed clear?` },
-  cancel: { label: "Cancel", when: (j) => ["queued", "repairing", "slicing", "ready", "printing", "interrupted"].includes(j.state), danger: true },
+  cancel: { label: "Cancel", when: (j) => ["queued", "repairing", "slicing", "ready", "printing", "paused", "interrupted"].includes(j.state), danger: true },
 };
 
 export function actionButtons(job) {
