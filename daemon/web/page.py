@@ -26,6 +26,10 @@ STATIC = Path(__file__).resolve().parent / "static"
 WATCH_SECONDS = 0.5
 KEEPALIVE_SECONDS = 15.0
 
+#: Set when the server shuts down: open event streams end at once instead of holding up
+#: the daemon's stop.
+CLOSING: web.AppKey[asyncio.Event] = web.AppKey("streams_closing", asyncio.Event)
+
 #: The job actions of the page, and the daemon request each one is.
 ACTIONS = ("print", "cancel", "requeue", "pause", "resume")
 
@@ -41,7 +45,7 @@ async def state(request: web.Request) -> web.Response:
 async def events(request: web.Request) -> web.StreamResponse:
     """``text/event-stream``: a ``state`` event with the whole snapshot at once, then one
     each time it changes (looked at every :data:`WATCH_SECONDS`)."""
-    backend = request.app[BACKEND]
+    backend, closing = request.app[BACKEND], request.app[CLOSING]
     response = web.StreamResponse(headers={"Content-Type": "text/event-stream",
                                            "Cache-Control": "no-cache",
                                            "X-Accel-Buffering": "no"})
@@ -49,7 +53,7 @@ async def events(request: web.Request) -> web.StreamResponse:
     await response.write(b"retry: 2000\n\n")
     last, mark, quiet_since = None, None, time.monotonic()
     try:
-        while True:
+        while not closing.is_set():
             # the whole snapshot only when a job or the printer changed, or to update the
             # ETA of a print (it changes with the clock)
             now_mark = (backend.journal.change_mark(), backend.printer.status())
@@ -63,10 +67,17 @@ async def events(request: web.Request) -> web.StreamResponse:
             elif time.monotonic() - quiet_since >= KEEPALIVE_SECONDS:
                 quiet_since = time.monotonic()
                 await response.write(b": keep-alive\n\n")
-            await asyncio.sleep(WATCH_SECONDS)
+            try:
+                await asyncio.wait_for(closing.wait(), WATCH_SECONDS)
+            except TimeoutError:
+                pass
     except (ConnectionResetError, asyncio.CancelledError):
         pass
     return response
+
+
+async def _close_streams(app: web.Application) -> None:
+    app[CLOSING].set()
 
 
 def _job(request: web.Request):
@@ -124,6 +135,8 @@ async def action(request: web.Request) -> web.Response:
 
 
 def add_routes(app: web.Application) -> None:
+    app[CLOSING] = asyncio.Event()
+    app.on_shutdown.append(_close_streams)
     app.router.add_get("/", index)
     app.router.add_static("/static/", STATIC, append_version=False)
     app.router.add_get("/api/preflight/state", state)

@@ -12,6 +12,7 @@ import threading
 from typing import Any
 
 from aiohttp import web
+from aiohttp.abc import AbstractAccessLogger
 
 from daemon.config import split_listen
 from daemon.web import moonraker, octoprint, page
@@ -32,6 +33,15 @@ def make_app(backend: Any, api_key: str) -> web.Application:
     moonraker.add_routes(app, upload_expect)
     page.add_routes(app)
     return app
+
+
+class AccessLog(AbstractAccessLogger):
+    """One line per request without the query string: the page's event stream carries
+    the API key as ``?apikey=`` (EventSource cannot send headers)."""
+
+    def log(self, request: web.BaseRequest, response: web.StreamResponse, time: float) -> None:
+        self.logger.debug('%s "%s %s" %d %.3f s', request.remote, request.method,
+                          request.path, response.status, time)
 
 
 class WebServer:
@@ -79,10 +89,11 @@ class WebServer:
     async def _serve(self, key: str) -> None:
         host, port = split_listen(self.listen) or ("", 0)
         # one line per request only when debugging: Cura polls every two seconds
-        access = log if log.isEnabledFor(logging.DEBUG) else None
+        access = log if log.isEnabledFor(logging.DEBUG) else None  # with the key redacted
         # a stalled upload must not hold up the daemon's shutdown for long
         self._runner = web.AppRunner(make_app(self.backend, key), access_log=access,
-                                     handle_signals=False, shutdown_timeout=3.0)
+                                     access_log_class=AccessLog, handle_signals=False,
+                                     shutdown_timeout=3.0)
         await self._runner.setup()
         site = web.TCPSite(self._runner, host, port, reuse_address=True)
         await site.start()

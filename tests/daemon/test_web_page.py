@@ -90,6 +90,19 @@ def test_the_page_is_public_and_its_data_needs_the_key(web_daemon):
     # a loopback-only server does not advertise itself over mDNS
     assert d.status()["web"]["mdns"] is None
 
+    # an open event stream ends when the daemon stops (it does not hold the stop up),
+    # and the key it carries in its URL is not written to the log
+    events = EventStream(port, key)
+    events.next_state()
+    assert d.stop() == 0
+    events.sock.settimeout(30)
+    with pytest.raises(AssertionError, match="closed"):
+        while True:
+            events.next_state()
+    events.close()
+    log = d.log.read_text()
+    assert "/api/preflight/events" in log and key not in log
+
 
 def test_a_job_report_its_pictures_and_actions(web_daemon, tmp_path):
     d, port, key = web_daemon(auto_print=False)
