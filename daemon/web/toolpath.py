@@ -1,7 +1,7 @@
 """G-code into the polylines of each layer, for the layer preview.
 
 Each line goes through :func:`printer.gcode.lex` (the one lexer). Tracked: absolute or
-relative positioning (G90/G91), absolute or relative extrusion (M82/M83), G92 resets and
+relative positioning (G90/G91, E included, as Marlin), extrusion (M82/M83), G92 resets and
 the slicer's ``;TYPE:`` comments (PrusaSlicer, OrcaSlicer, Cura). A move that extrudes
 (E grows) is drawn at its Z; travels, retractions and Z hops are not. Arcs (G2/G3) are
 drawn as their chord.
@@ -48,10 +48,8 @@ class _Reader:
         word = line.word
         if word in MOVES:
             self.move(line)
-        elif word == "G90":
-            self.relative = False
-        elif word == "G91":
-            self.relative = True
+        elif word in ("G90", "G91"):  # as Marlin: E follows, until M82/M83
+            self.relative = self.relative_e = word == "G91"
         elif word == "M82":
             self.relative_e = False
         elif word == "M83":
@@ -71,9 +69,8 @@ class _Reader:
         e = line.value("E")
         extruded = 0.0
         if e is not None:
-            relative = self.relative or self.relative_e
-            extruded = e if relative else e - old["E"]
-            self.pos["E"] = old["E"] + e if relative else e
+            extruded = e if self.relative_e else e - old["E"]
+            self.pos["E"] = old["E"] + e if self.relative_e else e
         moved = (self.pos["X"], self.pos["Y"]) != (old["X"], old["Y"])
         if extruded <= 0 or not moved:
             self.open = None
