@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import base64
 import shutil
+import socket
 import time
 from pathlib import Path
 
@@ -146,4 +147,63 @@ def test_the_page_in_chromium(web_daemon, browser, tmp_path):
     page.set_viewport_size({"width": 390, "height": 844})
     time.sleep(0.5)
     shot(page, "phone")
+    assert errors == []
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_pause_answer_and_requeue_after_a_crash_in_chromium(web_daemon, browser, tmp_path):
+    # a fixed port: the page stays open while the daemon is killed and started again
+    port = free_port()
+    d, port, key = web_daemon(speedup=40.0, web={"listen": f"127.0.0.1:{port}"})
+    page = browser.new_page(viewport={"width": 1000, "height": 900})
+    page.set_default_timeout(120_000)
+    errors: list[str] = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.add_init_script(f"localStorage.setItem('preflight.apiKey', {key!r})")
+    page.goto(f"http://127.0.0.1:{port}/")
+    page.wait_for_selector("#link.live")
+
+    # uploaded with the file chooser; pause answers with what the daemon says
+    gcode = tmp_path / "long.gcode"
+    gcode.write_text(tiny_gcode(moves=3000))
+    page.set_input_files("#file-input", str(gcode))
+    page.wait_for_selector("#now-progress")
+    page.click("#now-body button[data-action=pause]")
+    page.wait_for_selector("#toast.show")
+    answer = page.text_content("#toast")
+    assert answer and "failed" not in answer.split(":")[0], answer
+    page.wait_for_selector("#toast:not(.show)")
+    if page.locator("#now-body button[data-action=resume]").count():
+        page.click("#now-body button[data-action=resume]")
+        page.wait_for_selector("#toast.show")
+
+    # the daemon dies mid-print and comes back: the page reconnects by itself
+    job = next(j for j in d.jobs() if j.name == "long.gcode")
+    d.wait_for(lambda: (d.journal.get(job.id).progress or 0) > 0, what="printing")
+    d.kill9()
+    page.wait_for_selector("#link:not(.live)")
+    d.start()
+    page.wait_for_selector("#link.live")
+    interrupted = row(page, "long.gcode")
+    interrupted.locator(".badge.interrupted").wait_for()
+
+    # requeue asks to clear the bed first; "Cancel" sends nothing
+    interrupted.locator("button[data-action=requeue]").click()
+    page.wait_for_selector("#confirm-dialog[open]")
+    assert "Clear the bed first" in page.text_content("#confirm-text")
+    shot(page, "requeue-confirm")
+    page.click("#confirm-dialog button[value=no]")
+    time.sleep(1.0)  # a requeue would have made it ready within the daemon's 0.2 s poll
+    assert str(d.journal.get(job.id).state) == "interrupted"
+    assert page.locator("#toast.show").count() == 0
+    interrupted.locator("button[data-action=requeue]").click()
+    page.click("#confirm-yes")
+    page.wait_for_selector("#toast:has-text('printed again from the start')")
+    d.wait_for(lambda: str(d.journal.get(job.id).state) in ("ready", "printing", "done"),
+               what="the job requeued")
     assert errors == []

@@ -161,7 +161,8 @@ const ACTIONS = {
   resume: { label: "Resume", when: (j) => j.state === "paused" || (j.state === "printing" && printerPaused()), quiet: true },
   requeue: { label: "Requeue", when: (j) => ["interrupted", "failed", "cancelled"].includes(j.state), quiet: true,
              confirm: (j) => j.state === "interrupted" &&
-               `Job ${j.id} (${j.name}) stopped part-way through its print. Clear the bed first: it will be printed again from the start. Is the bed clear?` },
+               `Job ${j.id} (${j.name}) stopped part-way through its print. Clear the bed first: it will be printed again from the start. Is the bed clear?`,
+             yes: "The bed is clear: print again" },
   cancel: { label: "Cancel", when: (j) => ["queued", "repairing", "slicing", "ready", "printing", "paused", "interrupted"].includes(j.state), danger: true },
 };
 
@@ -178,9 +179,10 @@ export function actionButtons(job) {
   return box;
 }
 
-function confirmDialog(text) {
+function confirmDialog(text, yes = "Yes") {
   const dialog = $("confirm-dialog");
   $("confirm-text").textContent = text;
+  $("confirm-yes").textContent = yes;
   dialog.returnValue = "";
   dialog.showModal();
   return new Promise((resolve) => dialog.addEventListener("close", () => resolve(dialog.returnValue === "yes"), { once: true }));
@@ -188,7 +190,7 @@ function confirmDialog(text) {
 
 async function runAction(job, action, button) {
   const question = ACTIONS[action].confirm && ACTIONS[action].confirm(job);
-  if (question && !(await confirmDialog(question))) return;
+  if (question && !(await confirmDialog(question, ACTIONS[action].yes))) return;
   button.disabled = true;
   try {
     const response = await api(`/api/preflight/jobs/${job.id}/${action}`, { method: "POST" });
