@@ -19,9 +19,13 @@ THREE = ("/static/vendor/three/three.module.js", "/static/vendor/three/three.cor
          "/static/vendor/three/addons/OrbitControls.js", "/static/viewer.js")
 
 
-def _get(port: int, path: str, key: str | None = None) -> bytes:
+def _get(port: int, path: str, key: str | None = None, *, gzip: bool = False) -> bytes:
+    """The body as sent (still compressed when ``gzip`` and the server compressed it)."""
     conn = http.client.HTTPConnection("127.0.0.1", port, timeout=60)
-    conn.request("GET", path, headers={"X-Api-Key": key} if key else {})
+    headers = {"X-Api-Key": key} if key else {}
+    if gzip:
+        headers["Accept-Encoding"] = "gzip"
+    conn.request("GET", path, headers=headers)
     body = conn.getresponse().read()
     conn.close()
     return body
@@ -36,9 +40,10 @@ def bench_initial_load(port: int, key: str) -> None:
     size += len(_get(port, "/api/preflight/state", key))
     dt = time.monotonic() - t0
     three = sum(len(_get(port, m)) for m in THREE)
+    sent = sum(len(_get(port, m, gzip=True)) for m in THREE)
     print(f"status page initial load (HTML, CSS, modules, first state): {size / 1024:.0f} KB "
           f"in {dt * 1000:.0f} ms over loopback; the 3D view adds {three / 1024:.0f} KB "
-          "(three.js, loaded when a report is opened)")
+          f"({sent / 1024:.0f} KB sent gzipped; three.js, loaded when a report is opened)")
 
 
 class _Events:

@@ -4,6 +4,7 @@ through the daemon's request path."""
 
 from __future__ import annotations
 
+import gzip
 import json
 import socket
 import struct
@@ -78,6 +79,13 @@ def test_the_page_is_public_and_its_data_needs_the_key(web_daemon):
         assert ans.status == 200, asset
         assert len(ans.body) > 1000
     assert get(port, "/static/../auth.py").status in (403, 404)
+    # three.js goes gzipped to a browser that takes it; the .gz holds exactly the file
+    for name in ("three.module.js", "three.core.js"):
+        path = f"/static/vendor/three/{name}"
+        plain = get(port, path).body
+        packed = request(port, "GET", path, headers={"Accept-Encoding": "gzip, deflate"})
+        assert packed.headers.get("content-encoding") == "gzip"
+        assert gzip.decompress(packed.body) == plain and len(packed.body) < len(plain) / 3
     for path in ("/api/preflight/state", "/api/preflight/events", "/api/preflight/jobs/1",
                  "/api/preflight/jobs/1/mesh/input", "/api/preflight/jobs/1/layers"):
         assert get(port, path).status == 401, path

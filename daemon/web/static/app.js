@@ -92,7 +92,7 @@ function render(state) {
   }
 }
 
-const STATE_TEXT = { connected: "Ready", printing: "Printing", connecting: "Connecting…",
+const STATE_TEXT = { connected: "Ready", printing: "Printing", paused: "Paused", connecting: "Connecting…",
                      waiting: "Not connected", disconnected: "Not connected" };
 
 function renderPrinter(p) {
