@@ -13,6 +13,7 @@ from daemon.journal import Job
 from daemon.report import report_text
 from daemon.states import ACTIVE, JobState
 from daemon.web import control
+from daemon.web.common import temperatures
 
 #: How many finished jobs the page lists.
 HISTORY = 50
@@ -32,24 +33,9 @@ def printer_view(backend: Any) -> dict[str, Any]:
                 nozzle=info.get("nozzle_diameter"), nozzle_source=info.get("nozzle_source"),
                 build_volume=info.get("build_volume"), port=str(backend.cfg.printer.port))
     live = st.get("temperatures")
-    view["temperatures"] = _temperatures(live if live else info.get("temperatures"))
+    view["temperatures"] = temperatures(live if live else info.get("temperatures"))
     view["temperatures_live"] = bool(live)
     return view
-
-
-def _temperatures(raw: Any) -> dict[str, dict[str, float | None]]:
-    """``{"T": [actual, target]}`` or ``{"tool0": {"actual", "target"}}`` -> the latter
-    shape with readable names (``tool0``, ``bed``, ``chamber``)."""
-    names = {"T": "tool0", "T0": "tool0", "T1": "tool1", "B": "bed", "C": "chamber"}
-    out: dict[str, dict[str, float | None]] = {}
-    for key, reading in (raw or {}).items() if isinstance(raw, dict) else ():
-        name = names.get(str(key), str(key))
-        if isinstance(reading, dict):
-            out[name] = {"actual": reading.get("actual"), "target": reading.get("target")}
-        elif isinstance(reading, (list, tuple)) and reading:
-            out[name] = {"actual": reading[0], "target": reading[1] if len(reading) > 1
-                         else None}
-    return out
 
 
 def job_row(backend: Any, job: Job) -> dict[str, Any]:
