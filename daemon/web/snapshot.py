@@ -48,7 +48,9 @@ def job_row(backend: Any, job: Job) -> dict[str, Any]:
             "created": job.created, "updated": job.updated,
             "print_requested": job.print_requested, "elapsed": elapsed, "left": left,
             "repair": repair.get("summary"), "estimated_seconds": sliced.get("estimated_seconds"),
-            "has_repair": bool(job.repair_report), "has_gcode": bool(_gcode_path(job))}
+            "has_repair": bool(job.repair_report), "has_gcode": bool(_gcode_path(job)),
+            # it reached the printer: something may be on the bed
+            "reached_printer": bool((job.print_result or {}).get("acked_lines"))}
 
 
 def snapshot(backend: Any) -> dict[str, Any]:

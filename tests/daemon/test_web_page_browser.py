@@ -143,6 +143,12 @@ def test_the_page_in_chromium(web_daemon, browser, tmp_path):
     d.wait_for(lambda: str(d.journal.get(job.id).state) == "cancelled", what="cancelled")
     page.wait_for_selector("#now-body:has-text('Nothing is printing')")
     shot(page, "cancelled")
+    # cancelled part-way: a requeue asks to clear the bed too; declined, nothing is sent
+    row(page, "long.gcode").locator("button[data-action=requeue]").click()
+    page.wait_for_selector("#confirm-dialog[open]")
+    assert "Clear the bed first" in page.text_content("#confirm-text")
+    page.click("#confirm-dialog button[value=no]")
+    page.wait_for_selector("#confirm-dialog[open]", state="detached")
 
     page.set_viewport_size({"width": 390, "height": 844})
     time.sleep(0.5)

@@ -160,7 +160,7 @@ const ACTIONS = {
   pause: { label: "Pause", when: (j) => j.state === "printing" && !printerPaused(), quiet: true },
   resume: { label: "Resume", when: (j) => j.state === "paused" || (j.state === "printing" && printerPaused()), quiet: true },
   requeue: { label: "Requeue", when: (j) => ["interrupted", "failed", "cancelled"].includes(j.state), quiet: true,
-             confirm: (j) => j.state === "interrupted" &&
+             confirm: (j) => (j.state === "interrupted" || j.reached_printer) &&
                `Job ${j.id} (${j.name}) stopped part-way through its print. Clear the bed first: it will be printed again from the start. Is the bed clear?`,
              yes: "The bed is clear: print again" },
   cancel: { label: "Cancel", when: (j) => ["queued", "repairing", "slicing", "ready", "printing", "paused", "interrupted"].includes(j.state), danger: true },

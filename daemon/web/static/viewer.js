@@ -69,10 +69,21 @@ class View {
     this.render();
   }
 
-  setMesh(geom) {
+  setMesh(geom, box) {
     if (this.mesh) { this.scene.remove(this.mesh); this.mesh.geometry.dispose(); }
     this.mesh = new THREE.Mesh(geom, this.material);
     this.scene.add(this.mesh);
+    if (this.grid) { this.scene.remove(this.grid); this.grid.geometry.dispose(); }
+    // a grid under the part: the bed it stands on, and a sense of its size
+    const size = box.getSize(new THREE.Vector3());
+    const widest = Math.max(size.x, size.y, 1e-3);
+    const step = 10 ** Math.floor(Math.log10(widest / 2));  // 1, 10 or 100 mm: a few squares
+    const span = Math.ceil((widest * 1.6) / step) * step;
+    this.grid = new THREE.GridHelper(span, span / step, 0x56607a, 0x3a4254);
+    this.grid.rotation.x = Math.PI / 2;  // three's grid lies in XZ; the bed is XY
+    const centre = box.getCenter(new THREE.Vector3());
+    this.grid.position.set(centre.x, centre.y, box.min.z);
+    this.scene.add(this.grid);
   }
 
   render() { this.renderer.render(this.scene, this.camera); }
@@ -100,12 +111,10 @@ export class SideBySide {
 
   show(inputBuffer, repairedBuffer) {
     const meshes = [parseMesh(inputBuffer), parseMesh(repairedBuffer)];
+    const geometries = meshes.map(geometry);
     const box = new THREE.Box3();
-    meshes.forEach((m, i) => {
-      const g = geometry(m);
-      box.union(g.boundingBox);
-      this.views[i].setMesh(g);
-    });
+    for (const g of geometries) box.union(g.boundingBox);
+    geometries.forEach((g, i) => this.views[i].setMesh(g, box));
     const centre = box.getCenter(new THREE.Vector3());
     const radius = Math.max(box.getSize(new THREE.Vector3()).length() / 2, 1e-3);
     for (const view of this.views) {
