@@ -64,6 +64,7 @@ def browser():
 
 def shot(page, name: str) -> None:
     ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    page.evaluate("window.scrollTo(0, 0)")  # the sticky header at the top of the picture
     page.screenshot(path=str(ARTIFACTS / f"page-{name}.png"), full_page=True)
 
 
