@@ -55,6 +55,9 @@ class _Cache:
 
 _MESHES = _Cache(CACHED)
 _LAYERS = _Cache(CACHED)
+#: One preview computed at a time: two browsers opening the same big job wait for one
+#: reading instead of holding two copies.
+_COMPUTING = threading.Lock()
 
 
 def _identity(path: str | None) -> tuple[str, int, int] | None:
@@ -91,8 +94,11 @@ def mesh_bytes(cfg: Any, job: Job, which: str) -> bytes:
     key = (job.id, _identity(inp), _identity(rep), job.epsilon)
     both = _MESHES.get(key)
     if both is None:
-        both = _label_meshes(cfg, job, inp, rep)
-        _MESHES.put(key, both)
+        with _COMPUTING:
+            both = _MESHES.get(key)
+            if both is None:
+                both = _label_meshes(cfg, job, inp, rep)
+                _MESHES.put(key, both)
     return both[which]
 
 
@@ -161,7 +167,10 @@ def gcode_layers(job: Job) -> Layers:
                            f"(the limit is {MAX_PREVIEW_GCODE_BYTES // 1048576} MB)")
     cached = _LAYERS.get(ident)
     if cached is None:
-        with open(path, encoding="utf-8", errors="replace") as lines:
-            cached = read_layers(lines)
-        _LAYERS.put(ident, cached)
+        with _COMPUTING:
+            cached = _LAYERS.get(ident)
+            if cached is None:
+                with open(path, encoding="utf-8", errors="replace") as lines:
+                    cached = read_layers(lines)
+                _LAYERS.put(ident, cached)
     return cached

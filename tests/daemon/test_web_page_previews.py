@@ -1,8 +1,10 @@
-"""The layer preview's G-code reader, on G-code from the embedded slicer and on the
-modal states a slicer's G-code uses (relative moves and extrusion, G92, ;TYPE:)."""
+"""The report pictures' server side: the layer preview's G-code reader (on G-code from
+the embedded slicer and on the modal states a slicer's G-code uses: relative moves and
+extrusion, G92, ;TYPE:), and the size limits of the previews."""
 
 from __future__ import annotations
 
+import pytest
 from daemon_helpers import DATA
 
 from daemon.web.toolpath import read_layers
@@ -75,3 +77,32 @@ G1 X50 Y50 Z5 F9000      ; travel up
 def test_no_extrusion_no_layers():
     layers = read_layers(["G28", "G1 X10 Y10 F3000", "M104 S0", "garbage line", ""])
     assert layers.z == [] and layers.paths == []
+
+
+def test_previews_refuse_what_is_too_big_to_draw(tmp_path):
+    """A mesh over the triangle limit gets a 413 with the reason, not a daemon that
+    loads it into memory."""
+    import tomli_w
+    from daemon_helpers import box, write_binary_stl
+
+    from daemon.config import load_config
+    from daemon.journal import Journal
+    from daemon.web.previews import mesh_bytes
+    from daemon.web.uploads import Refused
+
+    cfg_path = tmp_path / "preflight.toml"
+    cfg_path.write_text(tomli_w.dumps({"spool": {"path": str(tmp_path / "spool")},
+                                       "daemon": {"state_dir": str(tmp_path / "state")},
+                                       "limits": {"max_triangles": 10}}))
+    cfg = load_config(cfg_path)
+    stl = tmp_path / "box.stl"
+    write_binary_stl(stl, *box())  # 12 triangles
+    journal = Journal(tmp_path / "journal.db")
+    job_id = journal.add_job(name="box.stl", source_name="box.stl", kind="mesh",
+                             work_dir=str(tmp_path), input_path=str(stl))
+    with pytest.raises(Refused) as refused:
+        mesh_bytes(cfg, journal.get(job_id), "input")
+    assert refused.value.status == 413 and "triangles" in refused.value.reason
+    with pytest.raises(Refused) as refused:
+        mesh_bytes(cfg, journal.get(job_id), "repaired")
+    assert refused.value.status == 404
