@@ -56,9 +56,10 @@ async def events(request: web.Request) -> web.StreamResponse:
         while not closing.is_set():
             # the whole snapshot only when a job or the printer changed, or to update the
             # ETA of a print (it changes with the clock)
-            now_mark = (backend.journal.change_mark(), backend.printer.status())
+            printer = backend.printer.status() or {}
+            now_mark = (backend.journal.change_mark(), printer)
             current = last
-            if now_mark != mark or (last and '"state":"printing"' in last):
+            if now_mark != mark or printer.get("state") == "printing":
                 mark = now_mark
                 current = json.dumps(snapshot.snapshot(backend), separators=(",", ":"))
             if current != last:
