@@ -17,8 +17,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from daemon.journal import Job
 from daemon.web.toolpath import read_layers
 from daemon.web.uploads import Refused
@@ -102,7 +100,9 @@ def mesh_bytes(cfg: Any, job: Job, which: str) -> bytes:
     return both[which]
 
 
-def _pack(v: np.ndarray, f: np.ndarray, labels: np.ndarray, counts: dict[str, int]) -> bytes:
+def _pack(v: Any, f: Any, labels: Any, counts: dict[str, int]) -> bytes:
+    import numpy as np
+
     tris = v[f].astype("<f4").reshape(-1)
     head = MESH_MAGIC + np.uint32(len(f)).astype("<u4").tobytes()
     tail = json.dumps(counts).encode()
@@ -110,6 +110,10 @@ def _pack(v: np.ndarray, f: np.ndarray, labels: np.ndarray, counts: dict[str, in
 
 
 def _label_meshes(cfg: Any, job: Job, inp: str, rep: str | None) -> dict[str, bytes]:
+    # numpy, the mesh readers and libigl load on the first 3D view, not at the daemon's
+    # start: the idle daemon stays small
+    import numpy as np
+
     from repair.changes import KEPT, face_changes
     from repair.io import MeshReadError, load_mesh
 

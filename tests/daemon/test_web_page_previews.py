@@ -106,3 +106,16 @@ def test_previews_refuse_what_is_too_big_to_draw(tmp_path):
     with pytest.raises(Refused) as refused:
         mesh_bytes(cfg, journal.get(job_id), "repaired")
     assert refused.value.status == 404
+
+
+def test_the_idle_daemon_does_not_load_numpy_for_the_page():
+    """numpy, the mesh readers and libigl load with the first 3D view, not with the web
+    server: the daemon idles small on a Pi."""
+    import subprocess
+    import sys
+
+    code = ("import sys, daemon.service, daemon.web.server, daemon.web.page; "
+            "print('numpy' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True)
+    assert out.stdout.strip() == "False"
