@@ -10,7 +10,9 @@ against a virtual printer served on a pty by this process, and prints:
   and at its peak while the body streams to disk;
 - how long the G-code check that follows takes, and the daemon's peak memory then;
 - the time from the ``201 Created`` of a 20 mm cube STL uploaded with print=true to
-  its first G-code line at the printer (repair and slicing included).
+  its first G-code line at the printer (repair and slicing included);
+- the status page's initial load (bytes, time), the SSE latency (201 to the event
+  showing the job) and the layer preview's G-code reading rate (``bench_web_page.py``).
 
 Usage: .venv/bin/python bench/bench_web.py [--mb 200] [--speedup X]
 """
@@ -32,6 +34,7 @@ import time
 from pathlib import Path
 
 from bench_daemon import QUERY, ROOT, box, config, rss_kb
+from bench_web_page import bench_initial_load, bench_layers, bench_sse
 
 from daemon.config import load_config
 from daemon.journal import Journal
@@ -193,6 +196,11 @@ def main() -> int:
         r.close()
         r = WebRun(args.speedup)  # a fresh daemon: no 200 MB G-code check running
         bench_latency(r)
+        bench_initial_load(r.port, r.key)
+        bench_sse(r)
+        gcode = r.root / "layers.gcode"
+        write_gcode(gcode, 5.0)
+        bench_layers(gcode)
     finally:
         r.close()
     return 0

@@ -211,6 +211,13 @@ class Journal:
                 [str(s) for s in states]).fetchall()
         return [int(r[0]) for r in rows]
 
+    def change_mark(self) -> tuple[int, float]:
+        """(number of jobs, latest update time): changes whenever any job does (a cheap
+        look for watchers such as the status page's event stream)."""
+        with self._lock:
+            row = self._db.execute("SELECT COUNT(*), MAX(updated) FROM jobs").fetchone()
+        return int(row[0]), float(row[1] or 0.0)
+
     def counts(self) -> dict[str, int]:
         with self._lock:
             rows = self._db.execute("SELECT state, COUNT(*) FROM jobs GROUP BY state").fetchall()

@@ -22,6 +22,15 @@ KEY_FILE = "api_key"
 #: Endpoints a slicer calls before it has been told the key (its connection test).
 PUBLIC = frozenset({("GET", "/api/version"), ("GET", "/server/info")})
 
+#: The status page and its static files: they hold no data (it is read with the key).
+PUBLIC_PAGE = ("/", "/static/")
+
+
+def is_public(method: str, path: str) -> bool:
+    if (method, path) in PUBLIC:
+        return True
+    return method in ("GET", "HEAD") and (path == "/" or path.startswith(PUBLIC_PAGE[1]))
+
 
 def key_path(state_dir: Path) -> Path:
     return state_dir / KEY_FILE
@@ -72,7 +81,7 @@ UNAUTHORISED = "invalid or missing API key (see `preflight api-key`)"
 
 def key_ok(request: web.Request, key: str) -> bool:
     """True for a public endpoint or a request carrying ``key`` (constant-time compare)."""
-    if (request.method, request.path) in PUBLIC:
+    if is_public(request.method, request.path):
         return True
     return hmac.compare_digest(presented_key(request).encode("utf-8", "replace"),
                                key.encode("utf-8"))

@@ -83,15 +83,27 @@ async def upload_expect(request: web.Request) -> web.StreamResponse | None:
     return None
 
 
-def _temperature(info: dict[str, Any]) -> dict[str, Any]:
-    names = {"T": "tool0", "T0": "tool0", "T1": "tool1", "B": "bed", "C": "chamber"}
-    out: dict[str, Any] = {}
-    for key, reading in (info.get("temperatures") or {}).items():
-        name = names.get(key)
-        if name and isinstance(reading, (list, tuple)) and reading:
+TEMPERATURE_NAMES = {"T": "tool0", "T0": "tool0", "T1": "tool1", "B": "bed", "C": "chamber"}
+
+
+def temperatures(raw: Any) -> dict[str, dict[str, Any]]:
+    """Temperatures as ``{"tool0": {"actual", "target"}}`` from the printer's
+    ``{"T": [actual, target]}`` (M105's letters) or from that shape already."""
+    out: dict[str, dict[str, Any]] = {}
+    for key, reading in (raw.items() if isinstance(raw, dict) else ()):
+        name = TEMPERATURE_NAMES.get(str(key), str(key))
+        if isinstance(reading, dict):
+            out[name] = {"actual": reading.get("actual"), "target": reading.get("target")}
+        elif isinstance(reading, (list, tuple)) and reading:
             out[name] = {"actual": reading[0],
-                         "target": reading[1] if len(reading) > 1 else None, "offset": 0}
+                         "target": reading[1] if len(reading) > 1 else None}
     return out
+
+
+def _temperature(info: dict[str, Any]) -> dict[str, Any]:
+    known = set(TEMPERATURE_NAMES.values())
+    return {name: {**t, "offset": 0}
+            for name, t in temperatures(info.get("temperatures")).items() if name in known}
 
 
 def printer_state(backend: Any) -> dict[str, Any]:

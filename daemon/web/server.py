@@ -12,11 +12,13 @@ import threading
 from typing import Any
 
 from aiohttp import web
+from aiohttp.abc import AbstractAccessLogger
 
 from daemon.config import split_listen
-from daemon.web import moonraker, octoprint
+from daemon.web import moonraker, octoprint, page
 from daemon.web.auth import key_middleware, load_or_create_key
 from daemon.web.common import API_KEY, BACKEND, refusals, upload_expect
+from daemon.web.discovery import Advertiser, advertise_in_background
 from daemon.web.uploads import remove_stale_temps
 
 log = logging.getLogger("preflight.web")
@@ -29,7 +31,17 @@ def make_app(backend: Any, api_key: str) -> web.Application:
     app[API_KEY] = api_key
     octoprint.add_routes(app, upload_expect)
     moonraker.add_routes(app, upload_expect)
+    page.add_routes(app)
     return app
+
+
+class AccessLog(AbstractAccessLogger):
+    """One line per request without the query string: the page's event stream carries
+    the API key as ``?apikey=`` (EventSource cannot send headers)."""
+
+    def log(self, request: web.BaseRequest, response: web.StreamResponse, time: float) -> None:
+        self.logger.debug('%s "%s %s" %d %.3f s', request.remote, request.method,
+                          request.path, response.status, time)
 
 
 class WebServer:
@@ -44,6 +56,7 @@ class WebServer:
         self._runner: web.AppRunner | None = None
         self._thread: threading.Thread | None = None
         self._started = threading.Event()
+        self.advertiser: Advertiser | None = None
 
     def start(self) -> None:
         """Start listening; returns once the socket is bound (or binding failed)."""
@@ -66,6 +79,8 @@ class WebServer:
             log.error("web server: %s", self.error)
             self._started.set()
             return
+        self.advertiser = advertise_in_background((split_listen(self.listen) or ("", 0))[0],
+                                                  self.port or 0)
         self._started.set()
         loop.run_forever()
         loop.run_until_complete(self._shutdown())
@@ -74,10 +89,11 @@ class WebServer:
     async def _serve(self, key: str) -> None:
         host, port = split_listen(self.listen) or ("", 0)
         # one line per request only when debugging: Cura polls every two seconds
-        access = log if log.isEnabledFor(logging.DEBUG) else None
+        access = log if log.isEnabledFor(logging.DEBUG) else None  # with the key redacted
         # a stalled upload must not hold up the daemon's shutdown for long
         self._runner = web.AppRunner(make_app(self.backend, key), access_log=access,
-                                     handle_signals=False, shutdown_timeout=3.0)
+                                     access_log_class=AccessLog, handle_signals=False,
+                                     shutdown_timeout=3.0)
         await self._runner.setup()
         site = web.TCPSite(self._runner, host, port, reuse_address=True)
         await site.start()
@@ -91,6 +107,8 @@ class WebServer:
             await self._runner.cleanup()
 
     def stop(self) -> None:
+        if self.advertiser is not None:
+            self.advertiser.close()
         if self._loop is not None and self._loop.is_running():
             self._loop.call_soon_threadsafe(self._loop.stop)
         if self._thread is not None:
@@ -99,5 +117,8 @@ class WebServer:
     def status(self) -> dict[str, Any]:
         host = (split_listen(self.listen) or ("", 0))[0]
         shown = "127.0.0.1" if host in ("0.0.0.0", "::", "") else host
+        adv = self.advertiser
+        mdns = None if adv is None else {"name": adv.name, "addresses": adv.addresses,
+                                         "registered": adv.registered, "error": adv.error}
         return {"listen": self.listen, "port": self.port, "error": self.error,
-                "url": f"http://{shown}:{self.port}" if self.port else None}
+                "url": f"http://{shown}:{self.port}" if self.port else None, "mdns": mdns}

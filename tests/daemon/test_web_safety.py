@@ -36,7 +36,12 @@ GUARDED = [("GET", "/api/settings"), ("GET", "/api/printer"), ("GET", "/api/job"
            ("POST", "/printer/print/start"), ("GET", "/printer/info"),
            ("POST", "/api/printer/command"), ("POST", "/printer/print/pause"),
            ("POST", "/printer/print/resume"), ("POST", "/printer/print/cancel"),
-           ("GET", "/no/such/endpoint"), ("POST", "/api/version"), ("GET", "/")]
+           ("GET", "/no/such/endpoint"), ("POST", "/api/version"), ("POST", "/"),
+           # the status page's data and actions (the page itself, "/", is public)
+           ("GET", "/api/preflight/state"), ("GET", "/api/preflight/events"),
+           ("GET", "/api/preflight/jobs/1"), ("GET", "/api/preflight/jobs/1/mesh/input"),
+           ("GET", "/api/preflight/jobs/1/layers"), ("POST", "/api/preflight/jobs/1/cancel"),
+           ("GET", "/static")]
 
 
 def upload(port: int, key: str | None, name: str, data: bytes, *, path: str = "",
@@ -92,6 +97,9 @@ def test_bad_key_is_401_on_every_endpoint_and_host_does_not_matter(web_daemon):
     # the two connection-test endpoints are open
     assert request(port, "GET", "/api/version").status == 200
     assert request(port, "GET", "/server/info").status == 200
+    # and the status page with its static files: they hold no data (it reads with the key)
+    assert request(port, "GET", "/").status == 200
+    assert request(port, "GET", "/static/app.js").status == 200
     # a refused upload with Expect: 100-continue never gets to send its body
     ans = upload(port, "wrong", "a.gcode", tiny_gcode().encode())
     assert ans.status == 401 and not ans.continued
