@@ -53,9 +53,10 @@ class Replay:
         xy = np.hypot(*(self.end[:, :2] - self.start[:, :2]).T)
         return (self.de > 1e-9) & (xy > 1e-9)
 
-    def layers(self) -> dict[float, np.ndarray]:
-        """Indices of extruding moves grouped by Z (rounded to 1 µm)."""
-        ext = np.flatnonzero(self.extruding)
+    def layers(self, mask: np.ndarray | None = None) -> dict[float, np.ndarray]:
+        """Indices of extruding moves (or of the moves in ``mask``) grouped by Z (rounded to
+        1 µm)."""
+        ext = np.flatnonzero(self.extruding if mask is None else mask)
         z = np.round(self.end[ext, 2], 3)
         out: dict[float, np.ndarray] = {}
         for zz in np.unique(z):
