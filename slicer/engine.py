@@ -121,9 +121,10 @@ def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progres
     from manifold3d import CrossSection
 
     from slicer.brim import brim_paths, needs_brim
-    from slicer.support import support_paths, support_regions
+    from slicer.support import bead_area_of, support_paths, support_regions
 
-    supports = support_regions(sections, heights, profile, widths)
+    supports = support_regions(sections, heights, profile, widths,
+                               [bead_area_of(sh.thin) for sh in shells])
     report("support", 0.5)
     brim, first_area = [], sections[0]
     if needs_brim(profile, sections[0], float(tops[-1])):

@@ -22,7 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from manifold3d import CrossSection, JoinType, OpType
+from manifold3d import CrossSection, FillRule, JoinType, OpType
 
 from slicer.geometry import bead_spacing, contours, hatch
 from slicer.overhang import overhangs
@@ -54,9 +54,33 @@ def _union(parts: list[CrossSection]) -> CrossSection:
     return parts[0] if len(parts) == 1 else CrossSection.batch_boolean(parts, OpType.Add)
 
 
+def bead_area_of(paths: list[Path]) -> CrossSection:
+    """The area covered by the beads of ``paths`` (segments as rectangles, joints and ends
+    as octagons around the points, of the path's width)."""
+    if not paths:
+        return CrossSection()
+    shapes: list[np.ndarray] = []
+    ring = np.linspace(0.0, 2 * np.pi, 9)[:-1]
+    unit = np.stack([np.cos(ring), np.sin(ring)], axis=1)
+    for path in paths:
+        pts = np.vstack([path.points, path.points[:1]]) if path.closed else path.points
+        r = path.width / 2
+        d = np.diff(pts, axis=0)
+        length = np.hypot(d[:, 0], d[:, 1])
+        ok = length > 1e-9
+        nrm = np.stack([-d[ok, 1], d[ok, 0]], axis=1) / length[ok, None] * r
+        a, b = pts[:-1][ok], pts[1:][ok]
+        shapes.extend(np.stack([a - nrm, b - nrm, b + nrm, a + nrm], axis=1))
+        shapes.extend(pts[:, None, :] + unit[None] * r)
+    return CrossSection(shapes, FillRule.Positive)
+
+
 def support_regions(sections: list[CrossSection], heights: np.ndarray, profile: Profile,
-                    widths: list[float]) -> list[SupportLayer] | None:
-    """Support of every layer, or None when the model needs none (or support is off)."""
+                    widths: list[float], printed: list[CrossSection] | None = None
+                    ) -> list[SupportLayer] | None:
+    """Support of every layer, or None when the model needs none (or support is off).
+    ``printed``: per layer, part beads that stand out of the section (thin-wall ends), which
+    the support keeps its XY gap from as well."""
     p = profile
     if p.support == "off":
         return None
@@ -76,7 +100,10 @@ def support_regions(sections: list[CrossSection], heights: np.ndarray, profile: 
         if carried.is_empty():
             continue
         carried = carried - sections[i]  # the column stands on the part here
-        region = carried - sections[i].offset(p.support_xy_gap, MITER)
+        part = sections[i]
+        if printed is not None and not printed[i].is_empty():
+            part = part + printed[i]
+        region = carried - part.offset(p.support_xy_gap, MITER)
         if i > 0:
             region = region - sections[i - 1]  # Z gap above the part's top
         regions[i] = _opened(region, widths[i] / 4)

@@ -69,7 +69,7 @@ def rotated_bunny():
     from repair.pipeline import repair_mesh
 
     scan = trimesh.load(BUNNY)
-    v = np.asarray(scan.vertices) * 400.0
+    v = np.asarray(scan.vertices) * 250.0  # about 39 × 30 × 38 mm
     v = v[:, [0, 2, 1]] * [1.0, -1.0, 1.0]  # the scan's y is up
     tip = trimesh.transformations.rotation_matrix(math.radians(-20), [0, 1, 0])[:3, :3]
     repaired = repair_mesh(v @ tip.T, np.asarray(scan.faces))
