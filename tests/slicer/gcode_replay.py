@@ -14,7 +14,6 @@ import numpy as np
 
 from printer.gcode import lex
 
-
 SUPPORT = ("Support material", "Support material interface")
 NOT_PART = (*SUPPORT, "Skirt/Brim")
 

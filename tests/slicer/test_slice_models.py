@@ -22,7 +22,6 @@ from slice_checks import (
     sphere,
     thin_pin,
 )
-
 from support_checks import arch, mushroom, ramp, t_bracket
 
 from slicer.engine import slice_mesh
