@@ -139,6 +139,7 @@ def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progres
     bodies: list[str] = []
     seconds: list[float] = []
     filament = support_mm = support_s = 0.0
+    support_cache: dict = {}
     for i in range(n):
         sh = shells[i]
         h = float(heights[i])
@@ -148,7 +149,7 @@ def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progres
         if i == 0:
             paths.extend(brim)
         if supports is not None:
-            paths.extend(support_paths(supports[i], profile, widths[i], h))
+            paths.extend(support_paths(supports[i], profile, widths[i], h, support_cache))
             supports[i] = None
         paths.extend(sh.loops)
         paths.extend(sh.thin)

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from manifold3d import CrossSection, FillRule, JoinType, OpType
 
-from slicer.geometry import bead_spacing, contours, hatch
+from slicer.geometry import bead_spacing, contours, hatch, points_inside
 from slicer.overhang import overhangs
 from slicer.planner import Path
 from slicer.profile import Profile
@@ -136,9 +136,11 @@ def _opened(region: CrossSection, r: float) -> CrossSection:
     return shrunk if shrunk.is_empty() else shrunk.offset(r, MITER) ^ region
 
 
-def support_paths(layer: SupportLayer, profile: Profile, width: float, height: float
-                  ) -> list[Path]:
-    """Outline loops and lines of one layer's support (base and interface)."""
+def support_paths(layer: SupportLayer, profile: Profile, width: float, height: float,
+                  cache: dict | None = None) -> list[Path]:
+    """Outline loops and lines of one layer's support (base and interface). Columns repeat
+    from layer to layer: with a ``cache`` (one dict per job), a region identical to one
+    seen before reuses its paths (they are never modified downstream)."""
     s = bead_spacing(width, height)
     out: list[Path] = []
     for region, role, spacing, angle in (
@@ -147,13 +149,52 @@ def support_paths(layer: SupportLayer, profile: Profile, width: float, height: f
              BASE_ANGLE + 90.0)):
         if region.is_empty():
             continue
-        ring = region.offset(-s / 2, MITER).simplify(profile.resolution)
-        if ring.is_empty():
-            continue
-        out.extend(Path(q, True, width, role) for q in contours(ring))
-        core = ring.offset(-s / 2, MITER)  # lines end on the outline's inner edge
-        if core.is_empty():
-            continue
-        segs = hatch(contours(core), angle, max(spacing, s), 0.0, s)
-        out.extend(Path(seg, False, width, role) for seg in segs)
+        key = None
+        if cache is not None:
+            key = (role, width, height,
+                   hash(tuple(np.asarray(q).tobytes() for q in region.to_polygons())))
+            if key in cache:
+                out.extend(cache[key])
+                continue
+        paths = _region_paths(region, role, spacing, angle, width, s, profile.resolution)
+        if key is not None:
+            if len(cache) > 64:
+                cache.clear()
+            cache[key] = paths
+        out.extend(paths)
     return out
+
+
+def _region_paths(region: CrossSection, role: str, spacing: float, angle: float,
+                  width: float, s: float, resolution: float) -> list[Path]:
+    ring = region.offset(-s / 2, MITER).simplify(resolution)
+    if ring.is_empty():
+        return []
+    out = [Path(q, True, width, role) for q in contours(ring)]
+    core = ring.offset(-s / 2, MITER)  # lines end on the outline's inner edge
+    if core.is_empty():
+        return out
+    segs = hatch(contours(core), angle, max(spacing, s), 0.0, s)
+    out.extend(Path(line, False, width, role)
+               for line in zigzag(segs, contours(ring), max(spacing, s)))
+    return out
+
+
+def zigzag(segs: np.ndarray, region: list[np.ndarray], spacing: float) -> list[np.ndarray]:
+    """Join serpentine hatch segments (k, 2, 2) into polylines where the step from one
+    segment's end to the next one's start is short (≤ 2 spacings) and stays inside
+    ``region``: fewer, longer paths, fewer travels and retractions."""
+    if len(segs) == 0:
+        return []
+    a, b = segs[:-1, 1], segs[1:, 0]
+    step = np.hypot(*(b - a).T)
+    ok = step <= 2.0 * spacing
+    idx = np.flatnonzero(ok)
+    if len(idx):
+        t = np.array([0.25, 0.5, 0.75])
+        probe = a[idx, None, :] + (b[idx] - a[idx])[:, None, :] * t[None, :, None]
+        inside = points_inside(region, probe.reshape(-1, 2)).reshape(len(idx), 3)
+        ok[idx] = inside.all(axis=1)
+    pts = segs.reshape(-1, 2)
+    breaks = 2 * (np.flatnonzero(~ok) + 1)
+    return np.split(pts, breaks)
