@@ -34,14 +34,23 @@ def unsupported(section: CrossSection, below: CrossSection, reach: float) -> Cro
 
 def anchored_share(piece: CrossSection, below: CrossSection, spacing: float) -> float:
     """Largest share (0..1), over the candidate directions, of line length across ``piece``
-    whose two ends, one ``spacing`` beyond the piece, both land on ``below``."""
+    whose two ends, one ``spacing`` beyond the piece, both land on ``below``. Test lines are
+    at least 1/16 of the piece's size apart; only the part of ``below`` near the piece is
+    looked at. Stops early once a direction reaches ``BRIDGE_ANCHORED``."""
     polys = contours(piece)
-    support = contours(below)
-    if not polys or not support:
+    if not polys:
         return 0.0
+    pts = np.concatenate(polys)
+    lo, hi = pts.min(axis=0) - 2 * spacing, pts.max(axis=0) + 2 * spacing
+    window = CrossSection.square((float(hi[0] - lo[0]), float(hi[1] - lo[1]))).translate(
+        (float(lo[0]), float(lo[1])))
+    support = contours(below ^ window)
+    if not support:
+        return 0.0
+    step = max(spacing, float(np.max(hi - lo)) / 16.0)
     best = 0.0
     for ang in BRIDGE_ANGLES:
-        segs = hatch(polys, ang, spacing)
+        segs = hatch(polys, ang, step)
         if len(segs) == 0:
             continue
         d = segs[:, 1] - segs[:, 0]
@@ -52,6 +61,8 @@ def anchored_share(piece: CrossSection, below: CrossSection, spacing: float) -> 
         k = len(segs)
         share = float(length[inside[:k] & inside[k:]].sum() / length.sum())
         best = max(best, share)
+        if best >= BRIDGE_ANCHORED:
+            break
     return best
 
 
@@ -67,14 +78,19 @@ def needs_support(section: CrossSection, below: CrossSection, height: float, ang
         area = piece.area()
         if area < max(min_area, 1e-4):
             continue
-        # a piece a line or more wide in both directions might be a bridge; slivers are not
-        if area >= 4 * spacing * spacing and not below.is_empty() \
+        # a piece two lines or more wide (mean width 2·area / perimeter) might be a bridge;
+        # slivers along a sloping wall are not
+        if not below.is_empty() and 2 * area / _perimeter(piece) >= 2 * spacing \
                 and anchored_share(piece, below, spacing) >= BRIDGE_ANCHORED:
             continue
         keep.append(piece)
     if not keep:
         return CrossSection()
     return CrossSection.compose(keep)
+
+
+def _perimeter(cs: CrossSection) -> float:
+    return float(sum(np.hypot(*(np.roll(q, -1, axis=0) - q).T).sum() for q in contours(cs)))
 
 
 def overhangs(sections: list[CrossSection], heights: np.ndarray, angle: float,
