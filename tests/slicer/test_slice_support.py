@@ -195,3 +195,22 @@ def test_rotated_bunny_chin_is_supported():
     share_auto, _ = unsupported_share(auto[3], auto[0], auto[1].line_width)
     assert share_auto <= 0.01 and share_auto <= 0.2 * share_off
     assert support_clearance(auto[3], auto[1].filament_diameter) >= auto[1].support_xy_gap - 0.03
+
+
+def test_the_job_report_gives_support_volume_and_time():
+    from daemon.journal import Job
+    from daemon.report import report_text
+    from daemon.states import JobState
+
+    _, _, result, _ = _slice("mushroom", mushroom, support="auto")
+    job = Job(id=1, name="mushroom.stl", source_name="mushroom.stl", kind="mesh",
+              state=JobState.DONE, created=0.0, updated=0.0, work_dir=None, input_path=None,
+              repaired_path=None, gcode_path=None, epsilon=0.4, epsilon_source="printer",
+              printer_info=None, repair_report=None, slice_summary=result.summary,
+              print_result=None, reason=None, attempts=1, print_requested=True, progress=None,
+              outputs=None)
+    text = report_text(job, [])
+    line = next(ln for ln in text.splitlines() if ln.strip().startswith("support "))
+    assert f"{result.summary['support_cm3']:.3g} cm3" in line
+    minutes = int(result.summary["support_seconds"] // 60)
+    assert f"{minutes}m" in line
