@@ -3,7 +3,9 @@
 ``slice_mesh`` places the model (dropped onto z = 0, centred on the bed), slices it with
 manifold3d at mid-layer heights, plans shells/skins/infill per layer, orders travels and emits
 G-code with M73 progress. ``summary`` holds layers, filament_mm, filament_cm3, filament_g and
-estimated_seconds (trapezoidal motion estimate; heating time is not included).
+estimated_seconds (trapezoidal motion estimate; heating time is not included), plus support
+("off", "none needed" or the mode used), support_cm3, support_seconds and brim. Support
+(slicer.support, slicer.overhang) and the brim (slicer.brim) are planned before the layers.
 """
 
 from __future__ import annotations
