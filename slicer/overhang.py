@@ -50,20 +50,27 @@ def anchored_share(piece: CrossSection, below: CrossSection, spacing: float) -> 
     step = max(spacing, float(np.max(hi - lo)) / 16.0)
     best = 0.0
     for ang in BRIDGE_ANGLES:
-        segs = hatch(polys, ang, step)
-        if len(segs) == 0:
-            continue
-        d = segs[:, 1] - segs[:, 0]
-        length = np.hypot(d[:, 0], d[:, 1])
-        u = d / np.maximum(length, 1e-12)[:, None]
-        ends = np.concatenate([segs[:, 0] - u * spacing, segs[:, 1] + u * spacing])
-        inside = points_inside(support, ends)
-        k = len(segs)
-        share = float(length[inside[:k] & inside[k:]].sum() / length.sum())
-        best = max(best, share)
+        best = max(best, line_anchoring(polys, support, ang, step, spacing))
         if best >= BRIDGE_ANCHORED:
             break
     return best
+
+
+def line_anchoring(polys: list[np.ndarray], support: list[np.ndarray], angle: float,
+                   step: float, reach: float) -> float:
+    """Share (0..1) of the length of lines at ``angle`` degrees, ``step`` mm apart, across
+    ``polys`` whose two ends, ``reach`` mm beyond them, both land inside ``support``
+    (-1 when no line crosses ``polys``)."""
+    segs = hatch(polys, angle, step)
+    if len(segs) == 0:
+        return -1.0
+    d = segs[:, 1] - segs[:, 0]
+    length = np.hypot(d[:, 0], d[:, 1])
+    u = d / np.maximum(length, 1e-12)[:, None]
+    ends = np.concatenate([segs[:, 0] - u * reach, segs[:, 1] + u * reach])
+    inside = points_inside(support, ends)
+    k = len(segs)
+    return float(length[inside[:k] & inside[k:]].sum() / length.sum())
 
 
 def needs_support(section: CrossSection, below: CrossSection, height: float, angle: float,

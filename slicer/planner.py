@@ -16,7 +16,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from manifold3d import CrossSection, JoinType, OpType
 
-from slicer.geometry import bead_spacing, contours, hatch, points_inside
+from slicer.geometry import bead_spacing, contours, hatch
+from slicer.overhang import BRIDGE_ANGLES, line_anchoring
 from slicer.profile import Profile
 
 MITER = JoinType.Miter
@@ -269,20 +270,10 @@ def bridge_angle(bridge: CrossSection, below: CrossSection, spacing: float) -> f
     polys = contours(bridge)
     support = contours(below)
     best, best_score = 0.0, -1.0
-    for ang in range(0, 180, 15):
-        segs = hatch(polys, float(ang), spacing)
-        if len(segs) == 0:
-            continue
-        d = segs[:, 1] - segs[:, 0]
-        length = np.hypot(d[:, 0], d[:, 1])
-        u = d / np.maximum(length, 1e-12)[:, None]
-        ends = np.concatenate([segs[:, 0] - u * spacing, segs[:, 1] + u * spacing])
-        inside = points_inside(support, ends)
-        k = len(segs)
-        anchored = inside[:k] & inside[k:]
-        score = float(length[anchored].sum() / length.sum())
-        if score > best_score + 1e-9:
-            best, best_score = float(ang), score
+    for ang in BRIDGE_ANGLES:
+        score = line_anchoring(polys, support, ang, spacing, spacing)
+        if score >= 0 and score > best_score + 1e-9:
+            best, best_score = ang, score
     return best
 
 
