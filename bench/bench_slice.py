@@ -1,6 +1,10 @@
 """Slicing benchmark: time and peak memory of the embedded slicer, side by side with
 prusa-slicer / CuraEngine when installed, on a 20 mm cube, an 82k-triangle sphere
-(trimesh icosphere, subdivisions=6, 40 mm) and a 100k-triangle torus.
+(trimesh icosphere, subdivisions=6, 40 mm), a 100k-triangle torus, and two models that need
+support: a mushroom (a 50 mm cap on a 16 mm stem) and the corpus bunny (repaired, 62 mm,
+tipped 20° forward so its chin overhangs). Every slicer runs with the default profile, so
+support is on where needed (PrusaSlicer: automatic support, the same angle, gaps, spacing
+and interface layers); "support cm3" is the filament under ``;TYPE:Support material*``.
 
 Run: .venv/bin/python bench/bench_slice.py [--repeat N]
 
@@ -61,12 +65,64 @@ def _make_models(folder: Path) -> dict[str, tuple[Path, float, int]]:
         "torus 100k": trimesh.creation.torus(major_radius=30.0, minor_radius=10.0,
                                              major_sections=250, minor_sections=200),
     }
+    models.update(_support_models())
     out = {}
     for name, mesh in models.items():
         path = folder / (name.split()[0] + ".stl")
         mesh.export(path)
         out[name] = (path, float(mesh.volume), len(mesh.faces))
     return out
+
+
+def _support_models() -> dict:
+    """The mushroom and, when the corpus is there, the repaired bunny tipped forward."""
+    import math
+
+    import numpy as np
+    import trimesh
+    from manifold3d import Manifold
+
+    mush = Manifold.cylinder(30, 8, 8, 64) + Manifold.cylinder(8, 25, 25, 192).translate(
+        [0, 0, 30])
+    mesh = mush.to_mesh()
+    out = {"mushroom": trimesh.Trimesh(mesh.vert_properties[:, :3], mesh.tri_verts)}
+    bunny = ROOT.parent / "shared" / "corpus" / "mikedh_bunny.ply"
+    if bunny.is_file():
+        from repair.pipeline import repair_mesh
+
+        scan = trimesh.load(bunny)
+        v = (np.asarray(scan.vertices) * 400.0)[:, [0, 2, 1]] * [1.0, -1.0, 1.0]
+        tip = trimesh.transformations.rotation_matrix(math.radians(-20), [0, 1, 0])[:3, :3]
+        fixed = repair_mesh(v @ tip.T, np.asarray(scan.faces))
+        out["bunny chin"] = trimesh.Trimesh(fixed.vertices, fixed.faces)
+    return out
+
+
+def support_cm3(gcode: Path, filament_diameter: float) -> float:
+    """Filament (cm³) extruded under PrusaSlicer-style ``;TYPE:Support material*`` labels."""
+    import math
+
+    from printer.gcode import lex
+
+    total, in_support, absolute, last_e = 0.0, False, False, 0.0
+    with open(gcode, errors="replace") as fh:
+        for raw in fh:
+            if raw.startswith(";TYPE:"):
+                in_support = raw.startswith(";TYPE:Support material")
+                continue
+            line = lex(raw)
+            if line.word in ("M82", "M83"):
+                absolute = line.word == "M82"
+            elif line.word == "G92":
+                last_e = line.value("E", last_e)
+            elif line.word in ("G0", "G1") and line.value("E") is not None:
+                e = line.value("E")
+                de = e - last_e if absolute else e
+                last_e = e if absolute else last_e
+                if in_support and de > 0 and (line.value("X") is not None
+                                              or line.value("Y") is not None):
+                    total += de
+    return total * math.pi * (filament_diameter / 2) ** 2 / 1000.0
 
 
 def run_child(cmd: list[str], env: dict | None = None) -> tuple[float, float, int, str, str]:
@@ -121,9 +177,10 @@ def _summary_in_child(gcode: Path, overrides: dict) -> dict:
     code = ("import json, sys; from pathlib import Path; from slicer.adapters import "
             "gcode_summary; from slicer.profile import Profile; p = Profile.for_printer()"
             ".with_overrides(json.loads(sys.argv[2])); print(json.dumps(gcode_summary("
-            "Path(sys.argv[1]).read_text(errors='replace'), p)))")
+            "Path(sys.argv[1]).read_text(errors='replace'), p) | {'support_cm3': "
+            "__import__('bench_slice').support_cm3(Path(sys.argv[1]), p.filament_diameter)}))")
     _, _, rc, out, err = run_child([sys.executable, "-c", code, str(gcode), json.dumps(overrides)],
-                                   env=dict(os.environ, PYTHONPATH=str(ROOT)))
+                                   env=dict(os.environ, PYTHONPATH=f"{ROOT}:{ROOT / 'bench'}"))
     if rc != 0:
         raise SystemExit(f"cannot read {gcode}: {err.strip()}")
     return json.loads(out.strip().splitlines()[-1])
@@ -165,6 +222,8 @@ def clip_comparison() -> str:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3, help="runs per case; best time is shown")
+    ap.add_argument("--only", metavar="NAMES",
+                    help="comma-separated model name prefixes to run (e.g. mushroom,bunny)")
     ap.add_argument("--make-models", metavar="DIR", help=argparse.SUPPRESS)  # helper child
     args = ap.parse_args()
     if args.make_models:
@@ -182,9 +241,13 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         models = make_models(folder)
+        if args.only:
+            wanted = tuple(w.strip() for w in args.only.split(",") if w.strip())
+            models = {k: v for k, v in models.items() if k.startswith(wanted)}
         print()
         print(f"{'model':12s} {'tris':>7s} {'slicer':9s} {'slice s':>8s} {'wall s':>8s} "
-              f"{'peak MB':>8s} {'layers':>6s} {'filament m':>10s} {'est. min':>8s}")
+              f"{'peak MB':>8s} {'layers':>6s} {'filament m':>10s} {'est. min':>8s} "
+              f"{'support cm3':>11s}")
         results: dict[tuple[str, str], dict] = {}
         for mname, (stl, _vol, tris) in models.items():
             for tool in tools:
@@ -209,7 +272,8 @@ def main() -> int:
                       f"{best['slice_s'] if best['slice_s'] is not None else float('nan'):8.3f} "
                       f"{best['wall_s']:8.3f} {best['peak_mb']:8.1f} {s['layers']:6d} "
                       f"{s['filament_mm'] / 1000:10.3f} "
-                      f"{(est / 60 if est else float('nan')):8.1f}")
+                      f"{(est / 60 if est else float('nan')):8.1f} "
+                      f"{s.get('support_cm3', float('nan')):11.2f}")
         print()
         print("ratios (external wall time ÷ embedded time):")
         for mname in models:
@@ -222,7 +286,16 @@ def main() -> int:
                     print(f"  {mname:12s} {tool:6s}: {ext['wall_s'] / emb['slice_s']:5.2f}x vs "
                           f"slice, {ext['wall_s'] / emb['wall_s']:5.2f}x vs embedded wall")
         print()
+        print("embedded ÷ prusa-slicer, whole processes (wall time; target ≤ 0.5):")
+        for mname in models:
+            emb, ext = results.get((mname, "embedded")), results.get((mname, "prusa"))
+            if emb and ext and "error" not in emb and "error" not in ext:
+                print(f"  {mname:12s} {emb['wall_s'] / ext['wall_s']:5.2f}  "
+                      f"(peak {emb['peak_mb']:.0f} MB vs {ext['peak_mb']:.0f} MB)")
+        print()
         print("volume accuracy, sphere at 100 % infill (extruded ÷ mesh volume):")
+        if "sphere 82k" not in models:
+            return 0
         stl, vol, _ = models["sphere 82k"]
         over = {"infill_percent": 100, "skirts": 0}
         for tool in tools:

@@ -318,6 +318,8 @@ EXAMPLE_PROFILE = """\
 [profile]
 # Any slicer profile setting (see `preflight slice --help`), e.g.:
 # infill_percent = 15
+# support = "auto"    # auto (where needed) | buildplate | everywhere | off
+# brim = "auto"       # auto (tall parts on a small footprint) | on | off; brim_width = 5.0
 """
 
 COMMENT_COLUMN = 34

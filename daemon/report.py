@@ -78,6 +78,10 @@ def report_text(job: Job, history: list[dict[str, Any]]) -> str:
                      f"{_number(sliced.get('filament_mm'), 1000, 'm')} "
                      f"({_number(sliced.get('filament_g'))} g), "
                      f"estimated {_duration(sliced.get('estimated_seconds'))}")
+        if sliced.get("support_cm3") or sliced.get("brim"):
+            lines.append(f"  support {_number(sliced.get('support_cm3'))} cm3, "
+                         f"{_duration(sliced.get('support_seconds'))} of the print"
+                         + (", with a brim" if sliced.get("brim") else ""))
     printed = job.print_result
     if printed:
         lines.append(f"Print: {printed.get('acked_lines', '?')} of "

@@ -131,6 +131,33 @@ def prusa_args(profile: Profile) -> list[str]:
         args += [f"--{k}", _num(v) if isinstance(v, float) else str(v)]
     for k, on in flags.items():
         args.append(f"--{k}" if on else f"--no-{k}")
+    return args + prusa_support_args(p)
+
+
+def prusa_support_args(profile: Profile) -> list[str]:
+    """PrusaSlicer options for the profile's support and brim settings. PrusaSlicer's
+    threshold is measured from the horizontal; it has no automatic brim, so ``brim = auto``
+    maps to none."""
+    p = profile
+    args = ["--brim-width", _num(p.brim_width if p.brim == "on" else 0.0)]
+    if p.support == "off":
+        return args + ["--no-support-material"]
+    opts = {
+        "support-material-threshold": 90.0 - p.support_angle,
+        "support-material-contact-distance": p.layer_height,
+        "support-material-xy-spacing": p.support_xy_gap,
+        "support-material-spacing": p.support_spacing,
+        "support-material-interface-layers": p.support_interface_layers,
+        "support-material-interface-spacing": max(p.support_interface_spacing - p.line_width,
+                                                  0.0),
+        "support-material-speed": p.support_speed,
+        "support-material-interface-speed": p.support_interface_speed,
+    }
+    args += ["--support-material", "--support-material-auto"]
+    if p.support == "buildplate":
+        args.append("--support-material-buildplate-only")
+    for k, v in opts.items():
+        args += [f"--{k}", _num(float(v))]
     return args
 
 

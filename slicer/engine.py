@@ -3,7 +3,9 @@
 ``slice_mesh`` places the model (dropped onto z = 0, centred on the bed), slices it with
 manifold3d at mid-layer heights, plans shells/skins/infill per layer, orders travels and emits
 G-code with M73 progress. ``summary`` holds layers, filament_mm, filament_cm3, filament_g and
-estimated_seconds (trapezoidal motion estimate; heating time is not included).
+estimated_seconds (trapezoidal motion estimate; heating time is not included), plus support
+("off", "none needed" or the mode used), support_cm3, support_seconds and brim. Support
+(slicer.support, slicer.overhang) and the brim (slicer.brim) are planned before the layers.
 """
 
 from __future__ import annotations
@@ -118,35 +120,58 @@ def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progres
     solids = skin_regions([s.inner for s in shells], sections, profile.top_layers,
                           profile.bottom_layers, spacing, profile.infill_percent >= 100)
     report("skins", 0.45)
+    from manifold3d import CrossSection
+
+    from slicer.brim import brim_paths, needs_brim
+    from slicer.support import bead_area_of, support_paths, support_regions
+
+    supports = support_regions(sections, heights, profile, widths,
+                               [bead_area_of(sh.thin) for sh in shells])
+    report("support", 0.5)
+    brim, first_area = [], sections[0]
+    if needs_brim(profile, sections[0], float(tops[-1])):
+        brim, covered = brim_paths(profile, sections[0], widths[0], float(heights[0]))
+        first_area = first_area + covered
+    if supports is not None:
+        first_area = first_area + supports[0].area()
 
     # plan, order and write one layer at a time, so only one layer's paths exist at once
     writer = GcodeWriter(profile)
     pos = np.array([0.0, 0.0])
     bodies: list[str] = []
     seconds: list[float] = []
-    filament = 0.0
+    filament = support_mm = support_s = 0.0
+    support_cache: dict = {}
     for i in range(n):
         sh = shells[i]
         h = float(heights[i])
         paths = []
         if i < profile.skirt_height:
-            paths.extend(skirt_paths(profile, sections[0], widths[i], h))
+            paths.extend(skirt_paths(profile, first_area, widths[i], h))
+        if i == 0:
+            paths.extend(brim)
+        if supports is not None:
+            paths.extend(support_paths(supports[i], profile, widths[i], h, support_cache))
+            supports[i] = None
         paths.extend(sh.loops)
         paths.extend(sh.thin)
         paths.extend(infill_paths(profile, i, sh.inner, solids[i], widths[i], h,
-                                  sections[i - 1] if i > 0 else None))
+                                  sections[i - 1] if i > 0 else None,
+                                  sections[i + 1] if i + 1 < n else CrossSection()))
         plan = LayerPlan(i, float(tops[i]), h, paths, geo.contours(sections[i]))
         ordered, _ = order_paths(plan.paths, pos, profile.seam_position)
         code = writer.layer(plan, ordered, pos)
         bodies.append(code.text)
         seconds.append(code.seconds + 0.1)  # Z move and layer change
         filament += code.filament_mm
+        support_mm += code.support_mm
+        support_s += code.support_seconds
         pos = code.end_pos
         shells[i] = solids[i] = None  # free as we go
         if i > 0:
             sections[i - 1] = None  # (section 0 stays: the skirt follows it)
-        report("gcode", 0.45 + i / n * 0.55)
-    del shells, solids, sections
+        report("gcode", 0.5 + i / n * 0.5)
+    del shells, solids, sections, first_area
     if filament <= 0:
         raise SliceError("nothing to print: the model produced no extrusions")
 
@@ -162,6 +187,11 @@ def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progres
         "height_mm": round(float(tops[-1]), 3),
         "size_mm": [round(float(s), 3) for s in size],
         "slicer": "embedded",
+        "support": profile.support if supports is not None else "none needed"
+        if profile.support != "off" else "off",
+        "support_cm3": round(support_mm * p.filament_area / 1000.0, 3),
+        "support_seconds": round(support_s, 1),
+        "brim": bool(brim),
     }
     parts: list[str] = []
     if p.comments:

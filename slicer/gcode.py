@@ -19,6 +19,17 @@ from slicer.planner import LayerPlan, Path
 from slicer.profile import Profile
 from slicer.templates import render_template
 
+#: PrusaSlicer's ``;TYPE:`` names for the planner's path roles (G-code viewers read them)
+FEATURE_LABELS = {
+    "external_perimeter": "External perimeter", "perimeter": "Perimeter",
+    "thin_wall": "External perimeter", "sparse_infill": "Internal infill",
+    "solid_infill": "Solid infill", "top_solid_infill": "Top solid infill",
+    "bridge_infill": "Bridge infill", "support": "Support material",
+    "support_interface": "Support material interface", "skirt": "Skirt/Brim",
+    "brim": "Skirt/Brim",
+}
+SUPPORT_ROLES = ("support", "support_interface")
+
 
 def trapezoid_time(pts: np.ndarray, speed: np.ndarray, accel: np.ndarray, jerk: float) -> float:
     """Seconds to run the XY polyline ``pts`` (n, 2) whose moves have cruise ``speed`` (n-1,)
@@ -56,6 +67,8 @@ class LayerCode:
     seconds: float
     filament_mm: float
     end_pos: np.ndarray
+    support_mm: float = 0.0  # filament of support lines
+    support_seconds: float = 0.0  # their share of ``seconds`` (by cruise time)
 
 
 class GcodeWriter:
@@ -70,9 +83,12 @@ class GcodeWriter:
     # ---- per-role settings -------------------------------------------------------------
     def speed(self, role: str, first_layer: bool) -> float:
         p = self.p
-        if first_layer or role == "skirt":
+        if first_layer or role in ("skirt", "brim"):
             return p.first_layer_speed
         return {
+            "support": p.support_speed,
+            "support_interface": p.support_interface_speed,
+            "top_solid_infill": p.solid_infill_speed,
             "external_perimeter": p.external_perimeter_speed,
             "perimeter": p.perimeter_speed,
             "thin_wall": p.thin_wall_speed,
@@ -83,6 +99,12 @@ class GcodeWriter:
 
     def e_per_mm(self, width: float, height: float) -> float:
         return bead_area(width, height) / self.p.filament_area * self.p.extrusion_multiplier
+
+    def flow(self, role: str) -> float:
+        """Per-role extrusion multiplier on top of the profile's (bridges, support)."""
+        if role == "bridge_infill":
+            return self.p.bridge_flow
+        return self.p.support_flow if role in SUPPORT_ROLES else 1.0
 
     # ---- text pieces -------------------------------------------------------------------
     def _e_move(self, delta: float, feed: float) -> str:
@@ -116,7 +138,7 @@ class GcodeWriter:
         begins = ends - counts
         npaths = len(ordered)
         speeds = np.array([self.speed(o[1].role, first) for o in ordered])
-        epm = np.array([self.e_per_mm(o[1].width, h) for o in ordered])
+        epm = np.array([self.e_per_mm(o[1].width, h) * self.flow(o[1].role) for o in ordered])
 
         # travels into each path and whether they retract
         prev = np.vstack([pos[None], pts[ends[:-1] - 1]])
@@ -175,6 +197,12 @@ class GcodeWriter:
             floor = np.minimum(speeds, p.min_print_speed)
             speeds = np.maximum(speeds * (seconds / p.min_layer_time), floor)
             seconds = layer_seconds(speeds)
+        is_support = np.array([o[1].role in SUPPORT_ROLES for o in ordered])
+        support_mm = support_s = 0.0
+        if is_support.any():
+            support_mm = float(e[is_support[kpath]].sum())
+            cruise = np.bincount(kpath, seglen[kept], minlength=npaths) / speeds
+            support_s = seconds * float(cruise[is_support].sum() / max(cruise.sum(), 1e-12))
 
         travel_f = p.travel_speed * 60.0
         r_feed = p.retract_speed * 60.0
@@ -186,6 +214,7 @@ class GcodeWriter:
         # bridges get their own fan speed; the layer's own is restored after them
         normal_fan = p.fan_speed if plan.index >= p.disable_fan_first_layers else 0.0
         in_bridge = False
+        label = ""
         for i in range(npaths):
             m = int(m_per_path[i])
             if moving[i] and m:
@@ -215,6 +244,10 @@ class GcodeWriter:
             if is_bridge != in_bridge and p.bridge_fan_speed != normal_fan:
                 fmt.append(fan_command(p.bridge_fan_speed if is_bridge else normal_fan))
             in_bridge = is_bridge
+            name = FEATURE_LABELS.get(ordered[i][1].role, "")
+            if name != label:
+                fmt.append(";TYPE:" + name.replace("%", "%%") + "\n")
+                label = name
             f = float(speeds[i]) * 60.0
             if f != feed:
                 fmt.append("G1 F%.0f\n")
@@ -230,7 +263,7 @@ class GcodeWriter:
         self.e_abs = e_abs
         text = "".join(fmt) % tuple(vals)
 
-        return LayerCode(text, seconds, filament, pts[-1].copy())
+        return LayerCode(text, seconds, filament, pts[-1].copy(), support_mm, support_s)
 
 
 _HEAT_WAIT = re.compile(r"^\s*M109\b", re.MULTILINE | re.IGNORECASE)

@@ -10,8 +10,9 @@ import numpy as np
 
 from slicer.planner import Path
 
-ROLE_ORDER = ("skirt", "perimeter", "external_perimeter", "thin_wall", "bridge_infill",
-              "solid_infill", "sparse_infill")
+ROLE_ORDER = ("skirt", "brim", "support", "support_interface", "perimeter",
+              "external_perimeter", "thin_wall", "bridge_infill", "solid_infill",
+              "top_solid_infill", "sparse_infill")
 
 
 def _nearest_neighbour(

@@ -16,7 +16,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from manifold3d import CrossSection, JoinType, OpType
 
-from slicer.geometry import bead_spacing, contours, hatch, points_inside
+from slicer.geometry import bead_spacing, contours, hatch
+from slicer.overhang import BRIDGE_ANGLES, line_anchoring
 from slicer.profile import Profile
 
 MITER = JoinType.Miter
@@ -195,6 +196,8 @@ def plan_shells(
         inner = centre.offset(-half, MITER)
         ok = inner.offset(half, MITER) if not inner.is_empty() else inner
         if not ok.is_empty():
+            ok = ok ^ centre  # a miter re-grown at a sharp corner may poke out of the centre
+        if not ok.is_empty():
             ok = ok.simplify(resolution)
             loops.extend(_loops(ok, width, "external_perimeter" if k == 0 else "perimeter"))
             covered = ok.offset(half, MITER)
@@ -267,20 +270,10 @@ def bridge_angle(bridge: CrossSection, below: CrossSection, spacing: float) -> f
     polys = contours(bridge)
     support = contours(below)
     best, best_score = 0.0, -1.0
-    for ang in range(0, 180, 15):
-        segs = hatch(polys, float(ang), spacing)
-        if len(segs) == 0:
-            continue
-        d = segs[:, 1] - segs[:, 0]
-        length = np.hypot(d[:, 0], d[:, 1])
-        u = d / np.maximum(length, 1e-12)[:, None]
-        ends = np.concatenate([segs[:, 0] - u * spacing, segs[:, 1] + u * spacing])
-        inside = points_inside(support, ends)
-        k = len(segs)
-        anchored = inside[:k] & inside[k:]
-        score = float(length[anchored].sum() / length.sum())
-        if score > best_score + 1e-9:
-            best, best_score = float(ang), score
+    for ang in BRIDGE_ANGLES:
+        score = line_anchoring(polys, support, ang, spacing, spacing)
+        if score >= 0 and score > best_score + 1e-9:
+            best, best_score = ang, score
     return best
 
 
@@ -299,9 +292,12 @@ def _hatch_paths(region: CrossSection, angles: list[float], spacing: float, widt
 def infill_paths(
     profile: Profile, layer_index: int, region: CrossSection, solid: CrossSection,
     width: float, height: float, below: CrossSection | None = None,
+    above: CrossSection | None = None,
 ) -> list[Path]:
     """Bridges (solid skin over air, lines anchored across the gap), solid infill (100 %,
-    alternating ±angle) and sparse infill (rectilinear/grid at infill_percent)."""
+    alternating ±angle) and sparse infill (rectilinear/grid at infill_percent). Given the
+    layer ``above`` (empty on the last layer), solid skin it does not cover is labelled
+    top solid infill (the same lines, their own role)."""
     s = bead_spacing(width, height)
     base = profile.infill_angle
     alt = base if layer_index % 2 == 0 else base + 90.0
@@ -315,6 +311,10 @@ def infill_paths(
         out += _hatch_paths(bridge, [angle], s, width, "bridge_infill", 0.25 * s)
         solid = solid - bridge
         taken = taken + bridge
+    if above is not None and not solid.is_empty():
+        top = solid - above if not above.is_empty() else solid
+        out += _hatch_paths(top, [alt], s, width, "top_solid_infill", 0.25 * s)
+        solid = solid - top
     out += _hatch_paths(solid, [alt], s, width, "solid_infill", 0.25 * s)
     pct = profile.infill_percent
     if pct <= 0 or region.is_empty():

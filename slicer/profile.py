@@ -21,6 +21,14 @@ from printer.firmware import SLICER_FLAVOURS, slicer_flavour
 FLAVOURS = SLICER_FLAVOURS
 INFILL_PATTERNS = ("rectilinear", "grid")
 SEAM_POSITIONS = ("rear", "nearest")
+#: auto: support where an overhang needs it (steeper than support_angle, not a bridge, at
+#: least support_min_area), standing on the build plate and, where the plate cannot be
+#: reached (a chin over a paw), on the part; buildplate: only columns that reach the plate;
+#: everywhere: like auto, small overhang islands included; off: none.
+SUPPORT_MODES = ("auto", "buildplate", "everywhere", "off")
+#: auto: a brim when the first layer's contact is small against the part's height (see
+#: slicer.brim.needs_brim); on: always; off: never.
+BRIM_MODES = ("auto", "on", "off")
 
 DEFAULT_START_GCODE = """\
 M140 S{first_layer_bed_temperature:.0f} ; bed
@@ -98,6 +106,21 @@ class Profile:
     min_layer_time: float = 5.0
     bridge_fan_speed: float = 100.0
     min_print_speed: float = 10.0
+    bridge_flow: float = 1.0  # extrusion multiplier of bridge lines, relative
+    # support (slicer.support); angles from vertical, gaps mm
+    support: str = "auto"
+    support_angle: float = 50.0
+    support_xy_gap: float = 0.4
+    support_spacing: float = 2.0
+    support_interface_layers: int = 2
+    support_interface_spacing: float = 0.6
+    support_speed: float = 50.0
+    support_interface_speed: float = 30.0
+    support_flow: float = 1.0  # extrusion multiplier of support lines, relative
+    support_min_area: float = 1.0  # mm²; auto leaves smaller overhang islands alone
+    # adhesion
+    brim: str = "auto"
+    brim_width: float = 5.0
     # skirt
     skirts: int = 1
     skirt_distance: float = 3.0
@@ -123,7 +146,8 @@ class Profile:
             "bridge_speed",
             "travel_speed", "first_layer_speed", "print_acceleration", "travel_acceleration",
             "max_jerk", "retract_speed", "extrusion_multiplier", "filament_density",
-            "min_print_speed",
+            "min_print_speed", "bridge_flow", "support_spacing", "support_interface_spacing",
+            "support_speed", "support_interface_speed", "support_flow",
         )
         for name in positive:
             v = getattr(self, name)
@@ -134,7 +158,8 @@ class Profile:
             "retract_lift", "retract_min_travel", "fan_speed", "disable_fan_first_layers",
             "min_layer_time", "bridge_fan_speed",
             "skirts", "skirt_distance", "skirt_height", "temperature", "first_layer_temperature",
-            "bed_temperature", "first_layer_bed_temperature",
+            "bed_temperature", "first_layer_bed_temperature", "support_xy_gap",
+            "support_interface_layers", "support_min_area", "brim_width",
         )
         for name in non_negative:
             v = getattr(self, name)
@@ -159,6 +184,14 @@ class Profile:
                 f"seam_position must be one of {', '.join(SEAM_POSITIONS)}, "
                 f"got {self.seam_position!r}"
             )
+        for name, allowed in (("support", SUPPORT_MODES), ("brim", BRIM_MODES)):
+            if getattr(self, name) not in allowed:
+                raise ProfileError(
+                    f"{name} must be one of {', '.join(allowed)}, got {getattr(self, name)!r}"
+                )
+        if not 0 < self.support_angle < 90:
+            raise ProfileError(
+                f"support_angle must be between 0 and 90 degrees, got {self.support_angle}")
         for name, h in (("layer_height", self.layer_height),
                         ("first_layer_height", self.first_layer_height)):
             if h > self.nozzle_diameter:

@@ -142,5 +142,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"{args.output}: {summary.get('layers', '?')} layers, "
               f"{summary.get('filament_mm', 0) / 1000:.2f} m filament "
               f"({summary.get('filament_g', 0):.1f} g), estimated "
-              f"{int(est // 3600)}h{int(est % 3600 // 60):02d}m")
+              f"{int(est // 3600)}h{int(est % 3600 // 60):02d}m"
+              + (f", support {summary['support_cm3']:.2f} cm3 "
+                 f"({summary.get('support_seconds', 0) / 60:.0f} min)"
+                 if summary.get("support_cm3") else "")
+              + (", brim" if summary.get("brim") else ""))
     return 0

@@ -2,7 +2,8 @@
 
 It knows nothing of the slicer: it replays G0/G1 with the G90/G91 (all axes), M82/M83 (E
 only) and G92 state a Marlin firmware keeps, plus temperature commands, and records every
-move. Units mm; E is filament length in mm.
+move. Units mm; E is filament length in mm. PrusaSlicer-style ``;TYPE:`` comments label the
+moves after them (``feature``); moves before any label have the label "".
 """
 
 from __future__ import annotations
@@ -12,6 +13,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from printer.gcode import lex
+
+SUPPORT = ("Support material", "Support material interface")
+NOT_PART = (*SUPPORT, "Skirt/Brim")
 
 
 @dataclass
@@ -28,6 +32,19 @@ class Replay:
     #: (line number, P value) of M73
     progress: list[tuple[int, float]] = field(default_factory=list)
     fan: list[tuple[int, float]] = field(default_factory=list)
+    #: per move, an index into ``labels`` (the ``;TYPE:`` in force)
+    feature: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    labels: list[str] = field(default_factory=lambda: [""])
+
+    def labelled(self, *names: str) -> np.ndarray:
+        """Mask of moves under any of the ``;TYPE:`` labels ``names``."""
+        ids = [i for i, name in enumerate(self.labels) if name in names]
+        return np.isin(self.feature, ids)
+
+    @property
+    def part(self) -> np.ndarray:
+        """Extruding moves that build the part (not support, skirt or brim)."""
+        return self.extruding & ~self.labelled(*NOT_PART)
 
     @property
     def extruding(self) -> np.ndarray:
@@ -35,9 +52,10 @@ class Replay:
         xy = np.hypot(*(self.end[:, :2] - self.start[:, :2]).T)
         return (self.de > 1e-9) & (xy > 1e-9)
 
-    def layers(self) -> dict[float, np.ndarray]:
-        """Indices of extruding moves grouped by Z (rounded to 1 µm)."""
-        ext = np.flatnonzero(self.extruding)
+    def layers(self, mask: np.ndarray | None = None) -> dict[float, np.ndarray]:
+        """Indices of extruding moves (or of the moves in ``mask``) grouped by Z (rounded to
+        1 µm)."""
+        ext = np.flatnonzero(self.extruding if mask is None else mask)
         z = np.round(self.end[ext, 2], 3)
         out: dict[float, np.ndarray] = {}
         for zz in np.unique(z):
@@ -57,7 +75,16 @@ def replay(text: str) -> Replay:
     fan: list[tuple[int, float]] = []
     # physical position = logical + offset (G92 changes offset only)
     offset = np.zeros(4)
+    labels = [""]
+    label = 0
+    kinds: list[int] = []
     for no, raw in enumerate(text.splitlines(), 1):
+        if raw.startswith(";TYPE:"):
+            name = raw[6:].strip()
+            if name not in labels:
+                labels.append(name)
+            label = labels.index(name)
+            continue
         lexed = lex(raw)
         cmd = lexed.word
         if cmd is None:
@@ -79,6 +106,7 @@ def replay(text: str) -> Replay:
             des.append(new[3] - pos[3])
             feeds.append(feed)
             lines.append(no)
+            kinds.append(label)
             pos = new
         elif cmd == "G90":
             abs_xyz = abs_e = True
@@ -109,5 +137,5 @@ def replay(text: str) -> Replay:
     return Replay(
         start=arr(starts, dtype=float).reshape(-1, 3), end=arr(ends, dtype=float).reshape(-1, 3),
         de=arr(des, dtype=float), feed=arr(feeds, dtype=float), line_no=arr(lines, dtype=int),
-        temps=temps, progress=progress, fan=fan,
+        temps=temps, progress=progress, fan=fan, feature=arr(kinds, dtype=int), labels=labels,
     )

@@ -280,7 +280,7 @@ def test_setting_extremes_still_print_inside_the_part(over):
 
 
 def _layers_starting_at_the_rear(rep) -> float:
-    layers = rep.layers()
+    layers = rep.layers(rep.part)  # the part's loops (support under the sphere aside)
     zs = sorted(layers)[5:-5]
     hits = 0
     for z in zs:

@@ -46,3 +46,24 @@ def test_errors_are_one_line(tmp_path):
     assert res.returncode != 0 and "nozzle_colour" in res.stderr
     res = run(str(tmp_path / "missing.stl"), "-o", str(tmp_path / "x.gcode"))
     assert res.returncode != 0 and res.stderr.startswith("preflight: ")
+
+
+def test_a_mushroom_is_supported_by_default_and_the_summary_says_so(tmp_path):
+    from support_checks import mushroom
+
+    v, f = mushroom()
+    stl = tmp_path / "mushroom.stl"
+    trimesh.Trimesh(v, f).export(stl)
+    out = tmp_path / "mushroom.gcode"
+    res = run(str(stl), "-o", str(out))
+    assert res.returncode == 0, res.stderr
+    assert ", support " in res.stdout and " cm3 " in res.stdout
+    rep = replay(out.read_text())
+    assert rep.labelled("Support material").any()
+    res = run(str(stl), "-o", str(out), "--set", "support=off", "--json")
+    assert res.returncode == 0, res.stderr
+    summary = json.loads(res.stdout)
+    assert summary["support"] == "off" and summary["support_cm3"] == 0
+    res = run(str(stl), "-o", str(out), "--set", "support=sometimes")
+    assert res.returncode != 0 and res.stderr.count("\n") == 1
+    assert "support must be one of auto, buildplate, everywhere, off" in res.stderr

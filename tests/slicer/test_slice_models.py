@@ -22,6 +22,7 @@ from slice_checks import (
     sphere,
     thin_pin,
 )
+from support_checks import arch, mushroom, ramp, t_bracket
 
 from slicer.engine import slice_mesh
 from slicer.profile import Profile
@@ -35,6 +36,12 @@ MODELS = {
     "thin_pin": thin_pin,
     "eps_sheet": sheet,
     "eps_l_sheet": l_sheet,
+    # overhangs: printed with the default support = auto
+    "mushroom": mushroom,
+    "t_bracket": t_bracket,
+    "arch": arch,
+    "ramp_45": lambda: ramp(45.0),
+    "ramp_75": lambda: ramp(75.0),
 }
 
 BASE = Profile.for_printer(nozzle_diameter=0.4, build_volume=(200, 200, 180)).with_overrides(
@@ -93,13 +100,14 @@ def test_full_infill_volume_matches_mesh(name):
     v, f, profile, result, rep = sliced(name, {"infill_percent": 100})
     volume = placed(v, f, profile.build_volume).volume()
     area = math.pi * (profile.filament_diameter / 2) ** 2
-    extruded = rep.de.sum() * area
+    # the part's own extrusions (support, skirt and brim are labelled apart)
+    extruded = rep.de[rep.part].sum() * area
     ratio = extruded / volume
     assert 0.93 <= ratio <= 1.08, f"extruded/mesh volume = {ratio:.3f}"
-    assert result.summary["filament_cm3"] == pytest.approx(extruded / 1000, rel=0.01)
+    assert result.summary["filament_cm3"] == pytest.approx(rep.de.sum() * area / 1000, rel=0.01)
     # and layer by layer: nothing printed twice, nothing left out
     solid = placed(v, f, profile.build_volume)
-    layers = rep.layers()
+    layers = rep.layers(rep.part)
     zs = sorted(layers)
     for z, h in zip(zs, layer_heights(zs), strict=True):
         want = solid.slice(z - h / 2).area() * h
@@ -112,7 +120,7 @@ def test_full_infill_volume_matches_mesh(name):
 def test_beads_cover_the_outer_wall_and_stay_inside(name):
     v, f, profile, _, rep = sliced(name)
     solid = placed(v, f, profile.build_volume)
-    layers = rep.layers()
+    layers = rep.layers(rep.part)  # support and brim stand outside the part by design
     zs = sorted(layers)
     worst_cover, worst_out = 1.0, 0.0
     total_out = total_area = 0.0
@@ -135,7 +143,7 @@ def test_beads_cover_the_outer_wall_and_stay_inside(name):
 
 def test_eps_sheet_is_printed_on_every_layer():
     v, f, profile, _, rep = sliced("eps_sheet")
-    layers = rep.layers()
+    layers = rep.layers(rep.part)
     area = math.pi * (profile.filament_diameter / 2) ** 2
     zs = sorted(layers)
     for z, h in zip(zs, layer_heights(zs), strict=True):
@@ -148,7 +156,7 @@ def test_eps_sheet_is_printed_on_every_layer():
 
 def test_eps_sheet_is_one_bead_along_its_middle():
     _, _, profile, _, rep = sliced("eps_sheet")
-    layers = rep.layers()
+    layers = rep.layers(rep.part)
     area = math.pi * (profile.filament_diameter / 2) ** 2
     mid_x = profile.build_volume[0] / 2
     for z in sorted(layers)[1:]:

@@ -1,0 +1,200 @@
+"""Support material: columns under the overhangs (slicer.overhang), as lines that snap off.
+
+Units mm. Built top-down, one layer at a time, with manifold3d booleans on cross-sections:
+
+- an overhang found on layer k (grown by half a line so the support reaches under its edge)
+  is carried down from layer k − 2: layer k − 1 stays empty, the **Z gap** of one layer
+  between support and the part above;
+- a column stops where it meets the part (it stands on the part's top, ``everywhere`` and
+  ``auto``) and on every layer keeps ``support_xy_gap`` mm away from the part (**XY gap**);
+  it also stays clear of the layer below's part, the Z gap under support standing on the part;
+- ``buildplate`` keeps only columns with no part anywhere below them;
+- the ``support_interface_layers`` layers under the part are **interface**: an outline and
+  dense lines at ``support_interface_spacing``, across the base lines; the rest is base
+  support: an outline around each island and parallel lines ``support_spacing`` apart,
+  in the same direction on every layer (stacked into thin walls that break off sideways).
+
+Support lines get their own role, so G-code has its own speed, flow and ``;TYPE:`` label.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from manifold3d import CrossSection, FillRule, JoinType, OpType
+
+from slicer.geometry import bead_spacing, contours, hatch, points_inside
+from slicer.overhang import overhangs
+from slicer.planner import Path
+from slicer.profile import Profile
+
+MITER = JoinType.Miter
+BASE_ANGLE = 0.0  # base lines along x; interface lines along y
+
+
+@dataclass(slots=True)
+class SupportLayer:
+    """One layer's support: base region and interface (dense) region, disjoint."""
+
+    base: CrossSection
+    interface: CrossSection
+
+    def is_empty(self) -> bool:
+        return self.base.is_empty() and self.interface.is_empty()
+
+    def area(self) -> CrossSection:
+        return self.base + self.interface
+
+
+def _union(parts: list[CrossSection]) -> CrossSection:
+    parts = [p for p in parts if not p.is_empty()]
+    if not parts:
+        return CrossSection()
+    return parts[0] if len(parts) == 1 else CrossSection.batch_boolean(parts, OpType.Add)
+
+
+def bead_area_of(paths: list[Path]) -> CrossSection:
+    """The area covered by the beads of ``paths`` (segments as rectangles, joints and ends
+    as octagons around the points, of the path's width)."""
+    if not paths:
+        return CrossSection()
+    shapes: list[np.ndarray] = []
+    ring = np.linspace(0.0, 2 * np.pi, 9)[:-1]
+    unit = np.stack([np.cos(ring), np.sin(ring)], axis=1)
+    for path in paths:
+        pts = np.vstack([path.points, path.points[:1]]) if path.closed else path.points
+        r = path.width / 2
+        d = np.diff(pts, axis=0)
+        length = np.hypot(d[:, 0], d[:, 1])
+        ok = length > 1e-9
+        nrm = np.stack([-d[ok, 1], d[ok, 0]], axis=1) / length[ok, None] * r
+        a, b = pts[:-1][ok], pts[1:][ok]
+        shapes.extend(np.stack([a - nrm, b - nrm, b + nrm, a + nrm], axis=1))
+        shapes.extend(pts[:, None, :] + unit[None] * r)
+    return CrossSection(shapes, FillRule.Positive)
+
+
+def support_regions(sections: list[CrossSection], heights: np.ndarray, profile: Profile,
+                    widths: list[float], printed: list[CrossSection] | None = None
+                    ) -> list[SupportLayer] | None:
+    """Support of every layer, or None when the model needs none (or support is off).
+    ``printed``: per layer, part beads that stand out of the section (thin-wall ends), which
+    the support keeps its XY gap from as well."""
+    p = profile
+    if p.support == "off":
+        return None
+    n = len(sections)
+    min_area = 0.0 if p.support == "everywhere" else p.support_min_area
+    s = bead_spacing(p.line_width, p.layer_height)
+    need = overhangs(sections, heights, p.support_angle, s, min_area)
+    if all(o.is_empty() for o in need):
+        return None
+    # grow each overhang by half a line so the support reaches under its edge beads
+    need = [o if o.is_empty() else o.offset(p.line_width / 2, MITER) for o in need]
+    regions: list[CrossSection] = [CrossSection()] * n
+    carried = CrossSection()
+    for i in range(n - 1, -1, -1):
+        if i + 2 < n and not need[i + 2].is_empty():
+            carried = carried + need[i + 2]
+        if carried.is_empty():
+            continue
+        carried = carried - sections[i]  # the column stands on the part here
+        part = sections[i]
+        if printed is not None and not printed[i].is_empty():
+            part = part + printed[i]
+        region = carried - part.offset(p.support_xy_gap, MITER)
+        if i > 0:
+            region = region - sections[i - 1]  # Z gap above the part's top
+        regions[i] = _opened(region, widths[i] / 4)
+    if p.support == "buildplate":
+        below = CrossSection()
+        for i in range(n):
+            if not below.is_empty() and not regions[i].is_empty():
+                regions[i] = _opened(regions[i] - below, widths[i] / 4)
+            below = below + sections[i]
+    out: list[SupportLayer] = []
+    k = p.support_interface_layers
+    for i in range(n):
+        r = regions[i]
+        if r.is_empty() or k <= 0:
+            out.append(SupportLayer(r, CrossSection()))
+            continue
+        roof = _union(sections[i + 2:i + 2 + k])
+        iface = r ^ roof if not roof.is_empty() else CrossSection()
+        out.append(SupportLayer(r - iface if not iface.is_empty() else r, iface))
+    if all(layer.is_empty() for layer in out):
+        return None
+    return out
+
+
+def _opened(region: CrossSection, r: float) -> CrossSection:
+    """``region`` without slivers narrower than 2·r."""
+    if region.is_empty():
+        return region
+    shrunk = region.offset(-r, MITER)
+    return shrunk if shrunk.is_empty() else shrunk.offset(r, MITER) ^ region
+
+
+def support_paths(layer: SupportLayer, profile: Profile, width: float, height: float,
+                  cache: dict | None = None) -> list[Path]:
+    """Outline loops and lines of one layer's support (base and interface). Columns repeat
+    from layer to layer: with a ``cache`` (one dict per job), a region identical to one
+    seen before reuses its paths (they are never modified downstream)."""
+    s = bead_spacing(width, height)
+    out: list[Path] = []
+    for region, role, spacing, angle in (
+            (layer.base, "support", profile.support_spacing, BASE_ANGLE),
+            (layer.interface, "support_interface", profile.support_interface_spacing,
+             BASE_ANGLE + 90.0)):
+        if region.is_empty():
+            continue
+        key = None
+        if cache is not None:
+            key = (role, width, height,
+                   hash(tuple(np.asarray(q).tobytes() for q in region.to_polygons())))
+            if key in cache:
+                out.extend(cache[key])
+                continue
+        paths = _region_paths(region, role, spacing, angle, width, s, profile.resolution)
+        if key is not None:
+            if len(cache) > 64:
+                cache.clear()
+            cache[key] = paths
+        out.extend(paths)
+    return out
+
+
+def _region_paths(region: CrossSection, role: str, spacing: float, angle: float,
+                  width: float, s: float, resolution: float) -> list[Path]:
+    ring = region.offset(-s / 2, MITER).simplify(resolution)
+    if ring.is_empty():
+        return []
+    out = [Path(q, True, width, role) for q in contours(ring)]
+    core = ring.offset(-s / 2, MITER)  # lines end on the outline's inner edge
+    if core.is_empty():
+        return out
+    segs = hatch(contours(core), angle, max(spacing, s), 0.0, s)
+    out.extend(Path(line, False, width, role)
+               for line in zigzag(segs, contours(ring), max(spacing, s)))
+    return out
+
+
+def zigzag(segs: np.ndarray, region: list[np.ndarray], spacing: float) -> list[np.ndarray]:
+    """Join serpentine hatch segments (k, 2, 2) into polylines where the step from one
+    segment's end to the next one's start is short (≤ 2 spacings) and stays inside
+    ``region``: fewer, longer paths, fewer travels and retractions."""
+    if len(segs) == 0:
+        return []
+    a, b = segs[:-1, 1], segs[1:, 0]
+    step = np.hypot(*(b - a).T)
+    ok = step <= 2.0 * spacing
+    idx = np.flatnonzero(ok)
+    if len(idx):
+        t = np.array([0.25, 0.5, 0.75])
+        probe = a[idx, None, :] + (b[idx] - a[idx])[:, None, :] * t[None, :, None]
+        inside = points_inside(region, probe.reshape(-1, 2)).reshape(len(idx), 3)
+        ok[idx] = inside.all(axis=1)
+    pts = segs.reshape(-1, 2)
+    breaks = 2 * (np.flatnonzero(~ok) + 1)
+    return np.split(pts, breaks)
