@@ -360,7 +360,9 @@ class Processor:
             "in": str(repaired), "out": str(gcode), "nozzle": epsilon, "job_name": job.name,
             "build_volume": list(build_volume) if build_volume else None,
             "filament_diameter": info.get("filament_diameter"),
-            "flavour": flavour_from(info), "overrides": self.cfg.profile,
+            "flavour": flavour_from(info),
+            # the daemon turns a model only when that avoids support entirely ([profile] orient)
+            "overrides": {"orient": "if-needed", **self.cfg.profile},
         }, cancel, "slicing failed")
         if not ok:
             return

@@ -54,6 +54,7 @@ def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progres
                ) -> SliceResult:
     """Slice a closed triangle mesh (mm) with ``profile``; raises SliceError on bad input."""
     from slicer import geometry as geo
+    from slicer.arrange import layout_model
     from slicer.gcode import GcodeWriter, fan_command, m73, start_block
     from slicer.ordering import order_paths
     from slicer.planner import LayerPlan, infill_paths, plan_shells, skin_regions, skirt_paths
@@ -80,6 +81,7 @@ def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progres
     if f.min() < 0 or f.max() >= len(v):
         raise SliceError("mesh faces index missing vertices")
     v, f = geo.merge_vertices(v, f.astype(np.int64))
+    v, layout = layout_model(v, f, profile)  # orient = keep | auto | if-needed; arrange
     v, size = geo.place_on_bed(v, profile.build_volume)
     man = _to_manifold(v, f)
     tops = geo.layer_tops(float(size[2]), profile.first_layer_height, profile.layer_height)
@@ -162,6 +164,7 @@ def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progres
         "height_mm": round(float(tops[-1]), 3),
         "size_mm": [round(float(s), 3) for s in size],
         "slicer": "embedded",
+        **layout,
     }
     parts: list[str] = []
     if p.comments:

@@ -116,3 +116,30 @@ def bead_footprint(rep: Replay, idx: np.ndarray, height: float, filament_diamete
 
 def layer_heights(zs: list[float]) -> list[float]:
     return [zs[0]] + [b - a for a, b in zip(zs[:-1], zs[1:], strict=True)]
+
+
+# ---------------------------------------------------------------------------------------
+def cup(flipped=False):
+    """A cup (Ø30 × 16 mm, 2 mm floor and walls); ``flipped``: saved standing on its rim."""
+    v, f = mesh_of(Manifold.cylinder(16, 15, 15, 64)
+                   - Manifold.cylinder(16, 13, 13, 64).translate([0, 0, 2]))
+    return (v * [1, -1, -1], f) if flipped else (v, f)
+
+
+def flanged_pin_on_its_side():
+    """A Ø20 × 3 mm flange under a Ø8 × 20 mm post, saved lying on its side."""
+    v, f = mesh_of(Manifold.cylinder(3, 10, 10, 64) + Manifold.cylinder(23, 4, 4, 48))
+    return v[:, [0, 2, 1]] * [1, 1, -1], f
+
+
+def overhang_area(vertices, faces, support_angle=50.0, bed_tolerance=0.1):
+    """Area (mm²) of faces facing down more steeply than ``support_angle`` from vertical
+    that do not rest on the bed (the lowest z), for the mesh as it stands."""
+    v = np.asarray(vertices, float)
+    tri = v[np.asarray(faces)]
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    area = np.linalg.norm(cross, axis=1) / 2
+    down = -cross[:, 2] / np.maximum(2 * area, 1e-300)
+    on_bed = tri[:, :, 2].max(axis=1) <= v[:, 2].min() + bed_tolerance
+    steep = down > math.cos(math.radians(90.0 - support_angle))
+    return float(area[steep & ~on_bed].sum())
