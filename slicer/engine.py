@@ -59,6 +59,7 @@ def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progres
     from slicer.ordering import order_paths
     from slicer.planner import LayerPlan, infill_paths, plan_shells, skin_regions, skirt_paths
     from slicer.templates import render_template
+    from slicer.travel import SeamAligner, TravelRouter
 
     last = ["", -1.0]
 
@@ -123,6 +124,7 @@ def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progres
 
     # plan, order and write one layer at a time, so only one layer's paths exist at once
     writer = GcodeWriter(profile)
+    aligner = SeamAligner() if profile.seam_position == "aligned" else None
     pos = np.array([0.0, 0.0])
     bodies: list[str] = []
     seconds: list[float] = []
@@ -138,8 +140,10 @@ def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progres
         paths.extend(infill_paths(profile, i, sh.inner, solids[i], widths[i], h,
                                   sections[i - 1] if i > 0 else None))
         plan = LayerPlan(i, float(tops[i]), h, paths, geo.contours(sections[i]))
-        ordered, _ = order_paths(plan.paths, pos, profile.seam_position)
-        code = writer.layer(plan, ordered, pos)
+        ordered, _ = order_paths(plan.paths, pos, profile.seam_position, aligner)
+        router = TravelRouter(sections[i], spacing[i]) \
+            if profile.avoid_crossing_perimeters else None
+        code = writer.layer(plan, ordered, pos, router)
         bodies.append(code.text)
         seconds.append(code.seconds + 0.1)  # Z move and layer change
         filament += code.filament_mm

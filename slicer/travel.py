@@ -1,0 +1,195 @@
+"""Clean travel: routes that stay inside the part, and aligned seams.
+
+A travel whose straight line would cross the layer's outline is routed inside the island
+that holds both its ends: the shortest path through a visibility graph over the reflex
+corners of the island shrunk by one bead spacing (so routes run inside the external
+perimeter). A leg is usable when it crosses no edge of the island's outline; its ends lie
+strictly inside the outline, so such a leg stays inside. Graphs are built lazily, once per
+island per layer, only for islands a travel needs to cross; travels between islands, or
+islands too intricate for a small graph, keep the straight line and count as leaving the
+part (the writer retracts for those).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from manifold3d import CrossSection, JoinType
+
+from slicer.geometry import contours, points_inside, polygon_edges, segments_cross
+
+MAX_NODES = 160
+
+
+@dataclass
+class _Island:
+    shape: CrossSection
+    polys: list[np.ndarray]
+    a: np.ndarray  # outline edges
+    b: np.ndarray
+    nodes: np.ndarray | None = None  # (n, 2) graph corners
+    dist: np.ndarray | None = None  # (n, n) leg lengths, inf where blocked
+
+
+@dataclass(frozen=True)
+class TravelPlan:
+    """Per travel: waypoints between its ends (None: straight), whether it leaves the part,
+    and its length along the route (mm)."""
+
+    waypoints: list[np.ndarray | None]
+    leaves: np.ndarray
+    length: np.ndarray
+
+
+def _reflex_corners(polys: list[np.ndarray]) -> np.ndarray:
+    """Corners where the region turns right (outer loops CCW, holes CW): shortest paths
+    inside the region bend only there."""
+    out = []
+    for p in polys:
+        e_in = p - np.roll(p, 1, axis=0)
+        e_out = np.roll(p, -1, axis=0) - p
+        turn = e_in[:, 0] * e_out[:, 1] - e_in[:, 1] * e_out[:, 0]
+        out.append(p[turn < 0])
+    return np.concatenate(out) if out else np.zeros((0, 2))
+
+
+class TravelRouter:
+    """Routes travels of one layer inside its cross-section ``section``."""
+
+    def __init__(self, section: CrossSection, spacing: float) -> None:
+        self.section = section
+        self.spacing = spacing
+        self._islands: list[_Island] | None = None
+        polys = contours(section)
+        self._a, self._b = polygon_edges(polys)
+
+    def _all_islands(self) -> list[_Island]:
+        if self._islands is None:
+            self._islands = []
+            for comp in self.section.decompose():
+                polys = contours(comp)
+                a, b = polygon_edges(polys)
+                self._islands.append(_Island(comp, polys, a, b))
+        return self._islands
+
+    def _graph(self, isl: _Island) -> None:
+        shape = isl.shape.offset(-self.spacing, JoinType.Miter)
+        tol = self.spacing / 4
+        nodes = _reflex_corners(contours(shape.simplify(tol)))
+        while len(nodes) > MAX_NODES and tol < 8 * self.spacing:
+            tol *= 2
+            nodes = _reflex_corners(contours(shape.simplify(tol)))
+        if len(nodes) > MAX_NODES:
+            nodes = np.zeros((0, 2))
+        n = len(nodes)
+        dist = np.full((n, n), np.inf)
+        if n > 1:
+            i, j = np.triu_indices(n, 1)
+            blocked = segments_cross(nodes[i], nodes[j], isl.a, isl.b)
+            d = np.hypot(*(nodes[j] - nodes[i]).T)
+            d[blocked] = np.inf
+            dist[i, j] = d
+            dist[j, i] = d
+        isl.nodes, isl.dist = nodes, dist
+
+    def _route(self, isl: _Island, p: np.ndarray, q: np.ndarray) -> np.ndarray | None:
+        """Shortest inside route p → q: its inner waypoints (k, 2), or None if none."""
+        from scipy.sparse.csgraph import dijkstra
+
+        if isl.nodes is None:
+            self._graph(isl)
+        nodes, n = isl.nodes, len(isl.nodes)
+        if n == 0:
+            return None
+        ends = np.array([p, q])
+        see = ~segments_cross(np.repeat(ends, n, axis=0), np.tile(nodes, (2, 1)),
+                              isl.a, isl.b).reshape(2, n)
+        if not see[0].any() or not see[1].any():
+            return None
+        full = np.zeros((n + 2, n + 2))
+        finite = np.isfinite(isl.dist)
+        full[:n, :n] = np.where(finite, isl.dist, 0.0)
+        for k in (0, 1):
+            d = np.where(see[k], np.hypot(*(nodes - ends[k]).T), 0.0)
+            full[n + k, :n] = d
+            full[:n, n + k] = d
+        dist, pred = dijkstra(full, directed=False, indices=n, return_predecessors=True)
+        if not np.isfinite(dist[n + 1]):
+            return None
+        path = []
+        k = int(pred[n + 1])
+        while k != n and k >= 0:
+            path.append(k)
+            k = int(pred[k])
+        return nodes[path[::-1]] if path else None
+
+    def plan(self, prev: np.ndarray, starts: np.ndarray, moving: np.ndarray) -> TravelPlan:
+        """Routes for the travels prev[i] → starts[i] (only where ``moving``)."""
+        m = len(prev)
+        length = np.hypot(*(starts - prev).T)
+        leaves = np.zeros(m, dtype=bool)
+        waypoints: list[np.ndarray | None] = [None] * m
+        todo = np.flatnonzero(moving)
+        if len(todo) == 0 or len(self._a) == 0:
+            return TravelPlan(waypoints, leaves, length)
+        crossing = todo[segments_cross(prev[todo], starts[todo], self._a, self._b)]
+        if len(crossing) == 0:
+            return TravelPlan(waypoints, leaves, length)
+        leaves[crossing] = True
+        islands = self._all_islands()
+        where = np.full((len(crossing), 2), -1)
+        for k, isl in enumerate(islands):
+            inside = points_inside(isl.polys, np.concatenate([prev[crossing], starts[crossing]]))
+            where[inside[:len(crossing)], 0] = k
+            where[inside[len(crossing):], 1] = k
+        for t, (i0, i1) in zip(crossing, where, strict=True):
+            if i0 < 0 or i0 != i1:
+                continue
+            way = self._route(islands[i0], prev[t], starts[t])
+            if way is None:
+                continue
+            pts = np.vstack([prev[t], way, starts[t]])
+            waypoints[t] = way
+            leaves[t] = False
+            length[t] = float(np.hypot(*np.diff(pts, axis=0).T).sum())
+        return TravelPlan(waypoints, leaves, length)
+
+
+class SeamAligner:
+    """``seam_position = aligned``: each external loop starts at the point of the loop nearest
+    to a seam of the layer below (a new vertex where that falls inside an edge, so seams do
+    not drift by a vertex per layer); on the first layer, at the sharpest concave corner, or
+    else at the rear."""
+
+    def __init__(self) -> None:
+        self._below = np.zeros((0, 2))
+        self._here: list[np.ndarray] = []
+
+    def ring(self, loop: np.ndarray) -> np.ndarray:
+        """The closed loop's points, starting and ending at its seam."""
+        if len(self._below):
+            a = loop
+            d = np.roll(loop, -1, axis=0) - a
+            rel = self._below[:, None, :] - a[None]  # (s, n, 2)
+            t = np.clip((rel * d).sum(axis=2) / np.maximum((d * d).sum(axis=1), 1e-18), 0, 1)
+            foot = a[None] + t[..., None] * d[None]
+            gap = ((self._below[:, None, :] - foot) ** 2).sum(axis=2)
+            s_best, k = np.unravel_index(int(np.argmin(gap)), gap.shape)
+            seam = foot[s_best, k]
+            ring = np.concatenate([[seam], loop[k + 1:], loop[:k + 1], [seam]])
+        else:
+            e_in = loop - np.roll(loop, 1, axis=0)
+            e_out = np.roll(loop, -1, axis=0) - loop
+            turn = e_in[:, 0] * e_out[:, 1] - e_in[:, 1] * e_out[:, 0]
+            sharp = turn / np.maximum(np.hypot(*e_in.T) * np.hypot(*e_out.T), 1e-12)
+            k = int(np.argmin(sharp)) if sharp.min() < -0.2 else \
+                int(np.lexsort((loop[:, 0], -loop[:, 1]))[0])
+            ring = np.concatenate([loop[k:], loop[:k + 1]])
+        self._here.append(ring[0])
+        return ring
+
+    def next_layer(self) -> None:
+        if self._here:
+            self._below = np.array(self._here)
+        self._here = []
