@@ -3,11 +3,11 @@
 A travel whose straight line would cross the layer's outline is routed inside the island
 that holds both its ends: the shortest path through a visibility graph over the reflex
 corners of the island shrunk by one bead spacing (so routes run inside the external
-perimeter). A leg is usable when it crosses no edge of the island's outline; its ends lie
-strictly inside the outline, so such a leg stays inside. Graphs are built lazily, once per
-island per layer, only for islands a travel needs to cross; travels between islands, or
-islands too intricate for a small graph, keep the straight line and count as leaving the
-part (the writer retracts for those).
+perimeter). A leg is usable when it crosses no edge of a fence just inside the island's
+outline and its ends lie inside that fence, so such a leg stays inside the part. Graphs
+are built lazily, once per island per layer, only for islands a travel needs to cross;
+travels between islands, or islands too intricate for a small graph, keep the straight
+line and count as leaving the part (the writer retracts for those).
 """
 
 from __future__ import annotations
@@ -16,20 +16,22 @@ from dataclasses import dataclass
 
 import numpy as np
 from manifold3d import CrossSection, JoinType
+from scipy.sparse.csgraph import shortest_path
 
 from slicer.geometry import contours, points_inside, polygon_edges, segments_cross
 
-MAX_NODES = 160
+MAX_NODES = 120
 
 
 @dataclass
 class _Island:
     shape: CrossSection
     polys: list[np.ndarray]
-    a: np.ndarray  # outline edges
-    b: np.ndarray
+    fence_a: np.ndarray | None = None  # edges of the outline shrunk and simplified within it
+    fence_b: np.ndarray | None = None
     nodes: np.ndarray | None = None  # (n, 2) graph corners
-    dist: np.ndarray | None = None  # (n, n) leg lengths, inf where blocked
+    dist: np.ndarray | None = None  # (n, n) shortest distances inside, inf: no way
+    pred: np.ndarray | None = None  # (n, n) predecessor of j on the way from i
 
 
 @dataclass(frozen=True)
@@ -61,19 +63,26 @@ class TravelRouter:
         self.section = section
         self.spacing = spacing
         self._islands: list[_Island] | None = None
-        polys = contours(section)
-        self._a, self._b = polygon_edges(polys)
+        self._polys = contours(section)
+        self._a, self._b = polygon_edges(self._polys)
+        # legs are tested against a "fence": the outline shrunk by τ and simplified within τ,
+        # so it lies inside the outline with far fewer edges; a leg with both ends inside the
+        # fence that crosses none of its edges stays inside the part
+        tau = spacing / 4
+        self._fence = contours(section.offset(-tau, JoinType.Miter).simplify(tau))
+        self._fa, self._fb = polygon_edges(self._fence)
 
     def _all_islands(self) -> list[_Island]:
         if self._islands is None:
             self._islands = []
             for comp in self.section.decompose():
-                polys = contours(comp)
-                a, b = polygon_edges(polys)
-                self._islands.append(_Island(comp, polys, a, b))
+                self._islands.append(_Island(comp, contours(comp)))
         return self._islands
 
     def _graph(self, isl: _Island) -> None:
+        tau = self.spacing / 4
+        fence = isl.shape.offset(-tau, JoinType.Miter).simplify(tau)
+        isl.fence_a, isl.fence_b = polygon_edges(contours(fence))
         shape = isl.shape.offset(-self.spacing, JoinType.Miter)
         tol = self.spacing / 4
         nodes = _reflex_corners(contours(shape.simplify(tol)))
@@ -83,20 +92,20 @@ class TravelRouter:
         if len(nodes) > MAX_NODES:
             nodes = np.zeros((0, 2))
         n = len(nodes)
-        dist = np.full((n, n), np.inf)
+        legs = np.zeros((n, n))
         if n > 1:
             i, j = np.triu_indices(n, 1)
-            blocked = segments_cross(nodes[i], nodes[j], isl.a, isl.b)
+            blocked = segments_cross(nodes[i], nodes[j], isl.fence_a, isl.fence_b)
             d = np.hypot(*(nodes[j] - nodes[i]).T)
-            d[blocked] = np.inf
-            dist[i, j] = d
-            dist[j, i] = d
-        isl.nodes, isl.dist = nodes, dist
+            d[blocked] = 0.0  # no edge
+            legs[i, j] = d
+            legs[j, i] = d
+        # all pairs at once (n ≤ MAX_NODES): each route is then a few array look-ups
+        isl.dist, isl.pred = shortest_path(legs, directed=False, return_predecessors=True)
+        isl.nodes = nodes
 
     def _route(self, isl: _Island, p: np.ndarray, q: np.ndarray) -> np.ndarray | None:
         """Shortest inside route p → q: its inner waypoints (k, 2), or None if none."""
-        from scipy.sparse.csgraph import dijkstra
-
         if isl.nodes is None:
             self._graph(isl)
         nodes, n = isl.nodes, len(isl.nodes)
@@ -104,25 +113,21 @@ class TravelRouter:
             return None
         ends = np.array([p, q])
         see = ~segments_cross(np.repeat(ends, n, axis=0), np.tile(nodes, (2, 1)),
-                              isl.a, isl.b).reshape(2, n)
-        if not see[0].any() or not see[1].any():
+                              isl.fence_a, isl.fence_b).reshape(2, n)
+        sa, sb = np.flatnonzero(see[0]), np.flatnonzero(see[1])
+        if len(sa) == 0 or len(sb) == 0:
             return None
-        full = np.zeros((n + 2, n + 2))
-        finite = np.isfinite(isl.dist)
-        full[:n, :n] = np.where(finite, isl.dist, 0.0)
-        for k in (0, 1):
-            d = np.where(see[k], np.hypot(*(nodes - ends[k]).T), 0.0)
-            full[n + k, :n] = d
-            full[:n, n + k] = d
-        dist, pred = dijkstra(full, directed=False, indices=n, return_predecessors=True)
-        if not np.isfinite(dist[n + 1]):
+        da = np.hypot(*(nodes[sa] - p).T)
+        db = np.hypot(*(nodes[sb] - q).T)
+        total = da[:, None] + isl.dist[np.ix_(sa, sb)] + db[None, :]
+        k = int(np.argmin(total))
+        if not np.isfinite(total.flat[k]):
             return None
-        path = []
-        k = int(pred[n + 1])
-        while k != n and k >= 0:
-            path.append(k)
-            k = int(pred[k])
-        return nodes[path[::-1]] if path else None
+        first, last = int(sa[k // len(sb)]), int(sb[k % len(sb)])
+        path = [last]
+        while path[-1] != first:  # walk the predecessors back from the last corner
+            path.append(int(isl.pred[first, path[-1]]))
+        return nodes[path[::-1]]
 
     def plan(self, prev: np.ndarray, starts: np.ndarray, moving: np.ndarray) -> TravelPlan:
         """Routes for the travels prev[i] → starts[i] (only where ``moving``)."""
@@ -133,7 +138,16 @@ class TravelRouter:
         todo = np.flatnonzero(moving)
         if len(todo) == 0 or len(self._a) == 0:
             return TravelPlan(waypoints, leaves, length)
-        crossing = todo[segments_cross(prev[todo], starts[todo], self._a, self._b)]
+        # ends inside the fence: testing the fence's few edges is enough; other travels
+        # (to the skirt, along thin walls) are tested against the outline itself
+        inside = points_inside(self._fence, np.concatenate([prev[todo], starts[todo]]))
+        fenced = inside[:len(todo)] & inside[len(todo):]
+        hit = np.zeros(len(todo), dtype=bool)
+        hit[fenced] = segments_cross(prev[todo[fenced]], starts[todo[fenced]], self._fa,
+                                     self._fb)
+        hit[~fenced] = segments_cross(prev[todo[~fenced]], starts[todo[~fenced]], self._a,
+                                      self._b)
+        crossing = todo[hit]
         if len(crossing) == 0:
             return TravelPlan(waypoints, leaves, length)
         leaves[crossing] = True
