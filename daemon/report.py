@@ -76,6 +76,10 @@ def report_text(job: Job, history: list[dict[str, Any]]) -> str:
                      f"{_number(sliced.get('filament_mm'), 1000, 'm')} "
                      f"({_number(sliced.get('filament_g'))} g), "
                      f"estimated {_duration(sliced.get('estimated_seconds'))}")
+        turned = sliced.get("orientation") or {}
+        if turned.get("rotated"):  # the daemon turned the model ([profile] orient)
+            lines.append(f"  turned {_number(turned.get('angle_deg'))}° about "
+                         f"{turned.get('axis')}: {turned.get('reason', '')}")
     printed = job.print_result
     if printed:
         lines.append(f"Print: {printed.get('acked_lines', '?')} of "
