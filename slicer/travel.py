@@ -2,12 +2,15 @@
 
 A travel whose straight line would cross the layer's outline is routed inside the island
 that holds both its ends: the shortest path through a visibility graph over the reflex
-corners of the island shrunk by one bead spacing (so routes run inside the external
-perimeter). A leg is usable when it crosses no edge of a fence just inside the island's
-outline and its ends lie inside that fence, so such a leg stays inside the part. Graphs
-are built lazily, once per island per layer, only for islands a travel needs to cross;
-travels between islands, or islands too intricate for a small graph, keep the straight
-line and count as leaving the part (the writer retracts for those).
+corners of the island shrunk by half a bead spacing (routes run along the external
+perimeter's middle line, or further in). A leg between two corners is usable when it
+crosses no edge of a fence just inside the outline (the outline shrunk and simplified by
+an eighth of a bead: few edges, all inside the part); legs from the travel's own ends are
+tested against the outline itself. Graphs are built lazily, once per island per layer, only
+for islands a travel needs to cross; travels between islands, or islands too intricate for
+a small graph, keep the straight line and count as leaving the part (the writer retracts).
+So do travels between parts of an island joined only by a neck narrower than a bead (a
+thin wall): the routes keep half a bead inside the outline.
 """
 
 from __future__ import annotations
@@ -29,6 +32,8 @@ class _Island:
     polys: list[np.ndarray]
     fence_a: np.ndarray | None = None  # edges of the outline shrunk and simplified within it
     fence_b: np.ndarray | None = None
+    edge_a: np.ndarray | None = None  # the outline's own edges
+    edge_b: np.ndarray | None = None
     nodes: np.ndarray | None = None  # (n, 2) graph corners
     dist: np.ndarray | None = None  # (n, n) shortest distances inside, inf: no way
     pred: np.ndarray | None = None  # (n, n) predecessor of j on the way from i
@@ -51,8 +56,7 @@ def _reflex_corners(polys: list[np.ndarray]) -> np.ndarray:
     for p in polys:
         e_in = p - np.roll(p, 1, axis=0)
         e_out = np.roll(p, -1, axis=0) - p
-        turn = e_in[:, 0] * e_out[:, 1] - e_in[:, 1] * e_out[:, 0]
-        out.append(p[turn < 0])
+        out.append(p[e_in[:, 0] * e_out[:, 1] - e_in[:, 1] * e_out[:, 0] < 0])
     return np.concatenate(out) if out else np.zeros((0, 2))
 
 
@@ -80,26 +84,29 @@ class TravelRouter:
         return self._islands
 
     def _graph(self, isl: _Island) -> None:
-        tau = self.spacing / 4
-        fence = isl.shape.offset(-tau, JoinType.Miter).simplify(tau)
-        isl.fence_a, isl.fence_b = polygon_edges(contours(fence))
-        shape = isl.shape.offset(-self.spacing, JoinType.Miter)
-        tol = self.spacing / 4
+        s = self.spacing
+        fence = contours(isl.shape.offset(-s / 8, JoinType.Miter).simplify(s / 8))
+        isl.fence_a, isl.fence_b = polygon_edges(fence)
+        isl.edge_a, isl.edge_b = polygon_edges(isl.polys)
+        # corners on the external perimeter's middle line (narrow necks stay passable),
+        # kept only where they lie inside the fence
+        shape = isl.shape.offset(-s / 2, JoinType.Miter)
+        tol = s / 8
         nodes = _reflex_corners(contours(shape.simplify(tol)))
-        while len(nodes) > MAX_NODES and tol < 8 * self.spacing:
+        while len(nodes) > MAX_NODES and tol < 8 * s:
             tol *= 2
             nodes = _reflex_corners(contours(shape.simplify(tol)))
         if len(nodes) > MAX_NODES:
             nodes = np.zeros((0, 2))
+        nodes = nodes[points_inside(fence, nodes)] if len(nodes) else nodes
         n = len(nodes)
         legs = np.zeros((n, n))
         if n > 1:
             i, j = np.triu_indices(n, 1)
-            blocked = segments_cross(nodes[i], nodes[j], isl.fence_a, isl.fence_b)
-            d = np.hypot(*(nodes[j] - nodes[i]).T)
-            d[blocked] = 0.0  # no edge
-            legs[i, j] = d
-            legs[j, i] = d
+            length = np.hypot(*(nodes[j] - nodes[i]).T)
+            length[segments_cross(nodes[i], nodes[j], isl.fence_a, isl.fence_b)] = 0.0
+            legs[i, j] = length  # 0: no leg
+            legs[j, i] = length
         # all pairs at once (n ≤ MAX_NODES): each route is then a few array look-ups
         isl.dist, isl.pred = shortest_path(legs, directed=False, return_predecessors=True)
         isl.nodes = nodes
@@ -112,8 +119,10 @@ class TravelRouter:
         if n == 0:
             return None
         ends = np.array([p, q])
+        # the ends may lie nearer the outline than the fence: their legs are tested against
+        # the outline itself
         see = ~segments_cross(np.repeat(ends, n, axis=0), np.tile(nodes, (2, 1)),
-                              isl.fence_a, isl.fence_b).reshape(2, n)
+                              isl.edge_a, isl.edge_b).reshape(2, n)
         sa, sb = np.flatnonzero(see[0]), np.flatnonzero(see[1])
         if len(sa) == 0 or len(sb) == 0:
             return None
