@@ -5,7 +5,7 @@ outward normals of the convex hull's largest flat faces, plus the six axis direc
 candidate is scored at once, as numpy arrays over faces × candidates, by a stated cost (mm²):
 
     cost = support + VISIBLE_WEIGHT·visible + HEIGHT_WEIGHT·area·height/diagonal
-           − CONTACT_WEIGHT·contact
+           − CONTACT_WEIGHT·contact + TIPPING_WEIGHT·area·tipping
 
 - ``support``: area needing support, projected onto the bed: faces facing down more steeply
   than ``support_angle`` from vertical (normal within 90° − angle of straight down), except
@@ -13,7 +13,10 @@ candidate is scored at once, as numpy arrays over faces × candidates, by a stat
 - ``visible``: the part of those faces on the outside of the model (on its convex hull),
   where support scars show;
 - ``height``: the model's height in that orientation (taller prints take longer and wobble);
-- ``contact``: area of flat faces resting on the bed (adhesion).
+- ``contact``: area of flat faces resting on the bed (adhesion);
+- ``tipping``: 0 while the height is at most twice the diameter of the base (the convex
+  hull of what rests on the bed), rising to 1 at ten times: a ring stood on its edge or a
+  pin on its end would wobble or come loose.
 
 Modes: ``keep`` (as saved), ``auto`` (least cost), ``if-needed`` (the daemon's default: keep,
 unless the saved orientation needs support and another one needs none).
@@ -31,6 +34,7 @@ SUPPORT_ANGLE = 50.0  # degrees from vertical
 VISIBLE_WEIGHT = 0.5
 HEIGHT_WEIGHT = 0.05
 CONTACT_WEIGHT = 0.25
+TIPPING_WEIGHT = 0.1
 HULL_CANDIDATES = 12
 NO_SUPPORT_MM2 = 1.0  # below this much support area, an orientation "needs no support"
 
@@ -104,11 +108,21 @@ def rotation_axis_angle(rot: np.ndarray) -> tuple[float, np.ndarray]:
     return math.degrees(angle), axis / n
 
 
+HULL_POINTS = 20_000
+
+
 def _hull(vertices: np.ndarray):
+    """Convex hull of the vertices; above HULL_POINTS vertices, of every k-th one plus the
+    extreme vertex along each of 256 directions (qhull on a finely curved 300k-triangle
+    mesh would take seconds; the candidates only need the hull's large flat faces)."""
     from scipy.spatial import ConvexHull, QhullError
 
+    pts = vertices
+    if len(pts) > HULL_POINTS:
+        extreme = np.argmax(pts @ _sphere_directions().T, axis=0)
+        pts = pts[np.union1d(np.arange(0, len(pts), len(pts) // HULL_POINTS + 1), extreme)]
     try:
-        return ConvexHull(vertices)
+        return ConvexHull(pts)
     except (QhullError, ValueError):
         return None  # flat or degenerate point set
 
@@ -121,7 +135,7 @@ def candidate_downs(vertices: np.ndarray, hull=None, count: int = HULL_CANDIDATE
     cands = [axes]
     if hull is not None:
         eq = hull.equations  # (m, 4): outward unit normal, offset
-        tri = vertices[hull.simplices]
+        tri = hull.points[hull.simplices]
         area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]),
                                     axis=1)
         scale = np.array([1.0, 1.0, 1.0, 1.0 / max(float(np.ptp(vertices, axis=0).max()), 1e-9)])
@@ -169,26 +183,60 @@ def score(vertices: np.ndarray, faces: np.ndarray, downs: np.ndarray, *,
     outside = _on_hull(v, f, hull, diag)[:, None]
     visible = (a32 * (overhang & outside)).sum(axis=0)
     contact = (a32 * (on_bed & (cosd > 0.999))).sum(axis=0)
-    height = bed - depth.min(axis=0)
+    height = (bed - depth.min(axis=0)).astype(np.float64)
+    base = _base_areas(v, hull, downs, bed_tolerance)
+    tipping = np.clip(height / (2 * np.sqrt(base / math.pi) + 1e-9) - 2.0, 0.0, 8.0) / 8.0
     cost = (support + VISIBLE_WEIGHT * visible + HEIGHT_WEIGHT * total_area * height / diag
-            - CONTACT_WEIGHT * contact)
+            - CONTACT_WEIGHT * contact + TIPPING_WEIGHT * total_area * tipping)
     return {"cost": cost.astype(np.float64), "support_mm2": support.astype(np.float64),
             "visible_mm2": visible.astype(np.float64), "contact_mm2": contact.astype(np.float64),
-            "height_mm": height.astype(np.float64)}
+            "height_mm": height, "base_mm2": base, "tipping": tipping}
+
+
+def _base_areas(v: np.ndarray, hull, downs: np.ndarray, tolerance: float) -> np.ndarray:
+    """Area (mm²) of the convex hull of the points resting on the bed, per candidate."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    pts = hull.points[hull.vertices] if hull is not None else v
+    depth = pts @ downs.T
+    out = np.zeros(len(downs))
+    for k, d in enumerate(downs):  # a few candidates, each vectorised over points
+        on = pts[depth[:, k] >= depth[:, k].max() - tolerance]
+        u = np.cross(d, [1.0, 0.0, 0.0] if abs(d[0]) < 0.9 else [0.0, 1.0, 0.0])
+        u /= np.linalg.norm(u)
+        flat = np.stack([on @ u, on @ np.cross(d, u)], axis=1)
+        try:
+            out[k] = ConvexHull(flat).volume if len(flat) >= 3 else 0.0
+        except (QhullError, ValueError):
+            out[k] = 0.0  # points on a line: no base to stand on
+    return out
+
+
+def _sphere_directions(count: int = 256) -> np.ndarray:
+    """``count`` unit vectors spread evenly over the sphere (Fibonacci lattice)."""
+    k = np.arange(count) + 0.5
+    z = 1.0 - 2.0 * k / count
+    r = np.sqrt(1.0 - z * z)
+    phi = k * math.pi * (3.0 - math.sqrt(5.0))
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
 
 
 def _on_hull(v: np.ndarray, f: np.ndarray, hull, diag: float) -> np.ndarray:
-    """Faces whose centroid lies on the convex hull's surface (within 1 % of the diagonal)."""
+    """Faces whose corners all lie on the convex hull's surface (within 1 % of the diagonal).
+
+    The distance from a point c inside a convex body to its surface is the least, over unit
+    directions n, of h(n) − c·n, with h the body's support function; it is taken over 128
+    directions, so its cost does not grow with the hull's facet count."""
     if hull is None:
         return np.ones(len(f), dtype=bool)
-    centroid = v[f].mean(axis=1)
-    eq = hull.equations
-    out = np.empty(len(f), dtype=bool)
-    step = max(1, 4_000_000 // len(eq))
-    for i in range(0, len(f), step):  # chunks of faces, every plane at once
-        dist = -(centroid[i:i + step] @ eq[:, :3].T + eq[:, 3])  # ≥ 0 inside
-        out[i:i + step] = dist.min(axis=1) <= 0.01 * diag
-    return out
+    dirs = _sphere_directions(128).astype(np.float32)
+    support = (hull.points[hull.vertices].astype(np.float32) @ dirs.T).max(axis=0)  # h(n)
+    pts = v.astype(np.float32)
+    gap = np.empty(len(v), dtype=np.float32)
+    step = 32768
+    for i in range(0, len(v), step):  # chunks of vertices, every direction at once
+        gap[i:i + step] = (support[None] - pts[i:i + step] @ dirs.T).min(axis=1)
+    return gap[f].max(axis=1) <= 0.01 * diag
 
 
 def choose_orientation(vertices: np.ndarray, faces: np.ndarray, mode: str = "auto", *,
@@ -203,7 +251,8 @@ def choose_orientation(vertices: np.ndarray, faces: np.ndarray, mode: str = "aut
     pick = 0
     if mode == "auto":
         best = int(np.argmin(terms["cost"]))
-        if terms["cost"][best] < terms["cost"][0] - 1e-6 * max(abs(terms["cost"][0]), 1.0):
+        # turn only for a real gain: more than 1 % of the cost as saved (and 1 mm²)
+        if terms["cost"][best] < terms["cost"][0] - max(0.01 * abs(terms["cost"][0]), 1.0):
             pick = best
     elif mode == "if-needed" and terms["support_mm2"][0] >= NO_SUPPORT_MM2:
         free = np.flatnonzero(terms["support_mm2"] < NO_SUPPORT_MM2)

@@ -136,3 +136,20 @@ def test_bodies_that_do_not_fit_give_a_clear_error():
     v, f = mesh_of(parts)
     with pytest.raises(SliceError, match=r"5 separate bodies need .* the bed is 200 × 200 mm"):
         slice_mesh(v, f, BASE.with_overrides({"arrange": True}))
+
+
+def test_auto_does_not_stand_a_ring_on_its_edge_and_lays_a_tall_pin_down():
+    import trimesh
+
+    from slicer.orient import choose_orientation
+
+    # a 24k-vertex torus lying flat: standing it on its edge would need less support, but a
+    # ring on its edge wobbles (the tipping term); its hull is taken from a subsample
+    ring = trimesh.creation.torus(30.0, 8.0, major_sections=200, minor_sections=120)
+    kept = choose_orientation(ring.vertices, ring.faces, "auto")
+    assert not kept.rotated and kept.terms["tipping"] == 0.0
+    assert overhang_area(ring.vertices, ring.faces) > 100.0  # it does need support flat
+    pin = trimesh.creation.box((5.0, 5.0, 80.0))
+    laid = choose_orientation(pin.vertices, pin.faces, "auto")
+    assert laid.rotated and laid.terms["height_mm"] == pytest.approx(5.0)
+    assert laid.kept_terms["tipping"] == 1.0
