@@ -59,6 +59,12 @@ def flavour_from(info: dict[str, Any]) -> str:
     return slicer_flavour_for_firmware(str((info or {}).get("firmware") or ""))
 
 
+
+def slice_overrides(cfg: Config) -> dict[str, Any]:
+    """The profile overrides a job is sliced with: ``[profile]`` over the daemon's own
+    defaults (it turns a model only when that avoids support entirely: orient if-needed)."""
+    return {"orient": "if-needed", **cfg.profile}
+
 class Spool:
     """File moves between the spool, the work folders, ``done/`` and ``failed/``."""
 
@@ -359,7 +365,7 @@ class Processor:
             "in": str(repaired), "out": str(gcode), "nozzle": epsilon, "job_name": job.name,
             "build_volume": list(build_volume) if build_volume else None,
             "filament_diameter": info.get("filament_diameter"),
-            "flavour": flavour_from(info), "overrides": self.cfg.profile,
+            "flavour": flavour_from(info), "overrides": slice_overrides(self.cfg),
         }, cancel, "slicing failed")
         if not ok:
             return

@@ -82,6 +82,10 @@ def report_text(job: Job, history: list[dict[str, Any]]) -> str:
             lines.append(f"  support {_number(sliced.get('support_cm3'))} cm3, "
                          f"{_duration(sliced.get('support_seconds'))} of the print"
                          + (", with a brim" if sliced.get("brim") else ""))
+        turned = sliced.get("orientation") or {}
+        if turned.get("rotated"):  # the daemon turned the model ([profile] orient)
+            lines.append(f"  turned {_number(turned.get('angle_deg'))}° about "
+                         f"{turned.get('axis')}: {turned.get('reason', '')}")
     printed = job.print_result
     if printed:
         lines.append(f"Print: {printed.get('acked_lines', '?')} of "

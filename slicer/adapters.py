@@ -119,11 +119,12 @@ def prusa_args(profile: Profile) -> list[str]:
         "skirts": p.skirts, "skirt-distance": p.skirt_distance, "skirt-height": p.skirt_height,
         "extrusion-multiplier": p.extrusion_multiplier, "filament-density": p.filament_density,
         "resolution": p.resolution, "after-layer-gcode": "G92 E0",
-        "seam-position": "rear" if p.seam_position == "rear" else "nearest",
+        "seam-position": p.seam_position,  # rear | nearest | aligned, the same names
         "start-gcode": start, "end-gcode": end,
     }
     flags = {
         "thin-walls": p.thin_walls, "use-relative-e-distances": p.relative_e,
+        "avoid-crossing-perimeters": p.avoid_crossing_perimeters,
         "gcode-comments": p.comments,
     }
     args: list[str] = []
@@ -215,7 +216,9 @@ def cura_settings(profile: Profile) -> tuple[dict[str, str], dict[str, str]]:
         "cool_min_layer_time": p.min_layer_time, "cool_min_speed": p.min_print_speed,
         "bridge_settings_enabled": "true", "bridge_skin_speed": p.bridge_speed,
         "bridge_fan_speed": p.bridge_fan_speed,
-        "z_seam_type": "back" if p.seam_position == "rear" else "shortest",
+        "z_seam_type": {"rear": "back", "nearest": "shortest"}.get(p.seam_position,
+                                                                   "sharpest_corner"),
+        "retraction_combing": "all" if p.avoid_crossing_perimeters else "off",
         "material_flow": 100.0 * p.extrusion_multiplier,
     }
     glob: dict[str, Any] = {

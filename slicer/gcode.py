@@ -18,6 +18,7 @@ from slicer.geometry import bead_area, polygon_edges, segments_cross
 from slicer.planner import LayerPlan, Path
 from slicer.profile import Profile
 from slicer.templates import render_template
+from slicer.travel import TravelRouter
 
 #: PrusaSlicer's ``;TYPE:`` names for the planner's path roles (G-code viewers read them)
 FEATURE_LABELS = {
@@ -114,8 +115,9 @@ class GcodeWriter:
         return f"G1 E{self.e_abs:.5f} F{feed:.0f}\n"
 
     def layer(self, plan: LayerPlan, ordered: list[tuple[np.ndarray, Path]],
-              pos: np.ndarray) -> LayerCode:
+              pos: np.ndarray, router: TravelRouter | None = None) -> LayerCode:
         """G-code for one layer starting at XY ``pos`` (its Z move is emitted by the caller).
+        With a ``router``, travels that would cross the outline go around inside the part.
 
         All segment lengths, E values and the time estimate are computed for the whole layer
         at once; the text is produced by one ``%`` formatting of a layer-wide template.
@@ -145,11 +147,15 @@ class GcodeWriter:
         starts = pts[begins]
         dist = np.hypot(*(starts - prev).T)
         moving = dist > 1e-6
-        retract = moving & (dist > p.retract_min_travel)
-        short = np.flatnonzero(moving & ~retract)
-        if len(short) and plan.outline:
-            a, b = polygon_edges(plan.outline)
-            retract[short] = segments_cross(prev[short], starts[short], a, b)
+        routes = router.plan(prev, starts, moving) if router is not None else None
+        if routes is not None:  # retract when leaving the part or travelling far
+            retract = moving & (routes.leaves | (routes.length > p.retract_min_travel))
+        else:
+            retract = moving & (dist > p.retract_min_travel)
+            short = np.flatnonzero(moving & ~retract)
+            if len(short) and plan.outline:
+                a, b = polygon_edges(plan.outline)
+                retract[short] = segments_cross(prev[short], starts[short], a, b)
         if p.retract_length <= 0:
             retract[:] = False
 
@@ -182,6 +188,8 @@ class GcodeWriter:
         lift = p.retract_lift
         extra = n_retract * (2 * p.retract_length / p.retract_speed
                              + (2 * lift / p.travel_speed if lift > 0 else 0.0))
+        if routes is not None:  # detours, at travel speed
+            extra += float((routes.length - dist)[active].sum()) / p.travel_speed
         accel = np.full(len(pts), p.print_acceleration)
         accel[begins] = p.travel_acceleration
 
@@ -228,6 +236,10 @@ class GcodeWriter:
                     if lift > 0:
                         fmt.append("G1 Z%.3f F%.0f\n")
                         vals += (z + lift, travel_f)
+                way = routes.waypoints[i] if routes is not None else None
+                if way is not None:
+                    fmt.append("G0 X%.3f Y%.3f F%.0f\n" * len(way))
+                    vals += [c for pt in way.tolist() for c in (pt[0], pt[1], travel_f)]
                 fmt.append("G0 X%.3f Y%.3f F%.0f\n")
                 vals += (float(starts[i, 0]), float(starts[i, 1]), travel_f)
                 feed = travel_f

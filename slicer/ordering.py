@@ -16,7 +16,7 @@ ROLE_ORDER = ("skirt", "brim", "support", "support_interface", "perimeter",
 
 
 def _nearest_neighbour(
-    paths: list[Path], pos: np.ndarray, rear_seam: bool = False
+    paths: list[Path], pos: np.ndarray, rear_seam: bool = False, aligner=None
 ) -> tuple[list[tuple[np.ndarray, Path]], np.ndarray]:
     """Order ``paths`` greedily from ``pos``; returns (oriented points, path) and the end pos.
 
@@ -45,10 +45,12 @@ def _nearest_neighbour(
         p = paths[i]
         k = int(vidx[j])
         if p.closed:
-            if rear_seam:
-                k = int(np.lexsort((p.points[:, 0], -p.points[:, 1]))[0])
-            ring = np.concatenate([p.points[k:], p.points[:k + 1]])
-            out.append((ring, p))
+            if aligner is not None:
+                out.append((aligner.ring(p.points), p))
+            else:
+                if rear_seam:
+                    k = int(np.lexsort((p.points[:, 0], -p.points[:, 1]))[0])
+                out.append((np.concatenate([p.points[k:], p.points[:k + 1]]), p))
         else:
             out.append((p.points if k == 0 else p.points[::-1], p))
         last = out[-1][0][-1]
@@ -56,12 +58,13 @@ def _nearest_neighbour(
     return out, np.array([x, y])
 
 
-def order_paths(paths: list[Path], pos: np.ndarray, seam: str = "rear"
+def order_paths(paths: list[Path], pos: np.ndarray, seam: str = "rear", aligner=None
                 ) -> tuple[list[tuple[np.ndarray, Path]], np.ndarray]:
     """All paths of one layer in print order as (oriented points, path) pairs, plus end pos.
 
     ``seam``: "rear" starts external perimeters at their rearmost vertex, "nearest" at the
-    vertex nearest to the nozzle."""
+    vertex nearest to the nozzle, "aligned" where ``aligner`` (a slicer.travel.SeamAligner,
+    kept across layers) says."""
     groups: dict[str, list[Path]] = {}
     for p in paths:
         groups.setdefault(p.role, []).append(p)
@@ -70,7 +73,11 @@ def order_paths(paths: list[Path], pos: np.ndarray, seam: str = "rear"
         group = groups.get(role)
         if not group:
             continue
+        outer = role == "external_perimeter"
         oriented, pos = _nearest_neighbour(
-            group, pos, rear_seam=seam == "rear" and role == "external_perimeter")
+            group, pos, rear_seam=seam == "rear" and outer,
+            aligner=aligner if seam == "aligned" and outer else None)
         result.extend(oriented)
+    if aligner is not None:
+        aligner.next_layer()
     return result, pos

@@ -20,7 +20,8 @@ from printer.firmware import SLICER_FLAVOURS, slicer_flavour
 
 FLAVOURS = SLICER_FLAVOURS
 INFILL_PATTERNS = ("rectilinear", "grid")
-SEAM_POSITIONS = ("rear", "nearest")
+SEAM_POSITIONS = ("rear", "nearest", "aligned")
+ORIENT_MODES = ("keep", "auto", "if-needed")
 #: auto: support where an overhang needs it (steeper than support_angle, not a bridge, at
 #: least support_min_area), standing on the build plate and, where the plate cannot be
 #: reached (a chin over a paw), on the part; buildplate: only columns that reach the plate;
@@ -133,6 +134,12 @@ class Profile:
     start_gcode: str = DEFAULT_START_GCODE
     end_gcode: str = DEFAULT_END_GCODE
     comments: bool = True
+    # placement, travel and thumbnails (slicer/orient.py, arrange.py, travel.py, thumbnail.py)
+    orient: str = "keep"
+    arrange: bool = False
+    arrange_gap: float = 6.0
+    avoid_crossing_perimeters: bool = True
+    thumbnails: str = "16x16,220x124"
 
     def __post_init__(self) -> None:
         bv = tuple(float(v) for v in self.build_volume)
@@ -179,6 +186,7 @@ class Profile:
                 f"infill_pattern must be one of {', '.join(INFILL_PATTERNS)}, "
                 f"got {self.infill_pattern!r}"
             )
+        _check_placement(self)
         if self.seam_position not in SEAM_POSITIONS:
             raise ProfileError(
                 f"seam_position must be one of {', '.join(SEAM_POSITIONS)}, "
@@ -258,6 +266,29 @@ class Profile:
     def filament_area(self) -> float:
         """Cross-section of the filament, mm²."""
         return math.pi * (self.filament_diameter / 2) ** 2
+
+
+def thumbnail_sizes(spec: str) -> list[tuple[int, int]]:
+    """Parse ``thumbnails`` ("16x16,220x124"; "" for none) into (width, height) pairs."""
+    out: list[tuple[int, int]] = []
+    for item in spec.replace(" ", "").split(","):
+        if not item:
+            continue
+        w, sep, h = item.lower().partition("x")
+        if not (sep and w.isdigit() and h.isdigit() and 8 <= int(w) <= 1024
+                and 8 <= int(h) <= 1024):
+            raise ProfileError(f"thumbnails must be sizes like 16x16,220x124 (8..1024 px), "
+                               f"got {spec!r}")
+        out.append((int(w), int(h)))
+    return out
+
+
+def _check_placement(p: Profile) -> None:
+    if p.orient not in ORIENT_MODES:
+        raise ProfileError(f"orient must be one of {', '.join(ORIENT_MODES)}, got {p.orient!r}")
+    if not (math.isfinite(p.arrange_gap) and p.arrange_gap >= 0):
+        raise ProfileError(f"arrange_gap must be zero or more, got {p.arrange_gap!r}")
+    thumbnail_sizes(p.thumbnails)
 
 
 def _coerce(key: str, current: Any, value: Any) -> Any:

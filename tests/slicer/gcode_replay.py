@@ -52,6 +52,23 @@ class Replay:
         xy = np.hypot(*(self.end[:, :2] - self.start[:, :2]).T)
         return (self.de > 1e-9) & (xy > 1e-9)
 
+    def travel_chains(self) -> list[tuple[float, np.ndarray]]:
+        """(z, indices) of each run of consecutive non-extruding XY moves between two
+        extrusions at the same Z: the travel from where one extrusion ended to where the next
+        began, leg by leg (retractions and hops inside the run are skipped)."""
+        ext = self.extruding
+        xy = np.hypot(*(self.end[:, :2] - self.start[:, :2]).T)
+        out: list[tuple[float, np.ndarray]] = []
+        e_idx = np.flatnonzero(ext)
+        for a, b in zip(e_idx[:-1], e_idx[1:], strict=True):
+            if b == a + 1 or abs(self.end[a, 2] - self.end[b, 2]) > 1e-9:
+                continue
+            legs = np.arange(a + 1, b)
+            legs = legs[(xy[legs] > 1e-9) & (self.de[legs] <= 1e-9)]
+            if len(legs):
+                out.append((float(round(self.end[a, 2], 3)), legs))
+        return out
+
     def layers(self, mask: np.ndarray | None = None) -> dict[float, np.ndarray]:
         """Indices of extruding moves (or of the moves in ``mask``) grouped by Z (rounded to
         1 µm)."""

@@ -11,7 +11,7 @@ import math
 import numpy as np
 import trimesh
 from gcode_replay import Replay
-from manifold3d import CrossSection, FillRule, Manifold, Mesh
+from manifold3d import CrossSection, FillRule, JoinType, Manifold, Mesh
 
 BEAD_SHAPE = 1.0 - math.pi / 4.0  # rounded-rectangle bead: area = h·(w − h·BEAD_SHAPE)
 
@@ -116,3 +116,79 @@ def bead_footprint(rep: Replay, idx: np.ndarray, height: float, filament_diamete
 
 def layer_heights(zs: list[float]) -> list[float]:
     return [zs[0]] + [b - a for a, b in zip(zs[:-1], zs[1:], strict=True)]
+
+
+# ---------------------------------------------------------------------------------------
+def cup(flipped=False):
+    """A cup (Ø30 × 16 mm, 2 mm floor and walls); ``flipped``: saved standing on its rim."""
+    v, f = mesh_of(Manifold.cylinder(16, 15, 15, 64)
+                   - Manifold.cylinder(16, 13, 13, 64).translate([0, 0, 2]))
+    return (v * [1, -1, -1], f) if flipped else (v, f)
+
+
+def flanged_pin_on_its_side():
+    """A Ø20 × 3 mm flange under a Ø8 × 20 mm post, saved lying on its side."""
+    v, f = mesh_of(Manifold.cylinder(3, 10, 10, 64) + Manifold.cylinder(23, 4, 4, 48))
+    return v[:, [0, 2, 1]] * [1, 1, -1], f
+
+
+def overhang_area(vertices, faces, support_angle=50.0, bed_tolerance=0.1):
+    """Area (mm²) of faces facing down more steeply than ``support_angle`` from vertical
+    that do not rest on the bed (the lowest z), for the mesh as it stands."""
+    v = np.asarray(vertices, float)
+    tri = v[np.asarray(faces)]
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    area = np.linalg.norm(cross, axis=1) / 2
+    down = -cross[:, 2] / np.maximum(2 * area, 1e-300)
+    on_bed = tri[:, :, 2].max(axis=1) <= v[:, 2].min() + bed_tolerance
+    steep = down > math.cos(math.radians(90.0 - support_angle))
+    return float(area[steep & ~on_bed].sum())
+
+
+def u_shape():
+    """A U in plan view (30 × 30 mm, a 10 × 20 mm notch), 4 mm tall."""
+    outline = np.array([[0, 0], [30, 0], [30, 30], [20, 30], [20, 10], [10, 10], [10, 30],
+                        [0, 30]], float)
+    return mesh_of(Manifold.extrude(CrossSection([outline]), 4.0))
+
+
+def ring():
+    """A ring: Ø30 outside, Ø20 hole, 4 mm tall."""
+    return mesh_of(Manifold.cylinder(4, 15, 15, 64) - Manifold.cylinder(10, 10, 10, 64)
+                   .translate([0, 0, -3]))
+
+
+def travels_leaving_their_island(rep: Replay, solid: Manifold, layer_height: float,
+                                 first_layer_height: float) -> tuple[int, int]:
+    """(travels checked, travels that leave the island holding both their ends).
+
+    For every travel between two extrusions of a layer whose two ends lie in one island of
+    the model's cross-section, each leg is drawn as a hair-thin strip and cut against the
+    island grown by 10 µm; anything left over is a crossing of the island's outline."""
+    checked = crossings = 0
+    islands_at: dict[float, list[CrossSection]] = {}
+    for z, legs in rep.travel_chains():
+        if z not in islands_at:
+            mid = z - (first_layer_height if z <= first_layer_height + 1e-6
+                       else layer_height) / 2
+            islands_at[z] = [i.offset(0.01, JoinType.Miter)
+                             for i in solid.slice(mid).decompose()]
+        a, b = rep.start[legs[0], :2], rep.end[legs[-1], :2]
+        home = [i for i in islands_at[z] if _inside(i, a) and _inside(i, b)]
+        if not home:
+            continue
+        checked += 1
+        for k in legs:
+            p, q = rep.start[k, :2], rep.end[k, :2]
+            d = q - p
+            n = np.array([-d[1], d[0]]) / np.hypot(*d) * 5e-4
+            strip = CrossSection([np.array([p - n, q - n, q + n, p + n])], FillRule.Positive)
+            if (strip - home[0]).area() > 1e-6:
+                crossings += 1
+                break
+    return checked, crossings
+
+
+def _inside(cs: CrossSection, pt) -> bool:
+    dot = CrossSection.square([1e-3, 1e-3], center=True).translate([float(pt[0]), float(pt[1])])
+    return (dot - cs).area() < 1e-9

@@ -1,0 +1,58 @@
+"""Thumbnail benchmark: seconds to draw the G-code thumbnails (16×16 and 220×124) of meshes
+from 1k to 330k triangles, and that time as a share of slicing the same mesh in the same
+process (the embedded slicer, default profile, thumbnails off).
+
+Run: .venv/bin/python bench/bench_thumbnail.py [--repeat N]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+def _meshes():
+    import trimesh
+
+    for sub in (4, 6, 7):
+        s = trimesh.creation.icosphere(subdivisions=sub, radius=20.0)
+        yield f"icosphere/{sub}", s.vertices, s.faces
+    t = trimesh.creation.torus(30.0, 8.0, major_sections=400, minor_sections=250)
+    yield "torus", t.vertices, t.faces
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeat", type=int, default=3)
+    args = ap.parse_args()
+    t0 = time.perf_counter()
+    import matplotlib.backends.backend_agg  # noqa: F401
+    import PIL.Image  # noqa: F401
+    print(f"matplotlib + Pillow import: {time.perf_counter() - t0:.3f} s")
+
+    from slicer.engine import slice_mesh
+    from slicer.profile import Profile
+    from slicer.thumbnail import thumbnail_blocks
+
+    profile = Profile.for_printer().with_overrides({"thumbnails": ""})
+    print(f"{'mesh':<14}{'triangles':>10}{'thumb s':>9}{'slice s':>9}{'share':>8}{'bytes':>8}")
+    for name, v, f in _meshes():
+        best = float("inf")
+        for _ in range(args.repeat):
+            t = time.perf_counter()
+            text = thumbnail_blocks(v, f, [(16, 16), (220, 124)])
+            best = min(best, time.perf_counter() - t)
+        t = time.perf_counter()
+        slice_mesh(v, f, profile)
+        sliced = time.perf_counter() - t
+        print(f"{name:<14}{len(f):>10}{best:>9.3f}{sliced:>9.2f}{best / sliced:>8.1%}"
+              f"{len(text):>8}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,88 @@
+"""Travel: routed inside the part (avoid_crossing_perimeters), retraction only when leaving the
+part or travelling far, and seam placement (rear / nearest / aligned)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from gcode_replay import replay
+from slice_checks import placed, ring, travels_leaving_their_island, u_shape
+
+from slicer.engine import slice_mesh
+from slicer.profile import Profile
+
+BASE = Profile.for_printer(nozzle_diameter=0.4, build_volume=(200, 200, 180)).with_overrides(
+    {"skirts": 0, "thumbnails": ""})
+
+
+def _slice(model, **over):
+    v, f = model()
+    profile = BASE.with_overrides(over)
+    result = slice_mesh(v, f, profile)
+    return placed(v, f, profile.build_volume), profile, result, replay(result.gcode)
+
+
+@pytest.mark.parametrize("model", [u_shape, ring], ids=["u_shape", "ring"])
+def test_travel_inside_one_island_never_crosses_its_outline(model):
+    solid, profile, _, rep = _slice(model)
+    checked, crossings = travels_leaving_their_island(rep, solid, profile.layer_height,
+                                                      profile.first_layer_height)
+    assert checked > 20
+    assert crossings == 0, f"{crossings} of {checked} travels left their island"
+    # the check can fail: straight travels do cross the notch / the hole
+    solid, profile, _, straight = _slice(model, avoid_crossing_perimeters=False)
+    assert travels_leaving_their_island(straight, solid, profile.layer_height,
+                                        profile.first_layer_height)[1] > 0
+
+
+def _retraction_state(rep):
+    """Per move: is the filament retracted when the move starts (replayed from E)?"""
+    xy = np.hypot(*(rep.end[:, :2] - rep.start[:, :2]).T)
+    state = np.zeros(len(rep.de))
+    pulled = 0.0
+    for i in range(len(rep.de)):
+        state[i] = pulled
+        if xy[i] == 0 and rep.de[i] != 0:
+            pulled -= rep.de[i]
+    return state
+
+
+def test_short_routed_travels_inside_the_part_do_not_retract():
+    _, profile, _, rep = _slice(u_shape, retract_min_travel=50.0)
+    pulled = _retraction_state(rep)
+    chains = rep.travel_chains()
+    routed = [legs for _, legs in chains if len(legs) > 1]
+    assert routed, "no travel was routed around the notch"
+    for legs in routed:
+        length = np.hypot(*(rep.end[legs, :2] - rep.start[legs, :2]).T).sum()
+        if length < 50.0:
+            assert abs(pulled[legs[0]]) < 1e-9, f"retracted at line {rep.line_no[legs[0]]}"
+
+
+def test_routed_travels_cost_time_and_keep_z_hops():
+    _, _, routed, rep = _slice(ring, retract_lift=0.3)
+    _, _, straight, _ = _slice(ring, retract_lift=0.3, avoid_crossing_perimeters=False)
+    assert routed.summary["estimated_seconds"] >= straight.summary["estimated_seconds"]
+    assert routed.summary["filament_mm"] == pytest.approx(straight.summary["filament_mm"])
+    z = rep.end[:, 2]
+    assert (z > rep.start[:, 2] + 0.29).any()  # hops still happen where travel retracts
+
+
+def test_aligned_seams_stay_in_one_place_layer_after_layer():
+    from slice_checks import sphere
+
+    def seam_spread(seam):
+        _, _, _, rep = _slice(sphere, seam_position=seam)
+        layers = rep.layers()
+        starts = []
+        centre = np.array(BASE.build_volume[:2]) / 2
+        for z in sorted(layers)[3:-3]:
+            idx = layers[z]
+            begins = rep.start[idx[~rep.extruding[idx - 1]], :2]  # where paths begin
+            # the outer loop's seam: the path start farthest from the sphere's axis
+            starts.append(begins[np.argmax(np.hypot(*(begins - centre).T))])
+        ang = np.unwrap(np.arctan2(*(np.array(starts) - centre).T[::-1]))
+        return float(np.ptp(ang))
+
+    assert seam_spread("aligned") < 0.35
+    assert seam_spread("nearest") > seam_spread("aligned")
