@@ -265,16 +265,19 @@ def _outside_sides(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray,
     return cells[:, 0] == 0, cells[:, 1] == 0, int(n_cells)
 
 
-#: At most this many rays in all are cast by :func:`unbounded_cells`.
+#: At most this many rays in all are cast by :func:`unbounded_cells`, and at most
+#: :data:`MAX_CELL_RAY_TESTS` ray-triangle tests (each ray is tested against every face).
 MAX_CELL_RAYS = 3000
+MAX_CELL_RAY_TESTS = 20_000_000
 
 
 def unbounded_cells(vertices: np.ndarray, faces: np.ndarray, cells: np.ndarray) -> np.ndarray:
     """The labels (in ``cells``, (m, 2): the region on the positive and the negative side
     of each face) of regions that reach infinity: a ray from a hair off one of their
     faces leaves the model without meeting another face. Up to 8 faces per region and
-    6 directions per face are tried (away from the model's centre first), at most
-    :data:`MAX_CELL_RAYS` rays in all, largest regions first. Float ray tests: a
+    6 directions per face are tried (away from the model's centre first), largest
+    regions first, within :data:`MAX_CELL_RAYS` rays and :data:`MAX_CELL_RAY_TESTS`
+    ray-triangle tests in all (about a second of numpy). Float ray tests: a
     grazing hit only makes a ray fail, never pass wrongly."""
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
@@ -289,8 +292,10 @@ def unbounded_cells(vertices: np.ndarray, faces: np.ndarray, cells: np.ndarray) 
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     labels, counts = np.unique(cells, return_counts=True)
     out: list[int] = []
-    budget = MAX_CELL_RAYS
+    budget = min(MAX_CELL_RAYS, MAX_CELL_RAY_TESTS // max(len(f), 1))
     for lab in labels[np.argsort(-counts, kind="stable")].tolist():
+        if lab == 0:
+            continue  # libigl's own unbounded cell
         sides = np.argwhere(cells == lab)
         sides = sides[np.linspace(0, len(sides) - 1, min(8, len(sides))).astype(int)]
         for face, col in sides.tolist():
