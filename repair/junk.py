@@ -28,8 +28,8 @@ __all__ = [
     "without_internal_junk","PROBE_FRACTION", "drop_internal_junk", "face_winding_sides"]
 
 #: Probe distance off each face, as a fraction of the mesh's largest extent (mm):
-#: about 16 float32 ulps of the largest coordinate of a centred part.
-PROBE_FRACTION = 2.0**-19
+#: about 2 float32 ulps of the largest coordinate of a centred part.
+PROBE_FRACTION = 2.0**-22
 
 
 def probe_distance(vertices: np.ndarray) -> float:
@@ -38,7 +38,12 @@ def probe_distance(vertices: np.ndarray) -> float:
     return float(np.ptp(v, axis=0).max()) * PROBE_FRACTION if len(v) else 0.0
 
 
-def _winding(v: np.ndarray, f: np.ndarray, q: np.ndarray) -> np.ndarray:
+def _winding(v: np.ndarray, f: np.ndarray, q: np.ndarray, expected: np.ndarray) -> np.ndarray:
+    """Winding numbers at ``q``: libigl's exact ``winding_number`` for a modest
+    probes x faces product; else its hierarchical ``fast_winding_number``, which is
+    approximate and a hair off a face can be wrong by a whole unit, so every probe where
+    it differs from the ``expected`` value is summed again exactly (few, on a good
+    mesh)."""
     import igl
 
     v = np.ascontiguousarray(v, dtype=np.float64)
@@ -47,11 +52,9 @@ def _winding(v: np.ndarray, f: np.ndarray, q: np.ndarray) -> np.ndarray:
     if len(f) * len(q) <= 4_000_000:
         return np.asarray(igl.winding_number(v, f, q), dtype=np.float64)
     w = np.asarray(igl.fast_winding_number(v, f, q), dtype=np.float64)
-    # The hierarchical sum is approximate, and off slivers a hair away it can be far
-    # off: where it is not clearly an integer 0 or 1, take the exact sum.
-    unclear = np.flatnonzero(np.abs(w - np.clip(np.rint(w), 0, 1)) > 0.05)
-    for s in range(0, len(unclear), 256):
-        part = unclear[s : s + 256]
+    recheck = np.flatnonzero(np.abs(w - expected) > 0.05)
+    for s in range(0, len(recheck), 256):
+        part = recheck[s : s + 256]
         w[part] = np.asarray(igl.winding_number(v, f, q[part]), dtype=np.float64)
     return w
 
@@ -62,7 +65,7 @@ def face_winding_sides(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Generalised winding number of the whole mesh just outside (centroid + d n) and
     just inside (centroid - d n) each face (or the faces ``which``), d = ``distance``
-    (default :func:`probe_distance`) or a quarter of the face's height if less.
+    (default :func:`probe_distance`) or a tenth of the face's height if less.
     libigl's ``winding_number`` (exact solid angles) or, for many probes against many
     faces, its hierarchical ``fast_winding_number`` (exact sums where it is unclear).
     Degenerate faces get NaN."""
@@ -76,12 +79,13 @@ def face_winding_sides(
     ok = length[:, 0] > 0
     n = np.divide(n, length, out=np.zeros_like(n), where=length > 0)
     c = p.mean(axis=1)
-    # Never farther off a face than a quarter of its height: off a sliver, a probe at
+    # Never farther off a face than a tenth of its height: off a sliver, a probe at
     # the global distance would land beyond its neighbours instead of just outside it.
     longest = np.linalg.norm(p - p[:, [1, 2, 0]], axis=2).max(axis=1)
     height = np.divide(length[:, 0], longest, out=np.zeros_like(longest), where=longest > 0)
-    d = np.minimum(d, 0.25 * height)[:, None]
-    w = _winding(v, f, np.vstack([c + d * n, c - d * n]))
+    d = np.minimum(d, 0.1 * height)[:, None]
+    expected = np.r_[np.zeros(len(idx)), np.ones(len(idx))]
+    w = _winding(v, f, np.vstack([c + d * n, c - d * n]), expected)
     out, inside = w[: len(idx)], w[len(idx) :]
     out[~ok] = inside[~ok] = np.nan
     return out, inside
