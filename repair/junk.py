@@ -68,7 +68,9 @@ def face_winding_sides(
     (default :func:`probe_distance`) or a tenth of the face's height if less.
     libigl's ``winding_number`` (exact solid angles) or, for many probes against many
     faces, its hierarchical ``fast_winding_number`` (exact sums where it is unclear).
-    Degenerate faces get NaN."""
+    Faces too thin to probe (height under 2^-20 of the probe distance: a probe off them
+    would sit within floating-point noise of the face itself) and degenerate faces get
+    NaN."""
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
     idx = np.arange(len(f)) if which is None else np.asarray(which, dtype=np.int64)
@@ -84,6 +86,8 @@ def face_winding_sides(
     longest = np.linalg.norm(p - p[:, [1, 2, 0]], axis=2).max(axis=1)
     height = np.divide(length[:, 0], longest, out=np.zeros_like(longest), where=longest > 0)
     d = np.minimum(d, 0.1 * height)[:, None]
+    # Below this a probe is within floating-point noise of the face itself: unmeasured.
+    ok &= height >= probe_distance(v) * 2.0**-20
     expected = np.r_[np.zeros(len(idx)), np.ones(len(idx))]
     w = _winding(v, f, np.vstack([c + d * n, c - d * n]), expected)
     out, inside = w[: len(idx)], w[len(idx) :]
@@ -93,8 +97,10 @@ def face_winding_sides(
 
 def failing_faces(outside: np.ndarray, inside: np.ndarray) -> np.ndarray:
     """Faces whose winding number is not 0 just outside or not 1 just inside (rounded
-    to the nearest integer: the numbers are exact up to floating-point noise)."""
-    return (np.rint(outside) != 0) | (np.rint(inside) != 1) | np.isnan(outside)
+    to the nearest integer: the numbers are exact up to floating-point noise); faces
+    that could not be probed (NaN) are not counted."""
+    measured = ~np.isnan(outside) & ~np.isnan(inside)
+    return measured & ((np.rint(outside) != 0) | (np.rint(inside) != 1))
 
 
 def drop_internal_junk(
