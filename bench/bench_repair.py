@@ -16,6 +16,11 @@ one-time library set-up; the ``cli:`` rows time a cold process, start-up include
 The memory column is the parent's peak RSS, plus ``+Nw``: the largest peak RSS of a
 forked intersection-test worker (see ``repair.intersections.intersecting_face_pairs``).
 
+Rows ``gen:family_<i>`` are members of the generated broken family (overlapping shells
+with scattered holes, tests/repair/broken_models.py) and ``gen:shells5_190k`` the issue's
+five-shell model; after the table the family's throughput and the corpus outliers' times
+(mikedh_soup, mikedh_cycloidal, mikedh_target) are printed per tool.
+
 Rows ``cli:...`` time the whole process ``preflight repair IN -o OUT.stl`` (start-up,
 load, repair, write) on a clean mesh written to a temporary binary STL (preflight only).
 
@@ -108,7 +113,29 @@ def _sieve_200k():
     return v, f[keep][:200_000]
 
 
+#: Members of the generated broken family (tests/repair/broken_models.py: 50 seeded
+#: models of overlapping shells with scattered holes, 10k-200k triangles) run here.
+FAMILY_MEMBERS = (0, 10, 20, 30, 40, 49)
+#: The corpus outliers whose times the issue tracks.
+OUTLIERS = ("mikedh_soup.stl", "mikedh_cycloidal.ply", "mikedh_target.obj")
+
+
+def _family(spec: str):
+    """``gen:family_<i>``: member i of the broken family; ``gen:shells5_190k``: the
+    issue's five overlapping shells (~190k triangles) with 100 holes."""
+    sys.path.insert(0, str(ROOT / "tests" / "repair"))
+    from broken_models import broken_family, overlapping_shells
+
+    if spec.endswith("shells5_190k"):
+        m = overlapping_shells(190_000, 100, seed=0, shells=5)
+    else:
+        m = broken_family(50, 10_000, 200_000, seed=0)[int(spec.rsplit("_", 1)[1])]
+    return m.vertices, m.faces
+
+
 def _load(spec: str):
+    if spec.startswith(("gen:family_", "gen:shells5")):
+        return _family(spec)
     if spec == "gen:clean_1M":
         return _torus(1000, 500)
     if spec == "gen:clean_sphere_1.3M":
@@ -281,7 +308,9 @@ def main() -> int:
                   if p.suffix.lower() in {".stl", ".obj", ".ply", ".3mf"}]  # fmt: skip
     if not a.quick:
         specs += ["gen:clean_1M", "gen:clean_sphere_1.3M", "gen:broken_200k",
-                  "gen:sheet_sieve_200k", "cli:clean_500k", "cli:broken_200k"]  # fmt: skip
+                  "gen:sheet_sieve_200k", "cli:clean_500k", "cli:broken_200k",
+                  "gen:shells5_190k"]  # fmt: skip
+        specs += [f"gen:family_{i}" for i in FAMILY_MEMBERS]
     specs = [s for s in specs if a.only in s]
     results: dict[str, dict[str, dict]] = {}
     if any(sp.startswith("cli:") for sp in specs):
@@ -326,9 +355,35 @@ def main() -> int:
         print(f"{t:10} printable {ok}/{len(runs)}; median tri/s on inputs > 1k triangles: "
               f"corpus {median_rate(corpus)} ({sum(1 for r in corpus if r.get('tris', 0) > 1000)}"
               f" files), all rows {median_rate(runs)} (whole-process cli: rows excluded)")
+    _print_family_and_outliers(results)
     if a.json:
         Path(a.json).write_text(json.dumps(results, indent=2))
     return 0
+
+
+def _print_family_and_outliers(results: dict[str, dict[str, dict]]) -> None:
+    """The generated family's throughput (all its triangles over all its seconds) and
+    printable count, and the outliers' times, per tool."""
+    fam = {n: r for n, r in results.items() if n.startswith("gen:family_")}
+    for t in TOOLS:
+        runs = [r[t] for r in fam.values()]
+        done = [r for r in runs if "s" in r]
+        if runs:
+            tris = sum(r["tris"] for r in done)
+            secs = sum(r["s"] for r in done)
+            ok = sum(1 for r in done if r.get("ok"))
+            rate = f"{tris / secs / 1e3:.1f}k tri/s" if secs else "-"
+            print(f"{t:10} broken family: {ok}/{len(runs)} printable, {rate} "
+                  f"({tris} triangles in {secs:.1f} s)")  # fmt: skip
+    for t in TOOLS:
+        times = []
+        for name in (*OUTLIERS, "gen:shells5_190k"):
+            r = results.get(name, {}).get(t)
+            if r is not None:
+                cell = f"{r['s']:.2f}s{'' if r.get('ok') else ' BAD'}" if "s" in r else "error"
+                times.append(f"{name} {cell}")
+        if times:
+            print(f"{t:10} outliers: " + ", ".join(times))
 
 
 if __name__ == "__main__":

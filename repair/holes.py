@@ -80,9 +80,12 @@ def boundary_loops(faces: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
 
     Returns the loops, each an int64 array of vertex indices ordered *against* the rim
     faces' orientation (the order a lid needs to continue that orientation), and the face
-    component label (edge-connected) of each loop's rim. Loops through a vertex where the
-    boundary is not a simple curve (more than one boundary edge leaving or entering it)
-    are not returned: such a hole is left to the sheet thickening.
+    component label (edge-connected) of each loop's rim. Where several boundary edges
+    meet at a vertex (two holes touching at a corner, as when two deleted triangles share
+    a vertex), each arriving edge continues with the one reached by turning round the
+    vertex through the rim's faces (:func:`_successors_at_forks`), so each hole is its
+    own loop; a loop that cannot be followed so (an edge of three or more faces on the
+    way round) is not returned: such a hole is left to the sheet thickening.
     """
     f = np.asarray(faces, dtype=np.int64)
     if len(f) == 0:
@@ -95,33 +98,102 @@ def boundary_loops(faces: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
         return [], np.zeros(0, dtype=np.int64)
     # A lid edge runs b->a for the rim's a->b.
     src, dst = he[bnd, 1], he[bnd, 0]
+    n_v = int(f.max()) + 1
+    out_deg = np.bincount(src, minlength=n_v)
+    in_deg = np.bincount(dst, minlength=n_v)
+    # Successor (index into bnd) of each lid edge: the lid edge leaving its end.
+    leaving = np.full(n_v, -1, dtype=np.int64)
+    leaving[src] = np.arange(len(bnd))
+    simple = (out_deg[dst] == 1) & (in_deg[dst] == 1)
+    succ = np.where(simple, leaving[dst], -1)
+    fork = np.flatnonzero(~simple)
+    if len(fork):
+        succ[fork] = _successors_at_forks(f, he, eid, cnt, bnd, fork, len(leaving))
     rim_comp = comp[bnd // 3]
-    out_deg = np.bincount(src, minlength=int(f.max()) + 1)
-    in_deg = np.bincount(dst, minlength=int(f.max()) + 1)
-    simple = (out_deg[src] == 1) & (in_deg[src] == 1) & (out_deg[dst] == 1) & (in_deg[dst] == 1)
-    nxt = dict(zip(src[simple].tolist(), dst[simple].tolist(), strict=True))
-    vcomp = dict(zip(src[simple].tolist(), rim_comp[simple].tolist(), strict=True))
     loops: list[np.ndarray] = []
     labels: list[int] = []
-    seen: set[int] = set()
-    for start in nxt:
-        if start in seen:
+    seen = np.zeros(len(bnd), dtype=bool)
+    succ_l = succ.tolist()
+    for start in range(len(bnd)):
+        if seen[start]:
             continue
         loop = [start]
-        seen.add(start)
-        cur = nxt[start]
+        seen[start] = True
+        cur = succ_l[start]
         ok = True
         while cur != start:
-            if cur in seen or cur not in nxt:
+            if cur < 0 or seen[cur]:
                 ok = False
                 break
-            seen.add(cur)
+            seen[cur] = True
             loop.append(cur)
-            cur = nxt[cur]
-        if ok and len(loop) >= 3:
-            loops.append(np.asarray(loop, dtype=np.int64))
-            labels.append(vcomp[start])
+            cur = succ_l[cur]
+        if ok:
+            for part in _simple_loops(src[np.asarray(loop, dtype=np.int64)].tolist()):
+                loops.append(np.asarray(part, dtype=np.int64))
+                labels.append(int(rim_comp[start]))
     return loops, np.asarray(labels, dtype=np.int64)
+
+
+def _simple_loops(loop: list[int]) -> list[list[int]]:
+    """A closed walk through vertices split where it passes a vertex again (a hole
+    that touches itself at a corner) into closed walks that do not: each gets its own
+    lid, which then never uses an edge twice. Walks of fewer than three vertices (an
+    edge there and back) need no lid."""
+    out: list[list[int]] = []
+    stack: list[int] = []
+    where: dict[int, int] = {}
+    for x in loop:
+        if x in where:
+            p = where[x]
+            part = stack[p:]
+            for y in part[1:]:
+                del where[y]
+            del stack[p + 1 :]
+            if len(part) >= 3:
+                out.append(part)
+            continue
+        where[x] = len(stack)
+        stack.append(x)
+    if len(stack) >= 3:
+        out.append(stack)
+    return out
+
+
+def _successors_at_forks(
+    f: np.ndarray, he: np.ndarray, eid: np.ndarray, cnt: np.ndarray, bnd: np.ndarray,
+    fork: np.ndarray, n: int,
+) -> np.ndarray:
+    """For each lid edge in ``fork`` (indices into ``bnd``) that ends at a vertex where
+    several boundary edges meet: the lid edge (index into ``bnd``) that continues its
+    hole, found by turning round the vertex from the rim face through two-face edges
+    until the next boundary edge; -1 where that turn meets an edge of three or more
+    faces. One short Python walk per such edge (they are few)."""
+    # Twin of every half-edge on a two-face edge at the fork vertices.
+    x_all = he[bnd[fork], 0]
+    near = np.isin(he[:, 0], x_all) | np.isin(he[:, 1], x_all)
+    idx = np.flatnonzero(near)
+    keys = (he[idx, 0] * np.int64(n) + he[idx, 1]).tolist()
+    by_dir = dict(zip(keys, idx.tolist(), strict=True))
+    bnd_pos = {int(h): i for i, h in enumerate(bnd.tolist())}
+    out = np.full(len(fork), -1, dtype=np.int64)
+    for j, i in enumerate(fork.tolist()):
+        h = int(bnd[i])  # rim half-edge x->y; the lid edge y->x arrives at x
+        x = int(he[h, 0])
+        for _ in range(len(f)):
+            face, k = divmod(h, 3)
+            arriving = 3 * face + (k + 2) % 3  # w->x in the same face
+            if cnt[eid[arriving]] == 1:
+                # The boundary edge w->x: its lid edge x->w leaves x and continues.
+                out[j] = bnd_pos[arriving]
+                break
+            if cnt[eid[arriving]] != 2:
+                break
+            w = int(he[arriving, 0])
+            h = by_dir.get(x * n + w, -1)  # the twin x->w
+            if h < 0:
+                break
+    return out
 
 
 def _shells(

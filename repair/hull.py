@@ -257,7 +257,87 @@ def _outside_sides(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray,
         np.ascontiguousarray(faces, dtype=np.int64),
     )
     cells = _merge_cells_at_boundaries(np.asarray(cells, dtype=np.int64), faces, int(n_cells))
+    if len(_boundary_faces(faces)):
+        # Among open patches libigl's labels of the regions of space hold face by face,
+        # but it splits the unbounded region into several labels (or misses it, e.g.
+        # among crossing sheets that enclose cells between them): find them by rays.
+        cells = np.where(np.isin(cells, unbounded_cells(vertices, faces, cells)), 0, cells)
     return cells[:, 0] == 0, cells[:, 1] == 0, int(n_cells)
+
+
+#: At most this many rays in all are cast by :func:`unbounded_cells`, and at most
+#: :data:`MAX_CELL_RAY_TESTS` ray-triangle tests (each ray is tested against every face).
+MAX_CELL_RAYS = 3000
+MAX_CELL_RAY_TESTS = 20_000_000
+
+
+def unbounded_cells(vertices: np.ndarray, faces: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """The labels (in ``cells``, (m, 2): the region on the positive and the negative side
+    of each face) of regions that reach infinity: a ray from a hair off one of their
+    faces leaves the model without meeting another face. Up to 8 faces per region and
+    6 directions per face are tried (away from the model's centre first), largest
+    regions first, within :data:`MAX_CELL_RAYS` rays and :data:`MAX_CELL_RAY_TESTS`
+    ray-triangle tests in all (about a second of numpy). Float ray tests: a
+    grazing hit only makes a ray fail, never pass wrongly."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    p = v[f]
+    centre = 0.5 * (v.min(axis=0) + v.max(axis=0))
+    cen = p.mean(axis=1)
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    n = np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+    hair = float(np.ptp(v, axis=0).max()) * 2.0**-26
+    dirs = np.random.default_rng(0).normal(size=(4, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    labels, counts = np.unique(cells, return_counts=True)
+    out: list[int] = []
+    budget = min(MAX_CELL_RAYS, MAX_CELL_RAY_TESTS // max(len(f), 1))
+    for lab in labels[np.argsort(-counts, kind="stable")].tolist():
+        if lab == 0:
+            continue  # libigl's own unbounded cell
+        sides = np.argwhere(cells == lab)
+        sides = sides[np.linspace(0, len(sides) - 1, min(8, len(sides))).astype(int)]
+        for face, col in sides.tolist():
+            sign = 1.0 if col == 0 else -1.0
+            normal = sign * n[face]
+            if not normal.any():
+                continue
+            away = cen[face] - centre
+            tries = np.vstack([away, normal, dirs])
+            tries = tries[tries @ normal > 1e-9 * np.linalg.norm(tries, axis=1)]
+            origin = cen[face] + hair * normal
+            escaped = False
+            for d in tries:
+                budget -= 1
+                if not _ray_hits_any(origin, d / np.linalg.norm(d), p, face):
+                    escaped = True
+                    break
+            if escaped:
+                out.append(lab)
+                break
+            if budget <= 0:
+                return np.asarray(out, dtype=np.int64)
+    return np.asarray(out, dtype=np.int64)
+
+
+def _ray_hits_any(origin: np.ndarray, direction: np.ndarray, tri: np.ndarray, skip: int) -> bool:
+    """Does the ray hit any triangle of ``tri`` (k, 3, 3) but ``skip``? Moller-Trumbore,
+    vectorised; edge and vertex hits count as hits (conservative)."""
+    e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    h = np.cross(direction, e2)
+    a = np.einsum("ij,ij->i", e1, h)
+    ok = np.abs(a) > 1e-300
+    inv = np.divide(1.0, a, out=np.zeros_like(a), where=ok)
+    s = origin - tri[:, 0]
+    u = inv * np.einsum("ij,ij->i", s, h)
+    q = np.cross(s, e1)
+    w = inv * (q @ direction)
+    t = inv * np.einsum("ij,ij->i", e2, q)
+    tol = 1e-9
+    hit = ok & (u >= -tol) & (w >= -tol) & (u + w <= 1 + tol) & (t > 0)
+    hit[skip] = False
+    return bool(hit.any())
 
 
 def _encloses(

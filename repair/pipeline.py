@@ -17,7 +17,9 @@ Stages (each timed in the report; :func:`repair_mesh` reads as this list):
    faces and nested parts go -- and sheets become slabs of thickness eps, visible wires
    eps-prisms, united with the hull (:mod:`repair.hull_and_thicken`);
 5. ``finish``  round to float32 avoiding crossings, verify with the exact check, mend
-   where rounding broke anything (:mod:`repair.finish`);
+   where rounding broke anything (:mod:`repair.finish`); remove cavity shells thinner
+   than a hair, which the winding number on both sides of their faces exposes
+   (:mod:`repair.junk`);
 6. ``deviation`` Attene's deviation D (:mod:`repair.deviation`), and ``report``:
    manifold-connected parts, volume, what was done (:mod:`repair.report`).
 
@@ -43,6 +45,7 @@ from repair.errors import RepairError
 from repair.finish import finish
 from repair.holes import HolesClosed, close_small_holes
 from repair.hull_and_thicken import hull_and_thicken
+from repair.junk import without_internal_junk
 from repair.provenance import carry_input_pairs, starts_with_faces, union_face_sources
 from repair.report import (
     Progress,
@@ -95,7 +98,7 @@ def repair_mesh(
     rounded = round_input(v_in, f_in)
     clock.lap("check_input", 0.1)
     if rounded.verdict.ok:
-        out = _unchanged(rounded)
+        out = without_internal_junk(_unchanged(rounded))
         clock.lap("finish", 0.9)
     else:
         cleaned = clean_checked(rounded.vertices, rounded.faces, rounded.verdict)
@@ -158,6 +161,10 @@ def _solidify(
         out, hint = united
     else:
         out, hint = _exact_path(cleaned, lidded, eps, tally, clock), None
+    junk_before = out.tally.junk_shells
+    out = without_internal_junk(out)
+    if out.tally.junk_shells != junk_before:
+        hint = None  # faces were removed: the per-face sources no longer line up
     out.holes = holes
     out.degenerate_removed = cleaned.degenerate_removed
     out.duplicates_removed = cleaned.duplicates_removed

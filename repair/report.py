@@ -62,6 +62,8 @@ class RepairTally:
     separated: int = 0
     passes: int = 0
     collapsed: int = 0
+    junk_shells: int = 0
+    junk_volume: float = 0.0
 
 
 @dataclass
@@ -115,6 +117,8 @@ def _after_report(out: RepairOutcome, n_parts: int) -> dict[str, Any]:
         "singular_edges_thickened": int(tally.singular_edges),
         "singular_edges_separated": int(tally.separated),
         "arrangement_passes": int(tally.passes),
+        "internal_junk_shells_removed": int(tally.junk_shells),
+        "internal_junk_volume": float(tally.junk_volume),
     }
 
 
@@ -168,6 +172,7 @@ def summary(r: dict[str, Any]) -> str:
         ("intersecting_pairs_resolved", "intersecting pairs resolved"),
         ("components_dropped_internal", "internal parts dropped"),
         ("internal_triangles_dropped", "internal triangles dropped"),
+        ("internal_junk_shells_removed", "thin internal shells removed"),
         ("wires_inflated", "wires inflated"),
         ("singular_edges_thickened", "singular edges thickened"),
     ):

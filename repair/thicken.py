@@ -218,6 +218,16 @@ def sheet_slabs(
     cos_c[np.repeat(fl[:, 0] == 0, 3)] = 1.0
     min_cos = np.full(n, 1.0)
     np.minimum.at(min_cos, ids, cos_c)
+    clamped = min_cos < 1.0 / MITER_LIMIT
+    thin = clamped[fs].any(axis=1)
+    if thin.any() and _depth < 2:
+        # A corner sharper than the miter limit (a box's): the slab would be thinner
+        # than eps across every face at it, down to eps * MITER_LIMIT / sqrt(3) at a
+        # cube's corner. Those faces get prisms of exactly eps along their own normals
+        # (and eps-cylinders on their creases); the rest is slabbed on its own.
+        gv, gf = sheet_slabs(v, f[~thin], epsilon, _depth=_depth + 1)
+        pv, pf = face_prisms(v, f[thin], epsilon)
+        return np.vstack([gv, pv]), np.vstack([gf, pf + len(gv)]).astype(np.int64)
     scale = 1.0 / np.maximum(min_cos, 1.0 / MITER_LIMIT)
     d = (0.5 * epsilon) * scale[:, None] * vn
 

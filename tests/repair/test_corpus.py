@@ -1,7 +1,8 @@
 """Every real broken model in ../shared/corpus comes out printable (on the float32
 coordinates actually written), with Attene's deviation D <= 0.6 eps where sheets or wires
 were thickened, D ~ 0 where the outer hull was already closed, and D within the lid's
-reach from its rim where small holes were closed."""
+reach from its rim where small holes were closed; and no written face has a winding
+number other than 0 just outside it or 1 just inside it (but the known failures)."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ import pytest
 
 from repair.check import check_printable
 from repair.io import load_mesh
+from repair.junk import face_winding_sides, failing_faces
 from repair.pipeline import RepairError, repair_file
 
 CORPUS = Path(__file__).resolve().parents[2] / ".." / "shared" / "corpus"
@@ -23,6 +25,19 @@ FILES = (
 )
 #: Models with nothing printable in them (every triangle collapses to a point).
 NOTHING_PRINTABLE = {"Ghostkeeper_zero_size_cube.stl"}
+#: Outputs that still hold a few faces with solid (or a needle's numerical noise) on
+#: both sides: micro-pleats and faces ~1e-5 mm apart inside one shell, left by the
+#: arrangement and by thickening crossing sheets (1-263 faces each). Known failures of
+#: the two-sided winding test, asserted so, so that a fix shows up here.
+WINDING_KNOWN_FAILURES = {
+    "admesh_basic.stl",
+    "admesh_remove-unconnected-bad.stl",
+    "mikedh_chair_model.obj",
+    "mikedh_counter.unitsmm.STL",
+    "mikedh_cycloidal.ply",
+    "mikedh_target.obj",
+    "mikedh_teapot.stl",
+}
 
 
 @pytest.mark.slow
@@ -40,6 +55,9 @@ def test_corpus_model_repairs_to_a_printable_solid(name, tmp_path):
     verdict = check_printable(written.vertices, written.faces)
     assert verdict.ok, verdict.failures()
     assert verdict.volume > 0
+    outside, inside = face_winding_sides(written.vertices, written.faces)
+    bad = int(failing_faces(outside, inside).sum())
+    assert (bad > 0) == (name in WINDING_KNOWN_FAILURES), f"{bad} faces fail the winding test"
     after = report["after"]
     thickened = (
         after["sheet_triangles_thickened"] or after["wires_inflated"]

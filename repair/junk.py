@@ -1,0 +1,161 @@
+"""Internal junk: shells of a printable mesh that a slicer should never see.
+
+A mesh can pass every test of :func:`repair.check.check_printable` and still hold closed
+inner shells of near-zero volume, or slit-thin voids whose faces lie back to back: each
+is a legal cavity (an inverted shell inside exactly one solid), only thinner than
+anything a printer can leave empty. The generalised winding number of the whole mesh
+tells them: just outside a face (along its normal) it must be 0 and just inside it must
+be 1. A probe a hair's breadth off a face of a slit void crosses the void and lands in
+the solid again (winding 1 on the outside); off a face of a shell of near-zero volume it
+does the same. :func:`face_winding_sides` measures both sides of every face;
+:func:`drop_internal_junk` removes the cavity shells most of whose area fails (the
+cavity fills: Attene Sec. 5.3 keeps no cavities at all; only those thinner than the
+probe distance go here).
+
+Units are mm; vertices float64 (n, 3), faces int64 (m, 3).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from repair.check import check_printable
+from repair.meshes import shell_volumes
+from repair.report import RepairOutcome
+from repair.topology import edge_components
+
+__all__ = [
+    "without_internal_junk","PROBE_FRACTION", "drop_internal_junk", "face_winding_sides"]
+
+#: Probe distance off each face, as a fraction of the mesh's largest extent (mm):
+#: about 2 float32 ulps of the largest coordinate of a centred part.
+PROBE_FRACTION = 2.0**-22
+
+
+def probe_distance(vertices: np.ndarray) -> float:
+    """How far off each face :func:`face_winding_sides` probes (mm)."""
+    v = np.asarray(vertices, dtype=np.float64)
+    return float(np.ptp(v, axis=0).max()) * PROBE_FRACTION if len(v) else 0.0
+
+
+def _winding(v: np.ndarray, f: np.ndarray, q: np.ndarray, expected: np.ndarray) -> np.ndarray:
+    """Winding numbers at ``q``: libigl's exact ``winding_number`` for a modest
+    probes x faces product; else its hierarchical ``fast_winding_number``, which is
+    approximate and a hair off a face can be wrong by a whole unit, so every probe where
+    it differs from the ``expected`` value is summed again exactly (few, on a good
+    mesh)."""
+    import igl
+
+    v = np.ascontiguousarray(v, dtype=np.float64)
+    f = np.ascontiguousarray(f, dtype=np.int64)
+    q = np.ascontiguousarray(q, dtype=np.float64)
+    if len(f) * len(q) <= 4_000_000:
+        return np.asarray(igl.winding_number(v, f, q), dtype=np.float64)
+    w = np.asarray(igl.fast_winding_number(v, f, q), dtype=np.float64)
+    recheck = np.flatnonzero(np.abs(w - expected) > 0.05)
+    for s in range(0, len(recheck), 256):
+        part = recheck[s : s + 256]
+        w[part] = np.asarray(igl.winding_number(v, f, q[part]), dtype=np.float64)
+    return w
+
+
+def face_winding_sides(
+    vertices: np.ndarray, faces: np.ndarray, which: np.ndarray | None = None,
+    distance: float | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Generalised winding number of the whole mesh just outside (centroid + d n) and
+    just inside (centroid - d n) each face (or the faces ``which``), d = ``distance``
+    (default :func:`probe_distance`) or a tenth of the face's height if less.
+    libigl's ``winding_number`` (exact solid angles) or, for many probes against many
+    faces, its hierarchical ``fast_winding_number`` (exact sums where it is unclear).
+    Faces too thin to probe (height under 2^-20 of the probe distance: a probe off them
+    would sit within floating-point noise of the face itself) and degenerate faces get
+    NaN."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    idx = np.arange(len(f)) if which is None else np.asarray(which, dtype=np.int64)
+    d = probe_distance(v) if distance is None else float(distance)
+    p = v[f[idx]]
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    ok = length[:, 0] > 0
+    n = np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+    c = p.mean(axis=1)
+    # Never farther off a face than a tenth of its height: off a sliver, a probe at
+    # the global distance would land beyond its neighbours instead of just outside it.
+    longest = np.linalg.norm(p - p[:, [1, 2, 0]], axis=2).max(axis=1)
+    height = np.divide(length[:, 0], longest, out=np.zeros_like(longest), where=longest > 0)
+    d = np.minimum(d, 0.1 * height)[:, None]
+    # Below this a probe is within floating-point noise of the face itself: unmeasured.
+    ok &= height >= probe_distance(v) * 2.0**-20
+    expected = np.r_[np.zeros(len(idx)), np.ones(len(idx))]
+    w = _winding(v, f, np.vstack([c + d * n, c - d * n]), expected)
+    out, inside = w[: len(idx)], w[len(idx) :]
+    out[~ok] = inside[~ok] = np.nan
+    return out, inside
+
+
+def failing_faces(outside: np.ndarray, inside: np.ndarray) -> np.ndarray:
+    """Faces whose winding number is not 0 just outside or not 1 just inside (rounded
+    to the nearest integer: the numbers are exact up to floating-point noise); faces
+    that could not be probed (NaN) are not counted."""
+    measured = ~np.isnan(outside) & ~np.isnan(inside)
+    return measured & ((np.rint(outside) != 0) | (np.rint(inside) != 1))
+
+
+def drop_internal_junk(
+    vertices: np.ndarray, faces: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, tuple[int, int, float]]:
+    """Remove the cavity shells (negative volume) of a closed, oriented mesh at least
+    half of whose area fails :func:`failing_faces`: near-zero-volume inner shells and
+    slit-thin voids. Whole closed shells go, so the rest stays closed and oriented.
+    Returns ``(vertices, faces, (shells removed, faces removed, their volume mm³))``;
+    the input arrays themselves when nothing goes (one shell: nothing to test)."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    if len(f) == 0:
+        return v, f, (0, 0, 0.0)
+    lab = edge_components(f)
+    n = int(lab.max()) + 1
+    if n == 1:
+        return v, f, (0, 0, 0.0)
+    vol = shell_volumes(v, f, lab, n)
+    cavity = np.flatnonzero(vol <= 0)
+    if len(cavity) == 0:
+        return v, f, (0, 0, 0.0)
+    which = np.flatnonzero(np.isin(lab, cavity))
+    outside, inside = face_winding_sides(v, f, which)
+    p = v[f[which]]
+    area = np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    bad_area = np.bincount(lab[which], weights=area * failing_faces(outside, inside),
+                           minlength=n)  # fmt: skip
+    all_area = np.bincount(lab[which], weights=area, minlength=n)
+    junk = np.zeros(n, dtype=bool)
+    junk[cavity] = bad_area[cavity] >= 0.5 * all_area[cavity]
+    if not junk.any():
+        return v, f, (0, 0, 0.0)
+    gone = junk[lab]
+    from repair.clean import drop_unreferenced
+
+    kv, kf = drop_unreferenced(v, f[~gone])
+    return kv, kf, (int(np.count_nonzero(junk)), int(np.count_nonzero(gone)),
+                    float(vol[junk].sum()))  # fmt: skip
+
+
+def without_internal_junk(out: RepairOutcome) -> RepairOutcome:
+    """``out`` with its junk cavity shells (:func:`drop_internal_junk`) removed and
+    counted in its tally, when what is left still passes the exact check (a solid that
+    sat in a removed cavity would now be nested: then nothing is removed). A written
+    mesh of one shell cannot hold such junk and is returned as it is."""
+    if out.verdict.components <= 1 or not out.verdict.ok:
+        return out
+    v, f, (shells, _, volume) = drop_internal_junk(out.vertices, out.faces)
+    if shells == 0:
+        return out
+    verdict = check_printable(v, f)
+    if not verdict.ok:
+        return out
+    out.vertices, out.faces, out.verdict = v, f, verdict
+    out.tally.junk_shells += shells
+    out.tally.junk_volume += volume
+    return out
