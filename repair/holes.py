@@ -1,33 +1,37 @@
-"""Close the small holes of almost-closed shells (Bøhn & Wozny's shell closure).
+"""Shell closure (Bøhn & Wozny): which holes of a shell get lids.
 
-An open scan or a sloppy export is often a closed shell with a few small holes. Attene's
+An open scan or a sloppy export is often a closed shell with a few holes. Attene's
 algorithm would treat the whole open shell as a zero-thickness sheet and thicken all of
 it; a user expects the holes to be filled instead, after which the shell is solid and the
 exact path keeps it exactly. Genuine open surfaces (an open-topped box, a fin, a single
-sheet) are left alone: only a shell whose boundary is a small fraction of its edges, and
-whose holes all have a perimeter small against the shell's size, gets its holes closed --
-all of them, so it comes out closed (lidding some holes of a shell that stays open would
-only add surface to a sheet). Triangles dangling off an edge of such a shell next to its
-holes (flaps, as scanners leave them: an open edge plus an edge of three or more faces)
-are removed, or the holes beside them would not be simple loops.
+sheet) are left alone. The boundary (lamina) edges are traced into loops (Jordan curves
+once they are simple); a shell gets lids when every one of its holes is *small* (the
+shell's boundary is a small fraction of its edges and the hole's perimeter small against
+the shell's size) or *a missing piece of a planar facet* (the loop is planar and a rim
+face lies in its plane, facing the same way) -- all of them, so it comes out closed
+(lidding some holes of a shell that stays open would only add surface to a sheet).
+Triangles dangling off an edge of such a shell next to its holes (flaps, as scanners
+leave them: an open edge plus an edge of three or more faces) are removed, or the holes
+beside them would not be simple loops.
 
-Each closed hole gets a lid: one triangle for a 3-edge hole, otherwise a fan from the
-loop's centroid (one new vertex). The lid is oriented against the hole's rim faces, so a
-consistently oriented shell stays consistently oriented. Lids may cross the shell where
-a hole is strongly non-planar; the exact self-intersection resolution that follows
-repairs such crossings.
+Lids are made by :mod:`repair.closure` (planar loops: an exact planar triangulation on
+the loop's own vertices; others a minimal-area one; very long loops a centroid fan),
+oriented against the hole's rim faces, so a consistently oriented shell stays
+consistently oriented. Lids may cross the shell where a hole is strongly non-planar; the
+exact self-intersection resolution that follows repairs such crossings.
 
 Units are mm. Arrays: vertices float64 (n, 3), faces int64 (m, 3). Pure functions;
 the edge bookkeeping is vectorised, the only Python loop runs once per boundary vertex
-to trace loops (boundaries are small by construction: at most a few percent of edges).
+to trace loops and once per loop.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from repair.closure import Lid, loop_lid, loop_planarity
 from repair.topology import edge_components, edge_ids, half_edges
 
 __all__ = [
@@ -53,7 +57,9 @@ class HolesClosed:
     added, ``lid_triangles`` triangles added, ``max_perimeter`` mm of the largest hole
     closed and ``max_lid_radius`` mm, a bound on how far any lid point lies from its rim
     (hence from the input surface); ``flaps_removed`` faces (``flap_area`` mm²) dangling
-    off the shell next to a hole were removed so the hole could be closed."""
+    off the shell next to a hole were removed so the hole could be closed. ``lids``: each
+    lid (perimeter, area, planarity); ``exact_faces``: the triangles of the ``facet_lids``
+    lids that complete a planar facet of their shell (on the input's vertices)."""
 
     count: int = 0
     area: float = 0.0
@@ -62,6 +68,11 @@ class HolesClosed:
     max_lid_radius: float = 0.0
     flaps_removed: int = 0
     flap_area: float = 0.0
+    facet_lids: int = 0
+    lids: tuple[Lid, ...] = field(default=(), compare=False)
+    exact_faces: np.ndarray = field(
+        default_factory=lambda: np.zeros((0, 3), dtype=np.int64), compare=False
+    )
 
     def to_dict(self) -> dict[str, float | int]:
         return {
@@ -72,6 +83,11 @@ class HolesClosed:
             "max_lid_radius": float(self.max_lid_radius),
             "flaps_removed": int(self.flaps_removed),
             "flap_area": round(float(self.flap_area), 9),
+            "planar_lids": sum(1 for lid in self.lids if lid.planar),
+            # Lids completing a planar facet: the intended surface, D is measured with them.
+            "facet_lids": int(self.facet_lids),
+            # The largest lids first; a scan may have hundreds.
+            "lids": [lid.to_dict() for lid in sorted(self.lids, key=lambda x: -x.area)[:50]],
         }
 
 
@@ -175,27 +191,6 @@ def flap_faces(
     return flap & (area <= 4.0 * np.median(area))
 
 
-def _lid(
-    v: np.ndarray, loop: np.ndarray, perim: float, centre_index: int
-) -> tuple[np.ndarray, np.ndarray | None, float, float]:
-    """The lid of a hole (``loop``: its vertices in lid order, ``perim`` mm round it):
-    one triangle for three vertices, else a fan from the loop's centroid, which becomes
-    vertex ``centre_index``. Returns ``(triangles, centroid or None, area mm², radius)``;
-    every lid point lies within ``radius`` mm of the rim."""
-    p = v[loop]
-    if len(loop) == 3:
-        area = 0.5 * float(np.linalg.norm(np.cross(p[1] - p[0], p[2] - p[0])))
-        # Any point of a triangle lies within its inradius (2 area / perimeter) of an edge.
-        radius = float(np.linalg.norm(np.cross(p[1] - p[0], p[2] - p[0]))) / perim
-        return loop[None, :], None, area, radius
-    centre = p.mean(axis=0)
-    k = len(loop)
-    tris = np.stack([loop, np.roll(loop, -1), np.full(k, centre_index)], axis=1)
-    radius = float(np.linalg.norm(p - centre, axis=1).max())
-    cr = np.cross(p - centre, np.roll(p, -1, axis=0) - centre)
-    return tris, centre, 0.5 * float(np.linalg.norm(cr, axis=1).sum()), radius
-
-
 def close_small_holes(
     vertices: np.ndarray,
     faces: np.ndarray,
@@ -203,17 +198,23 @@ def close_small_holes(
     max_boundary_fraction: float = MAX_BOUNDARY_FRACTION,
     max_perimeter_fraction: float = MAX_PERIMETER_FRACTION,
 ) -> tuple[np.ndarray, np.ndarray, HolesClosed]:
-    """Fill the small holes of almost-closed shells with lids.
+    """Close the holes of shells that a lid makes solid (Bøhn & Wozny's shell closure).
 
-    A hole (a simple loop of boundary edges) is *small* when its shell (edge-connected
-    component) has at most ``max_boundary_fraction`` of its edges on the boundary and the
-    loop's perimeter is at most ``max_perimeter_fraction`` of the shell's bounding-box
-    diagonal (mm). A shell's holes are closed only when all of them are small, so the
-    shell comes out closed; otherwise it is left as it is (a sheet). Flaps
-    (:func:`flap_faces`) of such shells are removed first, and stay removed only when
-    their shell had its holes closed. Vertices are kept (same indices;
-    lid centroids are appended); faces keep their order except that the flaps kept move
-    after the others; lid faces are appended.
+    A hole (a simple loop of boundary edges) may be closed when it is
+
+    - *small*: its shell (edge-connected component) has at most ``max_boundary_fraction``
+      of its edges on the boundary and the loop's perimeter is at most
+      ``max_perimeter_fraction`` of the shell's bounding-box diagonal (mm); or
+    - *a missing piece of a facet*: the loop is planar and a face of its rim lies in the
+      lid's plane facing the same way (the lid continues that facet: a triangle missing
+      from a face of a box, not the open top of a box, whose rim faces stand across it).
+
+    A shell's holes are closed only when all of them may be, so the shell comes out
+    closed; otherwise it is left as it is (a sheet, thickened later). Lids are made by
+    :func:`repair.closure.loop_lid`. Flaps (:func:`flap_faces`) of almost-closed shells
+    are removed first, and stay removed only when their shell had its holes closed.
+    Vertices are kept (same indices; fan centres are appended); faces keep their order
+    except that the flaps kept move after the others; lid faces are appended.
     """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
@@ -226,50 +227,75 @@ def close_small_holes(
     if not loops:
         return v, np.vstack([f, flap_f]), HolesClosed()
     comp, use, almost_closed, diag = _shells(v, f, max_boundary_fraction)
-    # Lids only where they close the shell: every boundary edge of it is on a small hole.
-    # Closing some holes of a shell that stays open would not make it solid (it is still a
-    # sheet, and is thickened), the lids would only add surface.
+    # Lids only where they close the shell: every boundary edge of it is on a closable
+    # hole. Closing some holes of a shell that stays open would not make it solid (it is
+    # still a sheet, and is thickened), the lids would only add surface.
     n_bnd = np.bincount(comp, weights=(use == 1).sum(axis=1), minlength=len(diag))
     perims = np.array(
         [np.linalg.norm(np.roll(v[lp], -1, axis=0) - v[lp], axis=1).sum() for lp in loops]
     )
     small = almost_closed[labels] & (perims <= max_perimeter_fraction * diag[labels])
+    rim_f = f[(use == 1).any(axis=1)]
+    facet = np.array([_continues_facet(v, rim_f, lp) for lp in loops], dtype=bool)
+    ok = small | facet
     sizes = np.array([len(lp) for lp in loops], dtype=np.float64)
-    covered = np.bincount(labels[small], weights=sizes[small], minlength=len(diag))
+    covered = np.bincount(labels[ok], weights=sizes[ok], minlength=len(diag))
     closable = (covered == n_bnd) & (n_bnd > 0)
 
-    new_v: list[np.ndarray] = []
-    new_f: list[np.ndarray] = []
-    closed_in: list[int] = []
-    area = max_perim = max_radius = 0.0
-    for loop, c, perim in zip(loops, labels.tolist(), perims.tolist(), strict=True):
+    lids: list[Lid] = []
+    exact: list[np.ndarray] = []
+    n_new = 0
+    for loop, c, is_facet in zip(loops, labels.tolist(), facet.tolist(), strict=True):
         if not closable[c]:
             continue
-        tris, centre, lid_area, radius = _lid(v, loop, perim, len(v) + len(new_v))
-        if centre is not None:
-            new_v.append(centre[None, :])
-        area += lid_area
-        new_f.append(tris)
-        closed_in.append(c)
-        max_perim = max(max_perim, perim)
-        max_radius = max(max_radius, radius)
-    count, lid_tris = len(new_f), sum(len(t) for t in new_f)
+        lid = loop_lid(v, loop, len(v) + n_new)
+        n_new += len(lid.new_vertices)
+        lids.append(lid)
+        if is_facet and lid.planar:
+            exact.append(lid.triangles)
     # A flap stays removed only when its shell had holes closed (the shell is a scan with
     # holes, its flaps scanner noise next to them); the others go back (fins are sheets).
     gone = np.zeros(len(flap_f), dtype=bool)
-    if len(flap_f) and new_f:
+    if len(flap_f) and lids:
         lidded = np.zeros(len(v), dtype=bool)
-        lidded[f[np.isin(comp, np.asarray(closed_in, dtype=np.int64))].reshape(-1)] = True
+        lidded[f[closable[comp]].reshape(-1)] = True
         gone = lidded[flap_f].any(axis=1)
-    n_flaps = int(np.count_nonzero(gone))
-    p = v[flap_f[gone]]
+    out_v = np.vstack([v, *(lid.new_vertices for lid in lids)]) if n_new else v
+    out_f = np.vstack([f, flap_f[~gone], *(lid.triangles for lid in lids)])
+    return out_v, out_f, _tally(v, flap_f[gone], lids, exact)
+
+
+def _continues_facet(v: np.ndarray, rim_f: np.ndarray, loop: np.ndarray) -> bool:
+    """Whether the loop (lid order) is planar and a face of its rim (``rim_f``: faces
+    with a boundary edge) lies in the lid's plane facing the lid's way."""
+    p = v[loop]
+    _, normal, planar = loop_planarity(p)
+    if not planar:
+        return False
+    # Rim faces: the faces holding the loop's edges (a rim half-edge runs against the lid).
+    rim = np.isin(rim_f, loop).sum(axis=1) >= 2
+    q = v[rim_f[rim]]
+    n = np.cross(q[:, 1] - q[:, 0], q[:, 2] - q[:, 0])
+    length = np.linalg.norm(n, axis=1)
+    facing = (n @ normal) >= (1.0 - 1e-9) * length
+    on_plane = np.abs((q - p[0]) @ normal).max(axis=1) <= 1e-6 * max(np.abs(p).max(), 1.0)
+    return bool(np.any(facing & on_plane & (length > 0)))
+
+
+def _tally(v: np.ndarray, flaps: np.ndarray, lids: list[Lid], exact: list[np.ndarray]):
+    p = v[flaps]
     flap_area = 0.5 * float(
         np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1).sum()
     )
-    out_v = np.vstack([v, *new_v]) if new_v else v
-    out_f = np.vstack([f, flap_f[~gone], *new_f])
-    return (
-        out_v,
-        out_f,
-        HolesClosed(count, area, lid_tris, max_perim, max_radius, n_flaps, flap_area),
+    return HolesClosed(
+        count=len(lids),
+        area=float(sum(lid.area for lid in lids)),
+        lid_triangles=int(sum(len(lid.triangles) for lid in lids)),
+        max_perimeter=max((lid.perimeter for lid in lids), default=0.0),
+        max_lid_radius=max((lid.radius for lid in lids), default=0.0),
+        flaps_removed=len(flaps),
+        flap_area=flap_area,
+        facet_lids=len(exact),
+        lids=tuple(lids),
+        exact_faces=np.vstack(exact) if exact else np.zeros((0, 3), dtype=np.int64),
     )

@@ -163,8 +163,10 @@ def _solidify(
     out.duplicates_removed = cleaned.duplicates_removed
     # Measured against the rounded input; the input itself is at most `rounding` away
     # from it (each rounded face lies within its corners' displacement of the original).
+    # Lids that complete a planar facet are the intended surface: D is measured with them.
+    reference = np.vstack([cleaned.faces, holes.exact_faces])
     out.deviation = rounded.rounding + max_deviation(
-        out.vertices, out.faces, cleaned.vertices, cleaned.faces, cleaned.segments,
+        out.vertices, out.faces, cleaned.vertices, reference, cleaned.segments,
         max_points=400_000 if out.path == "exact" else 0, hint=hint,
     )  # fmt: skip
     clock.lap("deviation", 0.95)
