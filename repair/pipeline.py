@@ -7,6 +7,8 @@ Stages (each timed in the report; :func:`repair_mesh` reads as this list):
    check exactly that (:func:`repair.rounding.round_input`);
 2. ``clean``   weld exactly coincident vertices, move degenerate triangles to a list of
    segments (wires), keep one layer of equivalent triangles (:mod:`repair.clean`);
+   ``stitch``: join the boundaries of different patches that run within gamma = eps/4 of
+   each other (Attene Sec. 5.2, :mod:`repair.stitch`), so a cracked surface closes;
    ``holes``: close the small holes of almost-closed shells with lids (:mod:`repair.holes`),
    so an open scan becomes a solid instead of a sheet;
 3. ``union``   fast path: an input made only of closed, edge-manifold shells that overlap
@@ -53,10 +55,15 @@ from repair.report import (
     repair_report,
 )
 from repair.rounding import RoundedInput, round_input
+from repair.stitch import stitch_cracks
 from repair.topology import edge_components
 from repair.union import union_of_shells
 
 __all__ = ["RepairError", "RepairResult", "repair_file", "repair_mesh"]
+
+#: γ of Attene's crack stitching (Sec. 5.2), as a fraction of eps: boundaries of
+#: different patches closer than this are joined (:mod:`repair.stitch`).
+STITCH_GAMMA = 0.25
 
 
 @dataclass(frozen=True)
@@ -148,7 +155,9 @@ def _solidify(
         raise RepairError(
             f"nothing printable: all {len(rounded.faces)} triangles collapse to a single point"
         )
-    lidded_v, lidded_f, holes = close_small_holes(cleaned.vertices, cleaned.faces)
+    stitched_f, stitched = stitch_cracks(cleaned.vertices, cleaned.faces, STITCH_GAMMA * eps)
+    clock.lap("stitch", 0.22)
+    lidded_v, lidded_f, holes = close_small_holes(cleaned.vertices, stitched_f)
     clock.lap("holes", 0.25)
     pairs = carry_input_pairs(rounded.vertices, rounded.faces, rounded.pairs, lidded_v, lidded_f)
     lidded = _Lidded(lidded_v, lidded_f, pairs)
@@ -159,6 +168,8 @@ def _solidify(
     else:
         out, hint = _exact_path(cleaned, lidded, eps, tally, clock), None
     out.holes = holes
+    if stitched.snapped or stitched.inserted:
+        out.sections["stitched"] = stitched.to_dict()
     out.degenerate_removed = cleaned.degenerate_removed
     out.duplicates_removed = cleaned.duplicates_removed
     # Measured against the rounded input; the input itself is at most `rounding` away
