@@ -7,6 +7,8 @@ Stages (each timed in the report; :func:`repair_mesh` reads as this list):
    check exactly that (:func:`repair.rounding.round_input`);
 2. ``clean``   weld exactly coincident vertices, move degenerate triangles to a list of
    segments (wires), keep one layer of equivalent triangles (:mod:`repair.clean`);
+   ``scan_cleanup``: a scanned mesh (asked for, or one that looks like a scan) loses its
+   spikes, specks, near-degenerate edges and ragged boundary faces (:mod:`repair.scan`);
    ``stitch``: join the boundaries of different patches that run within gamma = eps/4 of
    each other (Attene Sec. 5.2, :mod:`repair.stitch`), so a cracked surface closes;
    ``holes``: close the small holes of almost-closed shells with lids (:mod:`repair.holes`),
@@ -43,7 +45,7 @@ from repair.clean import Cleaned, clean_checked
 from repair.deviation import max_deviation
 from repair.errors import RepairError
 from repair.finish import finish
-from repair.holes import HolesClosed, close_small_holes
+from repair.holes import MAX_BOUNDARY_FRACTION, HolesClosed, close_small_holes
 from repair.hull_and_thicken import hull_and_thicken
 from repair.provenance import carry_input_pairs, starts_with_faces, union_face_sources
 from repair.report import (
@@ -55,6 +57,7 @@ from repair.report import (
     repair_report,
 )
 from repair.rounding import RoundedInput, round_input
+from repair.scan import ScanCleaned, clean_scan, looks_like_scan
 from repair.stitch import stitch_cracks
 from repair.topology import edge_components
 from repair.union import union_of_shells
@@ -64,6 +67,8 @@ __all__ = ["RepairError", "RepairResult", "repair_file", "repair_mesh"]
 #: γ of Attene's crack stitching (Sec. 5.2), as a fraction of eps: boundaries of
 #: different patches closer than this are joined (:mod:`repair.stitch`).
 STITCH_GAMMA = 0.25
+#: What ``clean`` may ask for: scan cleanup when the input looks like a scan, always, never.
+CLEAN_MODES = ("auto", "scan", "none")
 
 
 @dataclass(frozen=True)
@@ -82,6 +87,7 @@ def repair_mesh(
     epsilon: float = 0.4,
     *,
     progress: Progress = None,
+    clean: str = "auto",
 ) -> RepairResult:
     """Repair a triangle soup into a printable solid, as exactly as possible.
 
@@ -95,19 +101,24 @@ def repair_mesh(
     input is rounded to float32 first (an STL already is): solid parts come out on their
     rounded corners either way, and the arrangement then rounds once, not twice. The
     reported deviation D includes that rounding.
+
+    ``clean``: ``"scan"`` cleans the input as a scanned mesh first (:mod:`repair.scan`),
+    ``"auto"`` does when it looks like one, ``"none"`` never; the report says which.
     """
     eps = _checked_epsilon(epsilon)
+    if clean not in CLEAN_MODES:
+        raise RepairError(f"clean must be one of {', '.join(CLEAN_MODES)}, got {clean!r}")
     v_in, f_in = _checked_mesh(vertices, faces)
     clock = StageClock(progress)
     rounded = round_input(v_in, f_in)
     clock.lap("check_input", 0.1)
-    if rounded.verdict.ok:
+    if rounded.verdict.ok and clean != "scan":
         out = _unchanged(rounded)
         clock.lap("finish", 0.9)
     else:
         cleaned = clean_checked(rounded.vertices, rounded.faces, rounded.verdict)
         clock.lap("clean", 0.2)
-        out = _solidify(rounded, cleaned, eps, clock)
+        out = _solidify(rounded, cleaned, eps, clock, clean)
     before = input_report(rounded.verdict, len(rounded.vertices))
     return RepairResult(out.vertices, out.faces, repair_report(before, out, eps, clock))
 
@@ -148,16 +159,22 @@ def _unchanged(rounded: RoundedInput) -> RepairOutcome:
 
 
 def _solidify(
-    rounded: RoundedInput, cleaned: Cleaned, eps: float, clock: StageClock
+    rounded: RoundedInput, cleaned: Cleaned, eps: float, clock: StageClock, clean: str
 ) -> RepairOutcome:
     """Stages 2 (holes) to 6 (deviation) of a cleaned input that is not printable."""
     if len(cleaned.faces) == 0 and len(cleaned.segments) == 0:
         raise RepairError(
             f"nothing printable: all {len(rounded.faces)} triangles collapse to a single point"
         )
-    stitched_f, stitched = stitch_cracks(cleaned.vertices, cleaned.faces, STITCH_GAMMA * eps)
+    work_v, work_f, scan = _scan_cleanup(cleaned, eps, clean)
+    clock.lap("scan_cleanup", 0.21)
+    stitched_f, stitched = stitch_cracks(work_v, work_f, STITCH_GAMMA * eps)
     clock.lap("stitch", 0.22)
-    lidded_v, lidded_f, holes = close_small_holes(cleaned.vertices, stitched_f)
+    # A cleaned scan's holes are all closable when small against their shell, however
+    # much of its edges are boundary (the scan's holes are many).
+    lidded_v, lidded_f, holes = close_small_holes(
+        work_v, stitched_f, max_boundary_fraction=1.0 if scan else MAX_BOUNDARY_FRACTION
+    )
     clock.lap("holes", 0.25)
     pairs = carry_input_pairs(rounded.vertices, rounded.faces, rounded.pairs, lidded_v, lidded_f)
     lidded = _Lidded(lidded_v, lidded_f, pairs)
@@ -170,6 +187,8 @@ def _solidify(
     out.holes = holes
     if stitched.snapped or stitched.inserted:
         out.sections["stitched"] = stitched.to_dict()
+    if scan is not None:
+        out.sections["scan_cleanup"] = scan.to_dict()
     out.degenerate_removed = cleaned.degenerate_removed
     out.duplicates_removed = cleaned.duplicates_removed
     # Measured against the rounded input; the input itself is at most `rounding` away
@@ -182,6 +201,18 @@ def _solidify(
     )  # fmt: skip
     clock.lap("deviation", 0.95)
     return out
+
+
+def _scan_cleanup(
+    cleaned: Cleaned, eps: float, clean: str
+) -> tuple[np.ndarray, np.ndarray, ScanCleaned | None]:
+    """The cleaned input, cleaned as a scan when asked or when it looks like one."""
+    why = "asked (clean = scan)" if clean == "scan" else ""
+    if clean == "auto":
+        why = looks_like_scan(cleaned.vertices, cleaned.faces, eps)
+    if not why or len(cleaned.faces) == 0:
+        return cleaned.vertices, cleaned.faces, None
+    return clean_scan(cleaned.vertices, cleaned.faces, eps, why)
 
 
 def _union_path(
@@ -263,6 +294,7 @@ def repair_file(
     max_bytes: int | None = None,
     max_triangles: int | None = None,
     progress: Progress = None,
+    clean: str = "auto",
 ) -> dict[str, Any]:
     """Load a mesh file (STL/OBJ/PLY/3MF), repair it, write a binary STL at ``out_path``
     and, if asked, the report as JSON at ``report_path``. Returns the report.
@@ -277,7 +309,7 @@ def repair_file(
     t_load = time.perf_counter() - t0
     if progress is not None:
         progress("load", 0.05)
-    result = repair_mesh(mesh.vertices, mesh.faces, epsilon, progress=progress)
+    result = repair_mesh(mesh.vertices, mesh.faces, epsilon, progress=progress, clean=clean)
     t1 = time.perf_counter()
     write_stl(out_path, result.vertices, result.faces)
     report = dict(result.report)

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from repair.topology import connected_labels, edge_components, edge_ids, half_edges
+from repair.topology import connected_labels, edge_components, edge_ids, edge_stats, half_edges
 
 __all__ = ["Stitched", "stitch_cracks"]
 
@@ -37,13 +37,15 @@ _SPLIT_ROUNDS = 3
 class Stitched:
     """What :func:`stitch_cracks` did: ``gamma`` mm, ``snapped`` vertex pairs merged,
     ``inserted`` vertices put into a boundary edge of another patch, ``boundary_before``
-    and ``boundary_after`` boundary edges."""
+    and ``boundary_after`` boundary edges; ``declined`` when the stitch was undone because
+    it would have made edges of more than two faces or misoriented ones."""
 
     gamma: float = 0.0
     snapped: int = 0
     inserted: int = 0
     boundary_before: int = 0
     boundary_after: int = 0
+    declined: bool = False
 
     def to_dict(self) -> dict[str, float | int]:
         return {
@@ -52,6 +54,7 @@ class Stitched:
             "inserted": int(self.inserted),
             "boundary_edges_before": int(self.boundary_before),
             "boundary_edges_after": int(self.boundary_after),
+            "declined": bool(self.declined),
         }
 
 
@@ -167,9 +170,10 @@ def stitch_cracks(
     f = np.asarray(faces, dtype=np.int64)
     if len(f) == 0 or gamma <= 0:
         return f, Stitched(gamma=float(gamma))
-    before = len(_boundary(f)[0])
-    if before == 0:
+    b0, nonmanifold, misoriented, _, _ = edge_stats(f)
+    if b0 == 0:
         return f, Stitched(gamma=float(gamma))
+    original = f
     f, snapped = _snap(v, f, gamma)
     inserted = 0
     for _ in range(_SPLIT_ROUNDS):
@@ -179,5 +183,10 @@ def stitch_cracks(
         n = len(f)
         f = _split_faces(f, h, p, t)
         inserted += len(f) - n
-    after = len(_boundary(f)[0])
-    return f, Stitched(float(gamma), snapped, inserted, before, after)
+    b1, nonmanifold_after, misoriented_after, _, _ = edge_stats(f)
+    if nonmanifold_after > nonmanifold or misoriented_after > misoriented or b1 >= b0:
+        # Not a crack between consistent patches (crossing triangles of a soup, patches
+        # facing the same way): stitching would make the surface worse; leave it.
+        return original, Stitched(float(gamma), boundary_before=b0, boundary_after=b0,
+                                  declined=True)  # fmt: skip
+    return f, Stitched(float(gamma), snapped, inserted, b0, b1)
