@@ -57,7 +57,7 @@ from repair.report import (
     repair_report,
 )
 from repair.rounding import RoundedInput, round_input
-from repair.scan import ScanCleaned, clean_scan, looks_like_scan
+from repair.scan import ScanCleaned, scan_cleanup
 from repair.stitch import stitch_cracks
 from repair.topology import edge_components
 from repair.union import union_of_shells
@@ -207,12 +207,7 @@ def _scan_cleanup(
     cleaned: Cleaned, eps: float, clean: str
 ) -> tuple[np.ndarray, np.ndarray, ScanCleaned | None]:
     """The cleaned input, cleaned as a scan when asked or when it looks like one."""
-    why = "asked (clean = scan)" if clean == "scan" else ""
-    if clean == "auto":
-        why = looks_like_scan(cleaned.vertices, cleaned.faces, eps)
-    if not why or len(cleaned.faces) == 0:
-        return cleaned.vertices, cleaned.faces, None
-    return clean_scan(cleaned.vertices, cleaned.faces, eps, why)
+    return scan_cleanup(cleaned.vertices, cleaned.faces, eps, clean)
 
 
 def _union_path(

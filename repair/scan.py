@@ -32,9 +32,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from repair.topology import edge_components, edge_ids, half_edges, paired_half_edges
+from repair.topology import connected_labels, edge_components, edge_ids, half_edges
 
-__all__ = ["SPECK_AREA", "ScanCleaned", "clean_scan", "looks_like_scan"]
+__all__ = ["SPECK_AREA", "ScanCleaned", "clean_scan", "looks_like_scan", "scan_cleanup"]
 
 #: Components of less area than this many eps² are specks (eps = the nozzle).
 SPECK_AREA = 25.0
@@ -98,14 +98,38 @@ class _Edges:
         he = half_edges(f)
         ends = np.empty((len(cnt), 2), dtype=np.int64)
         ends[eid] = np.sort(he, axis=1)
-        h1, h2, _ = paired_half_edges(eid)
-        return _Edges(eid, ends, h1, h2)
+        return _Edges(eid, ends, *_pairs(eid, cnt))
+
+    def subset(self, keep: np.ndarray) -> _Edges:
+        """The edges of the faces ``keep`` (bool per face) only, faces renumbered in
+        order: edge ids stay (some edges now unused), pairs are taken again."""
+        eid = self.eid.reshape(-1, 3)[keep].reshape(-1)
+        return _Edges(eid, self.ends, *_pairs(eid, np.bincount(eid, minlength=len(self.ends))))
 
 
-def _dihedrals(v: np.ndarray, f: np.ndarray, h1: np.ndarray, h2: np.ndarray) -> np.ndarray:
-    """Angle between the normals of the faces of half-edges h1 and h2 (0 flat, pi folded)."""
-    n1, _ = _normals(v, f[h1 // 3])
-    n2, _ = _normals(v, f[h2 // 3])
+def _pairs(eid: np.ndarray, cnt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The two half-edges of each edge of exactly two faces, without a sort: the first
+    and the last half-edge of each edge, by two scatters."""
+    idx = np.arange(len(eid))
+    first = np.empty(len(cnt), dtype=np.int64)
+    first[eid[::-1]] = idx[::-1]  # the last write wins: the smallest index
+    last = np.empty(len(cnt), dtype=np.int64)
+    last[eid] = idx
+    two = np.flatnonzero(cnt == 2)
+    return first[two], last[two]
+
+
+def _dihedrals(
+    v: np.ndarray, f: np.ndarray, h1: np.ndarray, h2: np.ndarray, n: np.ndarray | None = None
+) -> np.ndarray:
+    """Angle between the normals of the faces of half-edges h1 and h2 (0 flat, pi folded);
+    ``n``: the faces' unit normals, if known."""
+    if n is not None or 2 * len(h1) > len(f):  # most faces: one normal each
+        n = _normals(v, f)[0] if n is None else n
+        n1, n2 = n[h1 // 3], n[h2 // 3]
+    else:
+        n1, _ = _normals(v, f[h1 // 3])
+        n2, _ = _normals(v, f[h2 // 3])
     return np.arccos(np.clip(np.einsum("ij,ij->i", n1, n2), -1.0, 1.0))
 
 
@@ -125,17 +149,22 @@ def looks_like_scan(vertices: np.ndarray, faces: np.ndarray, eps: float) -> str:
     v, f = np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64)
     if len(f) < SCAN_MIN_FACES:
         return ""
-    e = _Edges.of(f)
-    sharp = np.count_nonzero(_dihedrals(v, f, e.h1, e.h2) > np.radians(60.0))
+    return _scan_signs(v, f, _Edges.of(f), eps, *_normals(v, f))
+
+
+def _scan_signs(
+    v: np.ndarray, f: np.ndarray, e: _Edges, eps: float, n: np.ndarray, area: np.ndarray
+) -> str:
+    sharp = np.count_nonzero(_dihedrals(v, f, e.h1, e.h2, n) > np.radians(60.0))
     sharp /= max(len(e.h1), 1)
     if sharp > SCAN_MAX_SHARP:
         return ""
     comp = edge_components(f, e.eid)
-    _, area = _normals(v, f)
     specks = int(np.count_nonzero(np.bincount(comp, weights=area) < SPECK_AREA * eps**2))
-    from repair.holes import boundary_loops
-
-    loops = len(boundary_loops(f)[0])
+    # Boundary loops: the connected pieces of the boundary edges.
+    b = e.ends[np.bincount(e.eid, minlength=len(e.ends)) == 1]
+    on, local = np.unique(b, return_inverse=True)
+    loops = int(connected_labels(len(on), *local.reshape(-1, 2).T).max()) + 1 if len(b) else 0
     if max(loops, specks) < SCAN_MIN_PIECES:
         return ""
     return (
@@ -210,7 +239,9 @@ def _vertex_theta(n: int, f: np.ndarray, e: _Edges, faces: np.ndarray, pairs: np
     return out
 
 
-def _relax_spikes(v: np.ndarray, f: np.ndarray, e: _Edges, rounds: int = 20):
+def _relax_spikes(
+    v: np.ndarray, f: np.ndarray, e: _Edges, n_faces: np.ndarray | None, rounds: int = 20
+):
     """Eq. 2 on the spiked vertices, ``rounds`` times, the sharpest first: each round moves
     the spiked vertices whose umbrella vector (relative to their mean edge length) is the
     largest among their neighbours, so a spike's tip goes down before its base rises.
@@ -218,7 +249,8 @@ def _relax_spikes(v: np.ndarray, f: np.ndarray, e: _Edges, rounds: int = 20):
     vertices, how many moved and the mask of those still spiked above ``SPIKE_B``."""
     n = len(v)
     every = np.arange(len(e.h1))
-    theta = _vertex_theta(n, f, e, np.arange(len(f)), every, _dihedrals(v, f, e.h1, e.h2))
+    angle = _dihedrals(v, f, e.h1, e.h2, n_faces)
+    theta = _vertex_theta(n, f, e, np.arange(len(f)), every, angle)
     near = theta > SPIKE_A
     if not near.any():
         return v, 0, np.zeros(n, dtype=bool)
@@ -255,8 +287,9 @@ def _relax_spikes(v: np.ndarray, f: np.ndarray, e: _Edges, rounds: int = 20):
 def _clean_boundaries(
     f: np.ndarray, e: _Edges, sharp_vertex: np.ndarray, rounds: int = 30
 ) -> tuple[np.ndarray, int]:
-    """Sec. 3.3: drop the faces at bad boundary vertices until none is left. Faces are
-    only removed, so the edge ids stay valid: counts are re-taken per round (no sort)."""
+    """Sec. 3.3: the faces to keep (bool) once those at bad boundary vertices are
+    dropped, round after round until none is left, and how many went. Faces are only
+    removed, so the edge ids stay valid: counts are re-taken per round (no sort)."""
     n = len(sharp_vertex)
     alive = np.ones(len(f), dtype=bool)
     n_edges = len(e.ends)
@@ -273,20 +306,19 @@ def _clean_boundaries(
         if not drop.any():
             break
         alive &= ~drop
-    return f[alive], int(np.count_nonzero(~alive))
+    return alive, int(np.count_nonzero(~alive))
 
 
-def _drop_specks(v: np.ndarray, f: np.ndarray, eps: float) -> tuple[np.ndarray, int, float]:
-    """Sec. 3.2: faces of the components under ``SPECK_AREA * eps**2`` mm² removed (the
-    largest component always stays)."""
-    if len(f) == 0:
-        return f, 0, 0.0
-    comp = edge_components(f)
-    _, area = _normals(v, f)
+def _specks(f: np.ndarray, e: _Edges, area: np.ndarray, eps: float) -> tuple[np.ndarray, float]:
+    """Sec. 3.2: mask of the faces (of ``area`` mm² each) of components under
+    ``SPECK_AREA * eps**2`` mm² (the largest component always stays), and their area."""
+    if len(area) == 0:
+        return np.zeros(0, dtype=bool), 0.0
+    comp = edge_components(f, e.eid)
     comp_area = np.bincount(comp, weights=area)
     speck = comp_area < SPECK_AREA * eps**2
     speck[np.argmax(comp_area)] = False
-    return f[~speck[comp]], int(np.count_nonzero(speck)), float(comp_area[speck].sum())
+    return speck[comp], float(comp_area[speck].sum())
 
 
 def clean_scan(
@@ -298,19 +330,49 @@ def clean_scan(
     vertex indices) and what was done."""
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
+    return _clean(v, f, _Edges.of(f), eps, why)
+
+
+def scan_cleanup(
+    vertices: np.ndarray, faces: np.ndarray, eps: float, mode: str
+) -> tuple[np.ndarray, np.ndarray, ScanCleaned | None]:
+    """The mesh cleaned as a scan when ``mode`` is "scan", or is "auto" and it looks like
+    one (:func:`looks_like_scan`); else as it was, and None."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    if mode == "none" or len(f) == 0 or (mode == "auto" and len(f) < SCAN_MIN_FACES):
+        return v, f, None
+    e = _Edges.of(f)
+    normals, area = _normals(v, f)
+    why = "asked (clean = scan)" if mode == "scan" else _scan_signs(v, f, e, eps, normals, area)
+    if not why:
+        return v, f, None
+    return _clean(v, f, e, eps, why, normals, area)
+
+
+def _clean(
+    v: np.ndarray, f: np.ndarray, e: _Edges, eps: float, why: str,
+    normals: np.ndarray | None = None, area: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, ScanCleaned]:
     if len(f) == 0:
         return v, f, ScanCleaned(why)
-    f, n_specks, speck_area = _drop_specks(v, f, eps)
-    v, f, collapsed = _collapse(v, f, _Edges.of(f))
-    e = _Edges.of(f)
-    v, relaxed, spiked = _relax_spikes(v, f, e)
+    if normals is None or area is None:
+        normals, area = _normals(v, f)
+    speck, speck_area = _specks(f, e, area, eps)
+    n_specks = int(np.count_nonzero(speck))
+    f, e, normals = f[~speck], e.subset(~speck), normals[~speck]
+    v, f, collapsed = _collapse(v, f, e)
+    if collapsed:
+        e, normals = _Edges.of(f), None
+    v, relaxed, spiked = _relax_spikes(v, f, e, normals)
     # Sec. 3.8: what relaxing could not flatten goes (its hole is filled later).
     spike = spiked[f].any(axis=1)
-    f = f[~spike]
-    e = _Edges.of(f)
+    f, e = f[~spike], e.subset(~spike)
     sharp = _vertex_max(len(v), e.ends[e.eid[e.h1]], _dihedrals(v, f, e.h1, e.h2))
-    f, boundary_removed = _clean_boundaries(f, e, sharp > BOUNDARY_DIHEDRAL)
-    f, more_specks, more_area = _drop_specks(v, f, eps)
+    alive, boundary_removed = _clean_boundaries(f, e, sharp > BOUNDARY_DIHEDRAL)
+    f, e = f[alive], e.subset(alive)
+    more, more_area = _specks(f, e, _normals(v, f)[1], eps)
+    f = f[~more]
     return v, f, ScanCleaned(why, collapsed, relaxed, int(np.count_nonzero(spike)),
-                             boundary_removed, n_specks + more_specks,
+                             boundary_removed, n_specks + int(np.count_nonzero(more)),
                              speck_area + more_area)  # fmt: skip

@@ -16,7 +16,7 @@ def noisy_scan(
     specks: int = 12,
 ) -> tuple[np.ndarray, np.ndarray]:
     """An icosphere (20 * 4**subdivisions faces before damage) with radial noise of
-    +-0.002 radius, ``spikes`` vertices pulled out by 0.2 radius, ``holes`` ragged holes
+    +-5% of its edge length, ``spikes`` vertices pulled out by 0.2 radius, ``holes`` ragged holes
     (faces within a jittered radius of a centre removed) and ``specks`` loose little
     patches (1-4 triangles each) floating near the surface."""
     import trimesh
@@ -25,7 +25,9 @@ def noisy_scan(
     s = trimesh.creation.icosphere(subdivisions=subdivisions, radius=1.0)
     v = np.asarray(s.vertices, dtype=np.float64)
     f = np.asarray(s.faces, dtype=np.int64)
-    v *= radius * (1.0 + 0.002 * rng.uniform(-1, 1, size=(len(v), 1)))
+    edge = radius * np.linalg.norm(v[f[0, 0]] - v[f[0, 1]])
+    # Measurement noise: radial, up to 5% of the edge length.
+    v *= radius + 0.05 * edge * rng.uniform(-1, 1, size=(len(v), 1))
     unit = v / np.linalg.norm(v, axis=1, keepdims=True)
     # Spikes: single vertices pulled far out of the surface.
     tips = rng.choice(len(v), size=spikes, replace=False)
@@ -33,7 +35,6 @@ def noisy_scan(
     # Ragged holes: a jittered disc of faces removed round random centres (away from tips).
     centroid = v[f].mean(axis=1)
     keep = np.ones(len(f), dtype=bool)
-    edge = np.linalg.norm(v[f[0, 0]] - v[f[0, 1]])
     for c in rng.choice(np.setdiff1d(np.arange(len(v)), tips), size=holes, replace=False):
         r = edge * rng.uniform(2.0, 4.0)
         jitter = r * (1.0 + 0.5 * rng.uniform(-1, 1, size=len(f)))
