@@ -92,52 +92,114 @@ class HolesClosed:
 
 
 def boundary_loops(faces: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
-    """Closed loops of boundary edges (edges used by exactly one face).
+    """Closed loops of boundary (lamina) edges, edges used by exactly one face, as Jordan
+    curves (Bøhn & Wozny).
 
     Returns the loops, each an int64 array of vertex indices ordered *against* the rim
     faces' orientation (the order a lid needs to continue that orientation), and the face
-    component label (edge-connected) of each loop's rim. Loops through a vertex where the
-    boundary is not a simple curve (more than one boundary edge leaving or entering it)
-    are not returned: such a hole is left to the sheet thickening.
+    component label (edge-connected) of each loop's rim. Where several boundary edges
+    meet at a vertex (two holes touching at a corner), each edge coming in is paired with
+    the edge going out that is reached by turning round the vertex through its faces, and
+    a closed walk through a vertex twice is split there into simple loops. Boundaries
+    that cannot be paired so (edges of more than two faces, faces oriented against each
+    other, as many edges in as out not met) give no loop: such a hole is left to the
+    sheet thickening.
     """
     f = np.asarray(faces, dtype=np.int64)
     if len(f) == 0:
         return [], np.zeros(0, dtype=np.int64)
     he = half_edges(f)  # (3m, 2) a->b
     eid, cnt = edge_ids(f)
-    comp = edge_components(f, eid)
     bnd = np.flatnonzero(cnt[eid] == 1)
     if len(bnd) == 0:
         return [], np.zeros(0, dtype=np.int64)
+    comp = edge_components(f, eid)
     # A lid edge runs b->a for the rim's a->b.
     src, dst = he[bnd, 1], he[bnd, 0]
-    rim_comp = comp[bnd // 3]
-    out_deg = np.bincount(src, minlength=int(f.max()) + 1)
-    in_deg = np.bincount(dst, minlength=int(f.max()) + 1)
-    simple = (out_deg[src] == 1) & (in_deg[src] == 1) & (out_deg[dst] == 1) & (in_deg[dst] == 1)
-    nxt = dict(zip(src[simple].tolist(), dst[simple].tolist(), strict=True))
-    vcomp = dict(zip(src[simple].tolist(), rim_comp[simple].tolist(), strict=True))
+    succ = _lid_successors(f, he, eid, cnt, bnd, src, dst)
     loops: list[np.ndarray] = []
     labels: list[int] = []
-    seen: set[int] = set()
-    for start in nxt:
-        if start in seen:
+    seen = np.zeros(len(bnd), dtype=bool)
+    succ_list = succ.tolist()
+    for start in range(len(bnd)):
+        if seen[start] or succ_list[start] < 0:
             continue
-        loop = [start]
-        seen.add(start)
-        cur = nxt[start]
-        ok = True
-        while cur != start:
-            if cur in seen or cur not in nxt:
-                ok = False
-                break
-            seen.add(cur)
-            loop.append(cur)
-            cur = nxt[cur]
-        if ok and len(loop) >= 3:
+        walk = [start]
+        seen[start] = True
+        cur = succ_list[start]
+        while cur != start and cur >= 0 and not seen[cur]:
+            seen[cur] = True
+            walk.append(cur)
+            cur = succ_list[cur]
+        if cur != start:
+            continue  # an open chain: not a Jordan curve
+        for loop in _simple_loops(src[walk].tolist()):
             loops.append(np.asarray(loop, dtype=np.int64))
-            labels.append(vcomp[start])
+            labels.append(int(comp[bnd[start] // 3]))
     return loops, np.asarray(labels, dtype=np.int64)
+
+
+def _lid_successors(
+    f: np.ndarray, he: np.ndarray, eid: np.ndarray, cnt: np.ndarray, bnd: np.ndarray,
+    src: np.ndarray, dst: np.ndarray,
+) -> np.ndarray:
+    """For each lid edge (``src`` -> ``dst``, of rim half-edge ``bnd``): the lid edge that
+    follows it, or -1. Unique where one lid edge leaves its end; at a vertex where several
+    do, the one reached by turning round the vertex through its faces."""
+    n = int(f.max()) + 1
+    out_deg = np.bincount(src, minlength=n)
+    in_deg = np.bincount(dst, minlength=n)
+    leaving = np.full(n, -1)
+    leaving[src] = np.arange(len(src))
+    succ = np.where(out_deg[dst] == 1, leaving[dst], -1)
+    succ[in_deg[dst] != out_deg[dst]] = -1
+    pinch = np.flatnonzero((out_deg[dst] > 1) & (in_deg[dst] == out_deg[dst]))
+    if len(pinch) == 0:
+        return succ
+    # Twins of the half-edges of edges with two faces oriented against each other.
+    idx = np.arange(len(eid))
+    first = np.empty(len(cnt), dtype=np.int64)
+    first[eid[::-1]] = idx[::-1]
+    last = np.empty(len(cnt), dtype=np.int64)
+    last[eid] = idx
+    twin = np.where(cnt[eid] == 2, np.where(first[eid] == idx, last[eid], first[eid]), -1)
+    ok = twin >= 0
+    ok[ok] = he[twin[ok], 0] == he[idx[ok], 1]
+    twin[~ok] = -1
+    lid_of = np.full(len(eid), -1)
+    lid_of[bnd] = np.arange(len(bnd))
+    for i in pinch.tolist():
+        h = int(bnd[i])  # rim a->b starts at the pinch vertex a
+        t = 3 * (h // 3) + (h % 3 + 2) % 3  # the half-edge of that face ending at a
+        for _ in range(len(f)):
+            if lid_of[t] >= 0:
+                succ[i] = lid_of[t]
+                break
+            w = int(twin[t])
+            if w < 0:
+                break
+            t = 3 * (w // 3) + (w % 3 + 2) % 3
+    return succ
+
+
+def _simple_loops(walk: list[int]) -> list[list[int]]:
+    """A closed walk of vertices split at each vertex it passes twice into simple loops
+    (those of fewer than three vertices dropped)."""
+    loops: list[list[int]] = []
+    stack: list[int] = []
+    where: dict[int, int] = {}
+    for vertex in walk:
+        if vertex in where:
+            i = where[vertex]
+            loops.append(stack[i:])
+            for u in stack[i + 1 :]:
+                del where[u]
+            del stack[i + 1 :]
+        else:
+            where[vertex] = len(stack)
+            stack.append(vertex)
+    loops.append(stack)
+    return [lp for lp in loops if len(lp) >= 3]
 
 
 def _shells(

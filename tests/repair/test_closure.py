@@ -97,3 +97,31 @@ def test_box_with_a_missing_quad_in_a_wall_is_closed_exactly():
     assert holes.count == 1 and holes.facet_lids == 1 and len(out_v) == len(v)
     assert signed_volume(out_v, out_f) == pytest.approx(8000.0)
     assert check_printable(out_v, out_f).ok
+
+
+def test_two_holes_touching_at_a_vertex_are_two_jordan_curves(tmp_path):
+    # Two triangles of one vertex's fan removed, not sharing an edge: four boundary edges
+    # meet at that vertex. Paired by turning round it, they are two triangular holes.
+    import trimesh
+
+    s = trimesh.creation.icosphere(subdivisions=3, radius=10.0)
+    v, f = np.asarray(s.vertices), np.asarray(s.faces, np.int64)
+    fan = np.flatnonzero((f == 0).any(axis=1))
+    # Two faces of the fan with no edge in common (only vertex 0).
+    a = fan[0]
+    b = next(g for g in fan[1:] if len(set(f[a]) & set(f[g])) == 1)
+    open_f = np.delete(f, [a, b], axis=0)
+    loops, _ = boundary_loops(open_f)
+    assert sorted(len(lp) for lp in loops) == [3, 3]
+    assert all(0 in lp for lp in loops)
+    src, out = tmp_path / "pinched.stl", tmp_path / "out.stl"
+    write_stl(src, v, open_f)
+    report = repair_file(src, out, epsilon=EPS)
+    written = load_mesh(out)
+    verdict = check_printable(written.vertices, written.faces)
+    assert verdict.ok, verdict.failures()
+    assert report["holes_closed"]["count"] == 2
+    assert report["after"]["sheet_triangles_thickened"] == 0
+    # The lids are the two missing triangles: the sphere comes back whole.
+    assert len(written.faces) == len(f)
+    assert verdict.volume == pytest.approx(signed_volume(v, f), rel=1e-6)
