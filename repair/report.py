@@ -176,6 +176,14 @@ def summary(r: dict[str, Any]) -> str:
     ):
         if a.get(key):
             fixes.append(f"{a[key]} {label}")
+    sc = r.get("scan_cleanup") or {}
+    if sc:
+        asked = "asked" if sc["why"].startswith("asked") else "looks like a scan"
+        fixes.append(
+            f"cleaned as a scan ({asked}: {sc['relaxed_vertices']} spike vertices relaxed, "
+            f"{sc['spike_faces_removed'] + sc['boundary_faces_removed']} spike/ragged "
+            f"triangles and {sc['components_removed']} specks removed)"
+        )
     st = r.get("stitched") or {}
     if st.get("snapped") or st.get("inserted"):
         fixes.append(f"cracks stitched within {st['gamma']:g} mm")

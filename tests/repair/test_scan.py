@@ -34,6 +34,7 @@ def test_noisy_scan_comes_out_closed_without_spikes(tmp_path, seed, clean):
     scan = report["scan_cleanup"]
     assert scan["why"].startswith("asked" if clean == "scan" else "looks like a scan")
     assert scan["relaxed_vertices"] > 0 and scan["components_removed"] > 0
+    assert "cleaned as a scan" in report["summary"]
     # No spike: every written point within 0.25 mm outside the sphere (the spikes stood
     # 4 mm out); lids sag inwards by their sagitta only.
     r = np.linalg.norm(written.vertices, axis=1)
@@ -54,6 +55,21 @@ def test_clean_none_leaves_a_scan_to_the_exact_repair(tmp_path):
     # The spikes are kept, exactly (the input is a closed sphere with spikes).
     assert report["path"] == "unchanged"
     assert np.linalg.norm(load_mesh(out).vertices, axis=1).max() > 1.15 * RADIUS
+
+
+def test_clean_scan_flattens_the_spikes_of_a_closed_scan(tmp_path):
+    # Closed and printable as it is: only an explicit "scan" touches it.
+    v, f = noisy_scan(5, RADIUS, seed=6, holes=0, specks=0)
+    src, out = tmp_path / "scan.stl", tmp_path / "out.stl"
+    write_stl(src, v, f)
+    report = repair_file(src, out, epsilon=EPS, clean="scan")
+    written = load_mesh(out)
+    assert check_printable(written.vertices, written.faces).ok
+    assert report["scan_cleanup"]["relaxed_vertices"] > 0
+    assert np.linalg.norm(written.vertices, axis=1).max() <= RADIUS * 1.002 + 0.25
+    # Where a spike stood, the surface now spans its base: D is within about an edge.
+    edge = np.linalg.norm(v[f[:, 0]] - v[f[:, 1]], axis=1)
+    assert report["deviation"] <= 1.5 * np.median(edge)
 
 
 def test_only_dense_ragged_smooth_meshes_look_like_scans():
