@@ -105,20 +105,26 @@ def boundary_loops(faces: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
     other, as many edges in as out not met) give no loop: such a hole is left to the
     sheet thickening.
     """
-    f = np.asarray(faces, dtype=np.int64)
+    loops, labels, _ = _traced_loops(np.asarray(faces, dtype=np.int64))
+    return loops, labels
+
+
+def _traced_loops(f: np.ndarray) -> tuple[list[np.ndarray], np.ndarray, list[np.ndarray]]:
+    """:func:`boundary_loops`, plus each loop's rim faces (one per loop edge)."""
     if len(f) == 0:
-        return [], np.zeros(0, dtype=np.int64)
+        return [], np.zeros(0, dtype=np.int64), []
     he = half_edges(f)  # (3m, 2) a->b
     eid, cnt = edge_ids(f)
     bnd = np.flatnonzero(cnt[eid] == 1)
     if len(bnd) == 0:
-        return [], np.zeros(0, dtype=np.int64)
+        return [], np.zeros(0, dtype=np.int64), []
     comp = edge_components(f, eid)
     # A lid edge runs b->a for the rim's a->b.
     src, dst = he[bnd, 1], he[bnd, 0]
     succ = _lid_successors(f, he, eid, cnt, bnd, src, dst)
     loops: list[np.ndarray] = []
     labels: list[int] = []
+    rims: list[np.ndarray] = []
     seen = np.zeros(len(bnd), dtype=bool)
     succ_list = succ.tolist()
     for start in range(len(bnd)):
@@ -133,10 +139,11 @@ def boundary_loops(faces: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
             cur = succ_list[cur]
         if cur != start:
             continue  # an open chain: not a Jordan curve
-        for loop in _simple_loops(src[walk].tolist()):
-            loops.append(np.asarray(loop, dtype=np.int64))
+        for loop in _simple_loops(src[walk].tolist(), walk):
+            loops.append(src[loop])
+            rims.append(bnd[loop] // 3)
             labels.append(int(comp[bnd[start] // 3]))
-    return loops, np.asarray(labels, dtype=np.int64)
+    return loops, np.asarray(labels, dtype=np.int64), rims
 
 
 def _lid_successors(
@@ -182,23 +189,25 @@ def _lid_successors(
     return succ
 
 
-def _simple_loops(walk: list[int]) -> list[list[int]]:
-    """A closed walk of vertices split at each vertex it passes twice into simple loops
-    (those of fewer than three vertices dropped)."""
+def _simple_loops(walk: list[int], edges: list[int]) -> list[list[int]]:
+    """A closed walk of vertices (``walk``; ``edges[i]`` leaves ``walk[i]``) split at each
+    vertex it passes twice into simple loops, given as their edges (those of fewer than
+    three edges dropped)."""
+    if len(set(walk)) == len(walk):
+        return [edges] if len(edges) >= 3 else []
     loops: list[list[int]] = []
-    stack: list[int] = []
+    stack: list[int] = []  # positions in the walk
     where: dict[int, int] = {}
-    for vertex in walk:
+    for pos, vertex in enumerate(walk):
         if vertex in where:
             i = where[vertex]
-            loops.append(stack[i:])
-            for u in stack[i + 1 :]:
-                del where[u]
-            del stack[i + 1 :]
-        else:
-            where[vertex] = len(stack)
-            stack.append(vertex)
-    loops.append(stack)
+            loops.append([edges[p] for p in stack[i:]])
+            for p in stack[i + 1 :]:
+                del where[walk[p]]
+            del stack[i:]
+        where[vertex] = len(stack)
+        stack.append(pos)
+    loops.append([edges[p] for p in stack])
     return [lp for lp in loops if len(lp) >= 3]
 
 
@@ -285,7 +294,7 @@ def close_small_holes(
     flaps = flap_faces(v, f, max_boundary_fraction=max_boundary_fraction)
     flap_f = f[flaps]
     f = f[~flaps]
-    loops, labels = boundary_loops(f)
+    loops, labels, rims = _traced_loops(f)
     if not loops:
         return v, np.vstack([f, flap_f]), HolesClosed()
     comp, use, almost_closed, diag = _shells(v, f, max_boundary_fraction)
@@ -293,12 +302,14 @@ def close_small_holes(
     # hole. Closing some holes of a shell that stays open would not make it solid (it is
     # still a sheet, and is thickened), the lids would only add surface.
     n_bnd = np.bincount(comp, weights=(use == 1).sum(axis=1), minlength=len(diag))
-    perims = np.array(
-        [np.linalg.norm(np.roll(v[lp], -1, axis=0) - v[lp], axis=1).sum() for lp in loops]
-    )
+    perims = _perimeters(v, loops)
     small = almost_closed[labels] & (perims <= max_perimeter_fraction * diag[labels])
-    rim_f = f[(use == 1).any(axis=1)]
-    facet = np.array([_continues_facet(v, rim_f, lp) for lp in loops], dtype=bool)
+    # A lid can complete a facet of a shell of three faces or more (a tetrahedron missing
+    # one); single triangles and pairs (a soup's) are not looked at.
+    n_faces = np.bincount(comp, minlength=len(diag))
+    facet = np.array([n_faces[c] >= 3 and _continues_facet(v, f[r], lp)
+                      for lp, r, c in zip(loops, rims, labels.tolist(), strict=True)],
+                     dtype=bool)  # fmt: skip
     ok = small | facet
     sizes = np.array([len(lp) for lp in loops], dtype=np.float64)
     covered = np.bincount(labels[ok], weights=sizes[ok], minlength=len(diag))
@@ -327,16 +338,25 @@ def close_small_holes(
     return out_v, out_f, _tally(v, flap_f[gone], lids, exact)
 
 
-def _continues_facet(v: np.ndarray, rim_f: np.ndarray, loop: np.ndarray) -> bool:
-    """Whether the loop (lid order) is planar and a face of its rim (``rim_f``: faces
-    with a boundary edge) lies in the lid's plane facing the lid's way."""
+def _perimeters(v: np.ndarray, loops: list[np.ndarray]) -> np.ndarray:
+    """Length (mm) round each loop, all loops at once."""
+    sizes = np.fromiter((len(lp) for lp in loops), dtype=np.int64, count=len(loops))
+    at = np.concatenate(loops)
+    start = np.cumsum(sizes) - sizes
+    nxt = np.arange(1, len(at) + 1)
+    nxt[start + sizes - 1] = start  # each loop's last vertex goes back to its first
+    return np.add.reduceat(np.linalg.norm(v[at[nxt]] - v[at], axis=1), start)
+
+
+def _continues_facet(v: np.ndarray, rim: np.ndarray, loop: np.ndarray) -> bool:
+    """Whether the loop (lid order) is planar and a face of its ``rim`` (the faces on its
+    edges) lies in the lid's plane facing the lid's way."""
     p = v[loop]
     _, normal, planar = loop_planarity(p)
     if not planar:
         return False
     # Rim faces: the faces holding the loop's edges (a rim half-edge runs against the lid).
-    rim = np.isin(rim_f, loop).sum(axis=1) >= 2
-    q = v[rim_f[rim]]
+    q = v[rim]
     n = np.cross(q[:, 1] - q[:, 0], q[:, 2] - q[:, 0])
     length = np.linalg.norm(n, axis=1)
     facing = (n @ normal) >= (1.0 - 1e-9) * length
