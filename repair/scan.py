@@ -181,25 +181,30 @@ def _adjacency(n: int, ends: np.ndarray):
     return coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n)).tocsr()
 
 
-def _collapse(v: np.ndarray, f: np.ndarray, e: _Edges) -> tuple[np.ndarray, np.ndarray, int]:
+def _collapse(
+    v: np.ndarray, f: np.ndarray, e: _Edges, area: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, int]:
     """One round of near-degenerate edge collapses: an independent set of zero and skinny
-    edges (each the shortest candidate at both its ends) passing the link condition."""
-    ends, n = e.ends, len(v)
-    length = np.linalg.norm(v[ends[:, 0]] - v[ends[:, 1]], axis=1)
-    vert_sum = np.bincount(ends.reshape(-1), weights=np.repeat(length, 2), minlength=n)
-    vert_cnt = np.maximum(np.bincount(ends.reshape(-1), minlength=n), 1)
+    edges (each the shortest candidate at both its ends) passing the link condition.
+    ``area``: of each face (mm²)."""
+    n = len(v)
+    used = np.bincount(e.eid, minlength=len(e.ends)) > 0
+    ends = e.ends
+    length = np.where(used, np.linalg.norm(v[ends[:, 0]] - v[ends[:, 1]], axis=1), np.inf)
+    live = np.where(used, length, 0.0)
+    vert_sum = np.bincount(ends.reshape(-1), weights=np.repeat(live, 2), minlength=n)
+    vert_cnt = np.maximum(np.bincount(ends[used].reshape(-1), minlength=n), 1)
     local = 0.5 * (vert_sum[ends[:, 0]] / vert_cnt[ends[:, 0]]
                    + vert_sum[ends[:, 1]] / vert_cnt[ends[:, 1]])  # fmt: skip
     # Skinny: short against its neighbourhood with a small angle opposite it.
-    p = v[f]
-    e_len = np.linalg.norm(p[:, [1, 2, 0]] - p, axis=2)  # edge k runs corner k -> k+1
-    area2 = np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    e_len = length[e.eid].reshape(-1, 3)  # edge k runs corner k -> k+1
     # Angle opposite edge k: sin = 2 area / (product of the other two sides).
     other = e_len[:, [1, 2, 0]] * e_len[:, [2, 0, 1]]
-    small_angle = area2[:, None] / np.maximum(other, 1e-300) < np.sin(np.radians(10.0))
+    small_angle = 2 * area[:, None] / np.maximum(other, 1e-300) < np.sin(np.radians(10.0))
     skinny = np.zeros(len(ends), dtype=bool)
     skinny[e.eid[small_angle.reshape(-1)]] = True
-    c = np.flatnonzero((length < 0.1 * length.mean()) | ((length < 0.25 * local) & skinny))
+    mean = live.sum() / max(int(np.count_nonzero(used)), 1)
+    c = np.flatnonzero((length < 0.1 * mean) | ((length < 0.25 * local) & skinny))
     if len(c) == 0:
         return v, f, 0
     best = np.full(n, np.inf)
@@ -361,7 +366,7 @@ def _clean(
     speck, speck_area = _specks(f, e, area, eps)
     n_specks = int(np.count_nonzero(speck))
     f, e, normals = f[~speck], e.subset(~speck), normals[~speck]
-    v, f, collapsed = _collapse(v, f, e)
+    v, f, collapsed = _collapse(v, f, e, area[~speck])
     if collapsed:
         e, normals = _Edges.of(f), None
     v, relaxed, spiked = _relax_spikes(v, f, e, normals)
