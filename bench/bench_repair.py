@@ -2,7 +2,8 @@
 
 For every corpus file (../shared/corpus) and generated large meshes (a clean closed
 1M-triangle torus, a clean closed 1.3M-triangle icosphere; a ~200k-triangle mesh of
-overlapping shells with holes) prints per-tool time, triangles/s, triangles out, peak RSS
+overlapping shells with holes; a 1.3M-triangle noisy scan, whose scan cleanup stage is
+also printed on its own line) prints per-tool time, triangles/s, triangles out, peak RSS
 and the printability verdict of the output (repair.check.check_printable on float32
 coordinates). Each tool run happens in a fresh child process so that peak memory and
 crashes are per run. Tools: preflight's ``repair_mesh``, pymeshfix (``bench`` extra;
@@ -133,9 +134,23 @@ def _family(spec: str):
     return m.vertices, m.faces
 
 
+def _noisy_scan():
+    """A scanned-like mesh of 1.3M triangles (seeded): a finely meshed sphere with noise,
+    40 spikes, 30 ragged holes and 60 specks (tests/repair/scan_models.py)."""
+    sys.path.insert(0, str(ROOT / "tests" / "repair"))
+    from scan_models import noisy_scan
+
+    return noisy_scan(8, 40.0, seed=0, spikes=40, holes=30, specks=60)
+
+
+SCAN_SPEC = "gen:noisy_scan_1.3M"
+
+
 def _load(spec: str):
     if spec.startswith(("gen:family_", "gen:shells5")):
         return _family(spec)
+    if spec == SCAN_SPEC:
+        return _noisy_scan()
     if spec == "gen:clean_1M":
         return _torus(1000, 500)
     if spec == "gen:clean_sphere_1.3M":
@@ -207,12 +222,26 @@ def _warm_imports(tool: str) -> None:
             pass
 
 
+def _scan_cleanup_alone(v, f) -> tuple[float, float]:
+    """Wall and CPU seconds of the scan cleanup on its own (detection included), on
+    the welded mesh the repair hands it; the CPU figure is what a loaded machine hides."""
+    from repair.scan import scan_cleanup
+    from repair.topology import weld_exact
+
+    wv, wf = weld_exact(v, f)
+    t0, c0 = time.perf_counter(), time.process_time()
+    scan_cleanup(wv, wf, 0.4, "auto")
+    return time.perf_counter() - t0, time.process_time() - c0
+
+
 def _run_one(tool: str, spec: str, q) -> None:
     import numpy as np
 
+    scan_s = None
     try:
         v, f = _load(spec)
         _warm_up(tool)
+        alone = _scan_cleanup_alone(v, f) if (tool, spec) == ("preflight", SCAN_SPEC) else None
         base = _peak_rss_mb()
         t0 = time.perf_counter()
         if spec.startswith("cli:"):
@@ -250,6 +279,7 @@ def _run_one(tool: str, spec: str, q) -> None:
 
             r = repair_mesh(v, f, 0.4)
             ov, of = r.vertices, r.faces
+            scan_s = r.report["stages"].get("scan_cleanup")
         elif tool == "pymeshfix":
             import pymeshfix
 
@@ -275,7 +305,8 @@ def _run_one(tool: str, spec: str, q) -> None:
             np.asarray(ov, float), np.asarray(of, np.int64), as_float32=True
         ).ok
         q.put({"tris": int(len(f)), "out": int(len(of)), "s": dt, "peak_mb": peak,
-               "delta_mb": peak - base, "worker_mb": workers, "ok": ok})  # fmt: skip
+               "delta_mb": peak - base, "worker_mb": workers, "ok": ok,
+               "scan_cleanup_s": scan_s, "scan_alone": alone})  # fmt: skip
     except Exception as exc:  # noqa: BLE001 - report, do not die
         q.put({"error": f"{type(exc).__name__}: {str(exc).splitlines()[0][:60]}"})
 
@@ -295,6 +326,23 @@ def run(tool: str, spec: str, timeout: float) -> dict:
     return q.get() if not q.empty() else {"error": "no result"}
 
 
+def _print_scan_cleanup(results: dict[str, dict[str, dict]]) -> None:
+    """The scan cleanup stage of preflight's repair of the noisy scan, per 1M faces."""
+    row = results.get(SCAN_SPEC, {})
+    r = row.get("preflight", {})
+    if r.get("scan_cleanup_s") is None:
+        return
+    fix = row.get("pymeshfix", {})
+    beside = f"; pymeshfix whole run {fix['s']:.2f}s" if "s" in fix else ""
+    wall, cpu = r["scan_alone"]
+    per = 1e6 / r["tris"]
+    print(f"scan cleanup (RameshCleaner) on {SCAN_SPEC} ({r['tris']} tris): in the repair "
+          f"{r['scan_cleanup_s']:.2f}s = {r['scan_cleanup_s'] * per:.2f}s per 1M faces; on its "
+          f"own {wall:.2f}s wall, {cpu:.2f}s CPU = {cpu * per:.2f}s CPU per 1M faces (seed "
+          f"target 5 s); whole repair {r['s']:.2f}s "
+          f"{'printable' if r['ok'] else 'NOT printable'}{beside}")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true", help="corpus only, no large meshes")
@@ -309,7 +357,7 @@ def main() -> int:
     if not a.quick:
         specs += ["gen:clean_1M", "gen:clean_sphere_1.3M", "gen:broken_200k",
                   "gen:sheet_sieve_200k", "cli:clean_500k", "cli:broken_200k",
-                  "gen:shells5_190k"]  # fmt: skip
+                  "gen:shells5_190k", "gen:noisy_scan_1.3M"]  # fmt: skip
         specs += [f"gen:family_{i}" for i in FAMILY_MEMBERS]
     specs = [s for s in specs if a.only in s]
     results: dict[str, dict[str, dict]] = {}
@@ -356,6 +404,7 @@ def main() -> int:
               f"corpus {median_rate(corpus)} ({sum(1 for r in corpus if r.get('tris', 0) > 1000)}"
               f" files), all rows {median_rate(runs)} (whole-process cli: rows excluded)")
     _print_family_and_outliers(results)
+    _print_scan_cleanup(results)
     if a.json:
         Path(a.json).write_text(json.dumps(results, indent=2))
     return 0

@@ -155,10 +155,18 @@ class WebConfig:
                                    low=0, high=1e7, above_low=True)
 
 
+@dataclass(frozen=True)
+class RepairConfig:
+    clean: str = setting("auto", 'scan cleanup (spikes, specks, ragged holes) before the '
+                         'repair: "auto" when the model looks like a scan, "scan" always, '
+                         '"none" never', CHOICE, choices=("auto", "scan", "none"))
+
+
 #: The sections in the order of the example config; ``[profile]`` is an open table.
 SECTIONS: dict[str, type] = {"spool": SpoolConfig, "printer": PrinterConfig,
                              "daemon": DaemonConfig, "limits": LimitsConfig,
-                             "safety": SafetyConfig, "web": WebConfig}
+                             "safety": SafetyConfig, "web": WebConfig,
+                             "repair": RepairConfig}
 PROFILE = "profile"
 
 
@@ -170,6 +178,7 @@ class Config:
     daemon: DaemonConfig = field(default_factory=DaemonConfig)
     safety: SafetyConfig = field(default_factory=SafetyConfig)
     web: WebConfig = field(default_factory=WebConfig)
+    repair: RepairConfig = field(default_factory=RepairConfig)
     profile: dict[str, Any] = field(default_factory=dict)  # slicer Profile overrides
     source: str = "built-in defaults"
 

@@ -1,33 +1,37 @@
-"""Close the small holes of almost-closed shells (Bøhn & Wozny's shell closure).
+"""Shell closure (Bøhn & Wozny): which holes of a shell get lids.
 
-An open scan or a sloppy export is often a closed shell with a few small holes. Attene's
+An open scan or a sloppy export is often a closed shell with a few holes. Attene's
 algorithm would treat the whole open shell as a zero-thickness sheet and thicken all of
 it; a user expects the holes to be filled instead, after which the shell is solid and the
 exact path keeps it exactly. Genuine open surfaces (an open-topped box, a fin, a single
-sheet) are left alone: only a shell whose boundary is a small fraction of its edges, and
-whose holes all have a perimeter small against the shell's size, gets its holes closed --
-all of them, so it comes out closed (lidding some holes of a shell that stays open would
-only add surface to a sheet). Triangles dangling off an edge of such a shell next to its
-holes (flaps, as scanners leave them: an open edge plus an edge of three or more faces)
-are removed, or the holes beside them would not be simple loops.
+sheet) are left alone. The boundary (lamina) edges are traced into loops (Jordan curves
+once they are simple); a shell gets lids when every one of its holes is *small* (the
+shell's boundary is a small fraction of its edges and the hole's perimeter small against
+the shell's size) or *a missing piece of a planar facet* (the loop is planar and a rim
+face lies in its plane, facing the same way) -- all of them, so it comes out closed
+(lidding some holes of a shell that stays open would only add surface to a sheet).
+Triangles dangling off an edge of such a shell next to its holes (flaps, as scanners
+leave them: an open edge plus an edge of three or more faces) are removed, or the holes
+beside them would not be simple loops.
 
-Each closed hole gets a lid: one triangle for a 3-edge hole, otherwise a fan from the
-loop's centroid (one new vertex). The lid is oriented against the hole's rim faces, so a
-consistently oriented shell stays consistently oriented. Lids may cross the shell where
-a hole is strongly non-planar; the exact self-intersection resolution that follows
-repairs such crossings.
+Lids are made by :mod:`repair.closure` (planar loops: an exact planar triangulation on
+the loop's own vertices; others a minimal-area one; very long loops a centroid fan),
+oriented against the hole's rim faces, so a consistently oriented shell stays
+consistently oriented. Lids may cross the shell where a hole is strongly non-planar; the
+exact self-intersection resolution that follows repairs such crossings.
 
 Units are mm. Arrays: vertices float64 (n, 3), faces int64 (m, 3). Pure functions;
 the edge bookkeeping is vectorised, the only Python loop runs once per boundary vertex
-to trace loops (boundaries are small by construction: at most a few percent of edges).
+to trace loops and once per loop.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from repair.closure import Lid, loop_lid, loop_planarity
 from repair.topology import edge_components, edge_ids, half_edges
 
 __all__ = [
@@ -53,7 +57,9 @@ class HolesClosed:
     added, ``lid_triangles`` triangles added, ``max_perimeter`` mm of the largest hole
     closed and ``max_lid_radius`` mm, a bound on how far any lid point lies from its rim
     (hence from the input surface); ``flaps_removed`` faces (``flap_area`` mm²) dangling
-    off the shell next to a hole were removed so the hole could be closed."""
+    off the shell next to a hole were removed so the hole could be closed. ``lids``: each
+    lid (perimeter, area, planarity); ``exact_faces``: the triangles of the ``facet_lids``
+    lids that complete a planar facet of their shell (on the input's vertices)."""
 
     count: int = 0
     area: float = 0.0
@@ -62,6 +68,11 @@ class HolesClosed:
     max_lid_radius: float = 0.0
     flaps_removed: int = 0
     flap_area: float = 0.0
+    facet_lids: int = 0
+    lids: tuple[Lid, ...] = field(default=(), compare=False)
+    exact_faces: np.ndarray = field(
+        default_factory=lambda: np.zeros((0, 3), dtype=np.int64), compare=False
+    )
 
     def to_dict(self) -> dict[str, float | int]:
         return {
@@ -72,128 +83,132 @@ class HolesClosed:
             "max_lid_radius": float(self.max_lid_radius),
             "flaps_removed": int(self.flaps_removed),
             "flap_area": round(float(self.flap_area), 9),
+            "planar_lids": sum(1 for lid in self.lids if lid.planar),
+            # Lids completing a planar facet: the intended surface, D is measured with them.
+            "facet_lids": int(self.facet_lids),
+            # The largest lids first; a scan may have hundreds.
+            "lids": [lid.to_dict() for lid in sorted(self.lids, key=lambda x: -x.area)[:50]],
         }
 
 
 def boundary_loops(faces: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
-    """Closed loops of boundary edges (edges used by exactly one face).
+    """Closed loops of boundary (lamina) edges, edges used by exactly one face, as Jordan
+    curves (Bøhn & Wozny).
 
     Returns the loops, each an int64 array of vertex indices ordered *against* the rim
     faces' orientation (the order a lid needs to continue that orientation), and the face
     component label (edge-connected) of each loop's rim. Where several boundary edges
-    meet at a vertex (two holes touching at a corner, as when two deleted triangles share
-    a vertex), each arriving edge continues with the one reached by turning round the
-    vertex through the rim's faces (:func:`_successors_at_forks`), so each hole is its
-    own loop; a loop that cannot be followed so (an edge of three or more faces on the
-    way round) is not returned: such a hole is left to the sheet thickening.
+    meet at a vertex (two holes touching at a corner), each edge coming in is paired with
+    the edge going out that is reached by turning round the vertex through its faces, and
+    a closed walk through a vertex twice is split there into simple loops. Boundaries
+    that cannot be paired so (edges of more than two faces, faces oriented against each
+    other, as many edges in as out not met) give no loop: such a hole is left to the
+    sheet thickening.
     """
-    f = np.asarray(faces, dtype=np.int64)
+    loops, labels, _ = _traced_loops(np.asarray(faces, dtype=np.int64))
+    return loops, labels
+
+
+def _traced_loops(f: np.ndarray) -> tuple[list[np.ndarray], np.ndarray, list[np.ndarray]]:
+    """:func:`boundary_loops`, plus each loop's rim faces (one per loop edge)."""
     if len(f) == 0:
-        return [], np.zeros(0, dtype=np.int64)
+        return [], np.zeros(0, dtype=np.int64), []
     he = half_edges(f)  # (3m, 2) a->b
     eid, cnt = edge_ids(f)
-    comp = edge_components(f, eid)
     bnd = np.flatnonzero(cnt[eid] == 1)
     if len(bnd) == 0:
-        return [], np.zeros(0, dtype=np.int64)
+        return [], np.zeros(0, dtype=np.int64), []
+    comp = edge_components(f, eid)
     # A lid edge runs b->a for the rim's a->b.
     src, dst = he[bnd, 1], he[bnd, 0]
-    n_v = int(f.max()) + 1
-    out_deg = np.bincount(src, minlength=n_v)
-    in_deg = np.bincount(dst, minlength=n_v)
-    # Successor (index into bnd) of each lid edge: the lid edge leaving its end.
-    leaving = np.full(n_v, -1, dtype=np.int64)
-    leaving[src] = np.arange(len(bnd))
-    simple = (out_deg[dst] == 1) & (in_deg[dst] == 1)
-    succ = np.where(simple, leaving[dst], -1)
-    fork = np.flatnonzero(~simple)
-    if len(fork):
-        succ[fork] = _successors_at_forks(f, he, eid, cnt, bnd, fork, len(leaving))
-    rim_comp = comp[bnd // 3]
+    succ = _lid_successors(f, he, eid, cnt, bnd, src, dst)
     loops: list[np.ndarray] = []
     labels: list[int] = []
+    rims: list[np.ndarray] = []
     seen = np.zeros(len(bnd), dtype=bool)
-    succ_l = succ.tolist()
+    succ_list = succ.tolist()
     for start in range(len(bnd)):
-        if seen[start]:
+        if seen[start] or succ_list[start] < 0:
             continue
-        loop = [start]
+        walk = [start]
         seen[start] = True
-        cur = succ_l[start]
-        ok = True
-        while cur != start:
-            if cur < 0 or seen[cur]:
-                ok = False
-                break
+        cur = succ_list[start]
+        while cur != start and cur >= 0 and not seen[cur]:
             seen[cur] = True
-            loop.append(cur)
-            cur = succ_l[cur]
-        if ok:
-            for part in _simple_loops(src[np.asarray(loop, dtype=np.int64)].tolist()):
-                loops.append(np.asarray(part, dtype=np.int64))
-                labels.append(int(rim_comp[start]))
-    return loops, np.asarray(labels, dtype=np.int64)
+            walk.append(cur)
+            cur = succ_list[cur]
+        if cur != start:
+            continue  # an open chain: not a Jordan curve
+        for loop in _simple_loops(src[walk].tolist(), walk):
+            loops.append(src[loop])
+            rims.append(bnd[loop] // 3)
+            labels.append(int(comp[bnd[start] // 3]))
+    return loops, np.asarray(labels, dtype=np.int64), rims
 
 
-def _simple_loops(loop: list[int]) -> list[list[int]]:
-    """A closed walk through vertices split where it passes a vertex again (a hole
-    that touches itself at a corner) into closed walks that do not: each gets its own
-    lid, which then never uses an edge twice. Walks of fewer than three vertices (an
-    edge there and back) need no lid."""
-    out: list[list[int]] = []
-    stack: list[int] = []
-    where: dict[int, int] = {}
-    for x in loop:
-        if x in where:
-            p = where[x]
-            part = stack[p:]
-            for y in part[1:]:
-                del where[y]
-            del stack[p + 1 :]
-            if len(part) >= 3:
-                out.append(part)
-            continue
-        where[x] = len(stack)
-        stack.append(x)
-    if len(stack) >= 3:
-        out.append(stack)
-    return out
-
-
-def _successors_at_forks(
+def _lid_successors(
     f: np.ndarray, he: np.ndarray, eid: np.ndarray, cnt: np.ndarray, bnd: np.ndarray,
-    fork: np.ndarray, n: int,
+    src: np.ndarray, dst: np.ndarray,
 ) -> np.ndarray:
-    """For each lid edge in ``fork`` (indices into ``bnd``) that ends at a vertex where
-    several boundary edges meet: the lid edge (index into ``bnd``) that continues its
-    hole, found by turning round the vertex from the rim face through two-face edges
-    until the next boundary edge; -1 where that turn meets an edge of three or more
-    faces. One short Python walk per such edge (they are few)."""
-    # Twin of every half-edge on a two-face edge at the fork vertices.
-    x_all = he[bnd[fork], 0]
-    near = np.isin(he[:, 0], x_all) | np.isin(he[:, 1], x_all)
-    idx = np.flatnonzero(near)
-    keys = (he[idx, 0] * np.int64(n) + he[idx, 1]).tolist()
-    by_dir = dict(zip(keys, idx.tolist(), strict=True))
-    bnd_pos = {int(h): i for i, h in enumerate(bnd.tolist())}
-    out = np.full(len(fork), -1, dtype=np.int64)
-    for j, i in enumerate(fork.tolist()):
-        h = int(bnd[i])  # rim half-edge x->y; the lid edge y->x arrives at x
-        x = int(he[h, 0])
+    """For each lid edge (``src`` -> ``dst``, of rim half-edge ``bnd``): the lid edge that
+    follows it, or -1. Unique where one lid edge leaves its end; at a vertex where several
+    do, the one reached by turning round the vertex through its faces."""
+    n = int(f.max()) + 1
+    out_deg = np.bincount(src, minlength=n)
+    in_deg = np.bincount(dst, minlength=n)
+    leaving = np.full(n, -1)
+    leaving[src] = np.arange(len(src))
+    succ = np.where(out_deg[dst] == 1, leaving[dst], -1)
+    succ[in_deg[dst] != out_deg[dst]] = -1
+    pinch = np.flatnonzero((out_deg[dst] > 1) & (in_deg[dst] == out_deg[dst]))
+    if len(pinch) == 0:
+        return succ
+    # Twins of the half-edges of edges with two faces oriented against each other.
+    idx = np.arange(len(eid))
+    first = np.empty(len(cnt), dtype=np.int64)
+    first[eid[::-1]] = idx[::-1]
+    last = np.empty(len(cnt), dtype=np.int64)
+    last[eid] = idx
+    twin = np.where(cnt[eid] == 2, np.where(first[eid] == idx, last[eid], first[eid]), -1)
+    ok = twin >= 0
+    ok[ok] = he[twin[ok], 0] == he[idx[ok], 1]
+    twin[~ok] = -1
+    lid_of = np.full(len(eid), -1)
+    lid_of[bnd] = np.arange(len(bnd))
+    for i in pinch.tolist():
+        h = int(bnd[i])  # rim a->b starts at the pinch vertex a
+        t = 3 * (h // 3) + (h % 3 + 2) % 3  # the half-edge of that face ending at a
         for _ in range(len(f)):
-            face, k = divmod(h, 3)
-            arriving = 3 * face + (k + 2) % 3  # w->x in the same face
-            if cnt[eid[arriving]] == 1:
-                # The boundary edge w->x: its lid edge x->w leaves x and continues.
-                out[j] = bnd_pos[arriving]
+            if lid_of[t] >= 0:
+                succ[i] = lid_of[t]
                 break
-            if cnt[eid[arriving]] != 2:
+            w = int(twin[t])
+            if w < 0:
                 break
-            w = int(he[arriving, 0])
-            h = by_dir.get(x * n + w, -1)  # the twin x->w
-            if h < 0:
-                break
-    return out
+            t = 3 * (w // 3) + (w % 3 + 2) % 3
+    return succ
+
+
+def _simple_loops(walk: list[int], edges: list[int]) -> list[list[int]]:
+    """A closed walk of vertices (``walk``; ``edges[i]`` leaves ``walk[i]``) split at each
+    vertex it passes twice into simple loops, given as their edges (those of fewer than
+    three edges dropped)."""
+    if len(set(walk)) == len(walk):
+        return [edges] if len(edges) >= 3 else []
+    loops: list[list[int]] = []
+    stack: list[int] = []  # positions in the walk
+    where: dict[int, int] = {}
+    for pos, vertex in enumerate(walk):
+        if vertex in where:
+            i = where[vertex]
+            loops.append([edges[p] for p in stack[i:]])
+            for p in stack[i + 1 :]:
+                del where[walk[p]]
+            del stack[i:]
+        where[vertex] = len(stack)
+        stack.append(pos)
+    loops.append([edges[p] for p in stack])
+    return [lp for lp in loops if len(lp) >= 3]
 
 
 def _shells(
@@ -247,27 +262,6 @@ def flap_faces(
     return flap & (area <= 4.0 * np.median(area))
 
 
-def _lid(
-    v: np.ndarray, loop: np.ndarray, perim: float, centre_index: int
-) -> tuple[np.ndarray, np.ndarray | None, float, float]:
-    """The lid of a hole (``loop``: its vertices in lid order, ``perim`` mm round it):
-    one triangle for three vertices, else a fan from the loop's centroid, which becomes
-    vertex ``centre_index``. Returns ``(triangles, centroid or None, area mm², radius)``;
-    every lid point lies within ``radius`` mm of the rim."""
-    p = v[loop]
-    if len(loop) == 3:
-        area = 0.5 * float(np.linalg.norm(np.cross(p[1] - p[0], p[2] - p[0])))
-        # Any point of a triangle lies within its inradius (2 area / perimeter) of an edge.
-        radius = float(np.linalg.norm(np.cross(p[1] - p[0], p[2] - p[0]))) / perim
-        return loop[None, :], None, area, radius
-    centre = p.mean(axis=0)
-    k = len(loop)
-    tris = np.stack([loop, np.roll(loop, -1), np.full(k, centre_index)], axis=1)
-    radius = float(np.linalg.norm(p - centre, axis=1).max())
-    cr = np.cross(p - centre, np.roll(p, -1, axis=0) - centre)
-    return tris, centre, 0.5 * float(np.linalg.norm(cr, axis=1).sum()), radius
-
-
 def close_small_holes(
     vertices: np.ndarray,
     faces: np.ndarray,
@@ -275,17 +269,23 @@ def close_small_holes(
     max_boundary_fraction: float = MAX_BOUNDARY_FRACTION,
     max_perimeter_fraction: float = MAX_PERIMETER_FRACTION,
 ) -> tuple[np.ndarray, np.ndarray, HolesClosed]:
-    """Fill the small holes of almost-closed shells with lids.
+    """Close the holes of shells that a lid makes solid (Bøhn & Wozny's shell closure).
 
-    A hole (a simple loop of boundary edges) is *small* when its shell (edge-connected
-    component) has at most ``max_boundary_fraction`` of its edges on the boundary and the
-    loop's perimeter is at most ``max_perimeter_fraction`` of the shell's bounding-box
-    diagonal (mm). A shell's holes are closed only when all of them are small, so the
-    shell comes out closed; otherwise it is left as it is (a sheet). Flaps
-    (:func:`flap_faces`) of such shells are removed first, and stay removed only when
-    their shell had its holes closed. Vertices are kept (same indices;
-    lid centroids are appended); faces keep their order except that the flaps kept move
-    after the others; lid faces are appended.
+    A hole (a simple loop of boundary edges) may be closed when it is
+
+    - *small*: its shell (edge-connected component) has at most ``max_boundary_fraction``
+      of its edges on the boundary and the loop's perimeter is at most
+      ``max_perimeter_fraction`` of the shell's bounding-box diagonal (mm); or
+    - *a missing piece of a facet*: the loop is planar and a face of its rim lies in the
+      lid's plane facing the same way (the lid continues that facet: a triangle missing
+      from a face of a box, not the open top of a box, whose rim faces stand across it).
+
+    A shell's holes are closed only when all of them may be, so the shell comes out
+    closed; otherwise it is left as it is (a sheet, thickened later). Lids are made by
+    :func:`repair.closure.loop_lid`. Flaps (:func:`flap_faces`) of almost-closed shells
+    are removed first, and stay removed only when their shell had its holes closed.
+    Vertices are kept (same indices; fan centres are appended); faces keep their order
+    except that the flaps kept move after the others; lid faces are appended.
     """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
@@ -294,54 +294,90 @@ def close_small_holes(
     flaps = flap_faces(v, f, max_boundary_fraction=max_boundary_fraction)
     flap_f = f[flaps]
     f = f[~flaps]
-    loops, labels = boundary_loops(f)
+    loops, labels, rims = _traced_loops(f)
     if not loops:
         return v, np.vstack([f, flap_f]), HolesClosed()
     comp, use, almost_closed, diag = _shells(v, f, max_boundary_fraction)
-    # Lids only where they close the shell: every boundary edge of it is on a small hole.
-    # Closing some holes of a shell that stays open would not make it solid (it is still a
-    # sheet, and is thickened), the lids would only add surface.
+    # Lids only where they close the shell: every boundary edge of it is on a closable
+    # hole. Closing some holes of a shell that stays open would not make it solid (it is
+    # still a sheet, and is thickened), the lids would only add surface.
     n_bnd = np.bincount(comp, weights=(use == 1).sum(axis=1), minlength=len(diag))
-    perims = np.array(
-        [np.linalg.norm(np.roll(v[lp], -1, axis=0) - v[lp], axis=1).sum() for lp in loops]
-    )
+    perims = _perimeters(v, loops)
     small = almost_closed[labels] & (perims <= max_perimeter_fraction * diag[labels])
+    # A lid can complete a facet of a shell of three faces or more (a tetrahedron missing
+    # one); single triangles and pairs (a soup's) are not looked at.
+    n_faces = np.bincount(comp, minlength=len(diag))
+    facet = np.array([n_faces[c] >= 3 and _continues_facet(v, f[r], lp)
+                      for lp, r, c in zip(loops, rims, labels.tolist(), strict=True)],
+                     dtype=bool)  # fmt: skip
+    ok = small | facet
     sizes = np.array([len(lp) for lp in loops], dtype=np.float64)
-    covered = np.bincount(labels[small], weights=sizes[small], minlength=len(diag))
+    covered = np.bincount(labels[ok], weights=sizes[ok], minlength=len(diag))
     closable = (covered == n_bnd) & (n_bnd > 0)
 
-    new_v: list[np.ndarray] = []
-    new_f: list[np.ndarray] = []
-    closed_in: list[int] = []
-    area = max_perim = max_radius = 0.0
-    for loop, c, perim in zip(loops, labels.tolist(), perims.tolist(), strict=True):
+    lids: list[Lid] = []
+    exact: list[np.ndarray] = []
+    n_new = 0
+    for loop, c, is_facet in zip(loops, labels.tolist(), facet.tolist(), strict=True):
         if not closable[c]:
             continue
-        tris, centre, lid_area, radius = _lid(v, loop, perim, len(v) + len(new_v))
-        if centre is not None:
-            new_v.append(centre[None, :])
-        area += lid_area
-        new_f.append(tris)
-        closed_in.append(c)
-        max_perim = max(max_perim, perim)
-        max_radius = max(max_radius, radius)
-    count, lid_tris = len(new_f), sum(len(t) for t in new_f)
+        lid = loop_lid(v, loop, len(v) + n_new)
+        n_new += len(lid.new_vertices)
+        lids.append(lid)
+        if is_facet and lid.planar:
+            exact.append(lid.triangles)
     # A flap stays removed only when its shell had holes closed (the shell is a scan with
     # holes, its flaps scanner noise next to them); the others go back (fins are sheets).
     gone = np.zeros(len(flap_f), dtype=bool)
-    if len(flap_f) and new_f:
+    if len(flap_f) and lids:
         lidded = np.zeros(len(v), dtype=bool)
-        lidded[f[np.isin(comp, np.asarray(closed_in, dtype=np.int64))].reshape(-1)] = True
+        lidded[f[closable[comp]].reshape(-1)] = True
         gone = lidded[flap_f].any(axis=1)
-    n_flaps = int(np.count_nonzero(gone))
-    p = v[flap_f[gone]]
+    out_v = np.vstack([v, *(lid.new_vertices for lid in lids)]) if n_new else v
+    out_f = np.vstack([f, flap_f[~gone], *(lid.triangles for lid in lids)])
+    return out_v, out_f, _tally(v, flap_f[gone], lids, exact)
+
+
+def _perimeters(v: np.ndarray, loops: list[np.ndarray]) -> np.ndarray:
+    """Length (mm) round each loop, all loops at once."""
+    sizes = np.fromiter((len(lp) for lp in loops), dtype=np.int64, count=len(loops))
+    at = np.concatenate(loops)
+    start = np.cumsum(sizes) - sizes
+    nxt = np.arange(1, len(at) + 1)
+    nxt[start + sizes - 1] = start  # each loop's last vertex goes back to its first
+    return np.add.reduceat(np.linalg.norm(v[at[nxt]] - v[at], axis=1), start)
+
+
+def _continues_facet(v: np.ndarray, rim: np.ndarray, loop: np.ndarray) -> bool:
+    """Whether the loop (lid order) is planar and a face of its ``rim`` (the faces on its
+    edges) lies in the lid's plane facing the lid's way."""
+    p = v[loop]
+    _, normal, planar = loop_planarity(p)
+    if not planar:
+        return False
+    # Rim faces: the faces holding the loop's edges (a rim half-edge runs against the lid).
+    q = v[rim]
+    n = np.cross(q[:, 1] - q[:, 0], q[:, 2] - q[:, 0])
+    length = np.linalg.norm(n, axis=1)
+    facing = (n @ normal) >= (1.0 - 1e-9) * length
+    on_plane = np.abs((q - p[0]) @ normal).max(axis=1) <= 1e-6 * max(np.abs(p).max(), 1.0)
+    return bool(np.any(facing & on_plane & (length > 0)))
+
+
+def _tally(v: np.ndarray, flaps: np.ndarray, lids: list[Lid], exact: list[np.ndarray]):
+    p = v[flaps]
     flap_area = 0.5 * float(
         np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1).sum()
     )
-    out_v = np.vstack([v, *new_v]) if new_v else v
-    out_f = np.vstack([f, flap_f[~gone], *new_f])
-    return (
-        out_v,
-        out_f,
-        HolesClosed(count, area, lid_tris, max_perim, max_radius, n_flaps, flap_area),
+    return HolesClosed(
+        count=len(lids),
+        area=float(sum(lid.area for lid in lids)),
+        lid_triangles=int(sum(len(lid.triangles) for lid in lids)),
+        max_perimeter=max((lid.perimeter for lid in lids), default=0.0),
+        max_lid_radius=max((lid.radius for lid in lids), default=0.0),
+        flaps_removed=len(flaps),
+        flap_area=flap_area,
+        facet_lids=len(exact),
+        lids=tuple(lids),
+        exact_faces=np.vstack(exact) if exact else np.zeros((0, 3), dtype=np.int64),
     )

@@ -7,6 +7,10 @@ Stages (each timed in the report; :func:`repair_mesh` reads as this list):
    check exactly that (:func:`repair.rounding.round_input`);
 2. ``clean``   weld exactly coincident vertices, move degenerate triangles to a list of
    segments (wires), keep one layer of equivalent triangles (:mod:`repair.clean`);
+   ``scan_cleanup``: a scanned mesh (asked for, or one that looks like a scan) loses its
+   spikes, specks, near-degenerate edges and ragged boundary faces (:mod:`repair.scan`);
+   ``stitch``: join the boundaries of different patches that run within gamma = eps/4 of
+   each other (Attene Sec. 5.2, :mod:`repair.stitch`), so a cracked surface closes;
    ``holes``: close the small holes of almost-closed shells with lids (:mod:`repair.holes`),
    so an open scan becomes a solid instead of a sheet;
 3. ``union``   fast path: an input made only of closed, edge-manifold shells that overlap
@@ -43,7 +47,7 @@ from repair.clean import Cleaned, clean_checked
 from repair.deviation import max_deviation
 from repair.errors import RepairError
 from repair.finish import finish
-from repair.holes import HolesClosed, close_small_holes
+from repair.holes import MAX_BOUNDARY_FRACTION, HolesClosed, close_small_holes
 from repair.hull_and_thicken import hull_and_thicken
 from repair.junk import without_internal_junk
 from repair.provenance import carry_input_pairs, starts_with_faces, union_face_sources
@@ -56,10 +60,18 @@ from repair.report import (
     repair_report,
 )
 from repair.rounding import RoundedInput, round_input
+from repair.scan import ScanCleaned, scan_cleanup
+from repair.stitch import stitch_cracks
 from repair.topology import edge_components
 from repair.union import union_of_shells
 
 __all__ = ["RepairError", "RepairResult", "repair_file", "repair_mesh"]
+
+#: γ of Attene's crack stitching (Sec. 5.2), as a fraction of eps: boundaries of
+#: different patches closer than this are joined (:mod:`repair.stitch`).
+STITCH_GAMMA = 0.25
+#: What ``clean`` may ask for: scan cleanup when the input looks like a scan, always, never.
+CLEAN_MODES = ("auto", "scan", "none")
 
 
 @dataclass(frozen=True)
@@ -78,6 +90,7 @@ def repair_mesh(
     epsilon: float = 0.4,
     *,
     progress: Progress = None,
+    clean: str = "auto",
 ) -> RepairResult:
     """Repair a triangle soup into a printable solid, as exactly as possible.
 
@@ -91,19 +104,24 @@ def repair_mesh(
     input is rounded to float32 first (an STL already is): solid parts come out on their
     rounded corners either way, and the arrangement then rounds once, not twice. The
     reported deviation D includes that rounding.
+
+    ``clean``: ``"scan"`` cleans the input as a scanned mesh first (:mod:`repair.scan`),
+    ``"auto"`` does when it looks like one, ``"none"`` never; the report says which.
     """
     eps = _checked_epsilon(epsilon)
+    if clean not in CLEAN_MODES:
+        raise RepairError(f"clean must be one of {', '.join(CLEAN_MODES)}, got {clean!r}")
     v_in, f_in = _checked_mesh(vertices, faces)
     clock = StageClock(progress)
     rounded = round_input(v_in, f_in)
     clock.lap("check_input", 0.1)
-    if rounded.verdict.ok:
+    if rounded.verdict.ok and clean != "scan":
         out = without_internal_junk(_unchanged(rounded))
         clock.lap("finish", 0.9)
     else:
         cleaned = clean_checked(rounded.vertices, rounded.faces, rounded.verdict)
         clock.lap("clean", 0.2)
-        out = _solidify(rounded, cleaned, eps, clock)
+        out = _solidify(rounded, cleaned, eps, clock, clean)
     before = input_report(rounded.verdict, len(rounded.vertices))
     return RepairResult(out.vertices, out.faces, repair_report(before, out, eps, clock))
 
@@ -144,14 +162,22 @@ def _unchanged(rounded: RoundedInput) -> RepairOutcome:
 
 
 def _solidify(
-    rounded: RoundedInput, cleaned: Cleaned, eps: float, clock: StageClock
+    rounded: RoundedInput, cleaned: Cleaned, eps: float, clock: StageClock, clean: str
 ) -> RepairOutcome:
     """Stages 2 (holes) to 6 (deviation) of a cleaned input that is not printable."""
     if len(cleaned.faces) == 0 and len(cleaned.segments) == 0:
         raise RepairError(
             f"nothing printable: all {len(rounded.faces)} triangles collapse to a single point"
         )
-    lidded_v, lidded_f, holes = close_small_holes(cleaned.vertices, cleaned.faces)
+    work_v, work_f, scan = _scan_cleanup(cleaned, eps, clean)
+    clock.lap("scan_cleanup", 0.21)
+    stitched_f, stitched = stitch_cracks(work_v, work_f, STITCH_GAMMA * eps)
+    clock.lap("stitch", 0.22)
+    # A cleaned scan's holes are all closable when small against their shell, however
+    # much of its edges are boundary (the scan's holes are many).
+    lidded_v, lidded_f, holes = close_small_holes(
+        work_v, stitched_f, max_boundary_fraction=1.0 if scan else MAX_BOUNDARY_FRACTION
+    )
     clock.lap("holes", 0.25)
     pairs = carry_input_pairs(rounded.vertices, rounded.faces, rounded.pairs, lidded_v, lidded_f)
     lidded = _Lidded(lidded_v, lidded_f, pairs)
@@ -166,16 +192,29 @@ def _solidify(
     if out.tally.junk_shells != junk_before:
         hint = None  # faces were removed: the per-face sources no longer line up
     out.holes = holes
+    if stitched.snapped or stitched.inserted:
+        out.sections["stitched"] = stitched.to_dict()
+    if scan is not None:
+        out.sections["scan_cleanup"] = scan.to_dict()
     out.degenerate_removed = cleaned.degenerate_removed
     out.duplicates_removed = cleaned.duplicates_removed
     # Measured against the rounded input; the input itself is at most `rounding` away
     # from it (each rounded face lies within its corners' displacement of the original).
+    # Lids that complete a planar facet are the intended surface: D is measured with them.
+    reference = np.vstack([cleaned.faces, holes.exact_faces])
     out.deviation = rounded.rounding + max_deviation(
-        out.vertices, out.faces, cleaned.vertices, cleaned.faces, cleaned.segments,
+        out.vertices, out.faces, cleaned.vertices, reference, cleaned.segments,
         max_points=400_000 if out.path == "exact" else 0, hint=hint,
     )  # fmt: skip
     clock.lap("deviation", 0.95)
     return out
+
+
+def _scan_cleanup(
+    cleaned: Cleaned, eps: float, clean: str
+) -> tuple[np.ndarray, np.ndarray, ScanCleaned | None]:
+    """The cleaned input, cleaned as a scan when asked or when it looks like one."""
+    return scan_cleanup(cleaned.vertices, cleaned.faces, eps, clean)
 
 
 def _union_path(
@@ -257,6 +296,7 @@ def repair_file(
     max_bytes: int | None = None,
     max_triangles: int | None = None,
     progress: Progress = None,
+    clean: str = "auto",
 ) -> dict[str, Any]:
     """Load a mesh file (STL/OBJ/PLY/3MF), repair it, write a binary STL at ``out_path``
     and, if asked, the report as JSON at ``report_path``. Returns the report.
@@ -271,7 +311,7 @@ def repair_file(
     t_load = time.perf_counter() - t0
     if progress is not None:
         progress("load", 0.05)
-    result = repair_mesh(mesh.vertices, mesh.faces, epsilon, progress=progress)
+    result = repair_mesh(mesh.vertices, mesh.faces, epsilon, progress=progress, clean=clean)
     t1 = time.perf_counter()
     write_stl(out_path, result.vertices, result.faces)
     report = dict(result.report)

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -81,6 +81,8 @@ class RepairOutcome:
     degenerate_removed: int = 0
     duplicates_removed: int = 0
     dropped_components: int = 0
+    #: Further report sections by name (``stitched``, ``scan_cleanup``), JSON-ready.
+    sections: dict[str, Any] = field(default_factory=dict)
 
 
 def input_report(verdict: Printability, n_vertices: int) -> dict[str, Any]:
@@ -146,6 +148,7 @@ def repair_report(
     report["after"] = _after_report(out, n_parts)
     report["holes_closed"] = out.holes.to_dict()
     report["path"] = out.path
+    report.update(out.sections)
     report["deviation"] = out.deviation
     report["deviation_over_epsilon"] = out.deviation / eps
     report["volume"] = out.verdict.volume
@@ -178,6 +181,17 @@ def summary(r: dict[str, Any]) -> str:
     ):
         if a.get(key):
             fixes.append(f"{a[key]} {label}")
+    sc = r.get("scan_cleanup") or {}
+    if sc:
+        asked = "asked" if sc["why"].startswith("asked") else "looks like a scan"
+        fixes.append(
+            f"cleaned as a scan ({asked}: {sc['relaxed_vertices']} spike vertices relaxed, "
+            f"{sc['spike_faces_removed'] + sc['boundary_faces_removed']} spike/ragged "
+            f"triangles and {sc['components_removed']} specks removed)"
+        )
+    st = r.get("stitched") or {}
+    if st.get("snapped") or st.get("inserted"):
+        fixes.append(f"cracks stitched within {st['gamma']:g} mm")
     h = r.get("holes_closed") or {}
     if h.get("count"):
         fixes.append(f"{h['count']} small hole(s) closed ({h['area']:.4g} mm² of lid)")

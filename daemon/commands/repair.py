@@ -27,6 +27,9 @@ def register(subparsers) -> None:
                    help="binary STL to write")  # fmt: skip
     p.add_argument("--epsilon", type=float, metavar="MM", default=0.4,
                    help="thickness for sheets and wires, in mm (default 0.4)")  # fmt: skip
+    p.add_argument("--clean", choices=("auto", "scan", "none"), default="auto",
+                   help="scan cleanup (spikes, specks, ragged holes): auto when the model "
+                   "looks like a scan (default), scan always, none never")  # fmt: skip
     p.add_argument("--report", metavar="R.json", help="write the repair report as JSON")
     p.add_argument("--json", action="store_true", help="print the report as JSON on stdout")
     p.set_defaults(func=run)
@@ -68,7 +71,8 @@ def run(args) -> int:
 
     try:
         report = repair_file(args.input, args.output, epsilon=args.epsilon,
-                             report_path=args.report, progress=line)  # fmt: skip
+                             report_path=args.report, progress=line,
+                             clean=args.clean)  # fmt: skip
     except (MeshReadError, RepairError) as exc:
         if line:
             line.done()

@@ -51,6 +51,8 @@ max_triangles = 1000
 repair_timeout = 5
 slice_timeout = 6
 repair_memory_mb = 512
+[repair]
+clean = "scan"
 [profile]
 infill_percent = 30
 """)
@@ -65,6 +67,7 @@ infill_percent = 30
     assert (cfg.limits.max_file_mb, cfg.limits.max_triangles) == (10, 1000)
     assert (cfg.limits.repair_timeout, cfg.limits.slice_timeout) == (5, 6)
     assert cfg.limits.repair_memory_mb == 512
+    assert cfg.repair.clean == "scan"
     assert cfg.profile == {"infill_percent": 30}
 
 
@@ -79,6 +82,7 @@ infill_percent = 30
     ("[spool]\npaht = \"/x\"", "[spool] paht"),
     ("[printr]\nport = \"x\"", "[printr]"),
     ("[safety]\nforbidden_gcodes = \"M502\"", "[safety] forbidden_gcodes"),
+    ("[repair]\nclean = \"deep\"", "[repair] clean"),
 ])
 def test_bad_value_names_the_key(tmp_path, text, key):
     with pytest.raises(ConfigError) as e:

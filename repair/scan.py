@@ -1,0 +1,383 @@
+"""Cleaning of scanned meshes (Centin & Signoroni's RameshCleaner, STAG 2015), before the
+repair proper: a scan is dense and mostly right, with local damage that the exact repair
+would otherwise keep exactly (spikes) or thicken (ragged open boundaries, specks).
+
+Steps, in the paper's order (Sec. 4), each vectorised over the whole mesh per round:
+
+1. collapse near-degenerate edges (Sec. 3.6): *zero* edges shorter than 0.1 x the mean
+   edge length, *skinny* ones shorter than 0.25 x their local mean with an opposite angle
+   under 10 degrees; an independent set per round (each the shortest candidate at both
+   its ends) whose ends share exactly the neighbours an edge collapse allows (the link
+   condition);
+2. relax spiked vertices (Sec. 3.7, Eq. 2): a vertex whose largest dihedral angle exceeds
+   ``a`` = 60 degrees moves by ``w * L(v)`` (uniform Laplacian, ``w`` rising from 0 at
+   ``a`` to 1 at ``b`` = 120 degrees), 10 rounds;
+3. remove unrelaxable spikes (Sec. 3.8): the faces round vertices still above ``b``;
+4. clean ragged boundaries (Sec. 3.3): faces at a *bad* boundary vertex (in one face
+   only -- an ear --, with more than two boundary edges, or on a boundary edge whose
+   dihedral angle exceeds 120 degrees) go, up to 30 rounds;
+5. remove small components (Sec. 3.2): edge-connected patches of area below
+   ``SPECK_AREA * eps**2`` (what a nozzle of diameter eps cannot print), the largest kept.
+
+Hole filling (Sec. 3.4) is the repair's shell closure (:mod:`repair.holes` with every
+boundary allowed, lids from :mod:`repair.closure`: minimal-area patches; they are not
+remeshed and faired as the paper's are).
+
+Units are mm. Arrays: vertices float64 (n, 3), faces int64 (m, 3).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from repair.topology import connected_labels, edge_components, edge_ids, half_edges
+
+__all__ = ["SPECK_AREA", "ScanCleaned", "clean_scan", "looks_like_scan", "scan_cleanup"]
+
+#: Components of less area than this many eps² are specks (eps = the nozzle).
+SPECK_AREA = 25.0
+#: Dihedral angles (radians) of Eq. 2: relaxation starts above A and is full above B.
+SPIKE_A, SPIKE_B = np.radians(20.0), np.radians(90.0)
+#: A boundary edge sharper than this makes its vertices bad (Sec. 3.3).
+BOUNDARY_DIHEDRAL = np.radians(120.0)
+#: "Looks like a scan": at least this many faces, and this many boundary loops or small
+#: components, and at most this fraction of sharp (> 60 degree) edges.
+SCAN_MIN_FACES = 20_000
+SCAN_MIN_PIECES = 8
+SCAN_MAX_SHARP = 0.01
+
+
+@dataclass(frozen=True)
+class ScanCleaned:
+    """What :func:`clean_scan` did (counts of items; areas mm²)."""
+
+    why: str = ""
+    collapsed_edges: int = 0
+    relaxed_vertices: int = 0
+    spike_faces_removed: int = 0
+    boundary_faces_removed: int = 0
+    components_removed: int = 0
+    component_area_removed: float = 0.0
+
+    def to_dict(self) -> dict[str, float | int | str]:
+        return {
+            "why": self.why,
+            "collapsed_edges": int(self.collapsed_edges),
+            "relaxed_vertices": int(self.relaxed_vertices),
+            "spike_faces_removed": int(self.spike_faces_removed),
+            "boundary_faces_removed": int(self.boundary_faces_removed),
+            "components_removed": int(self.components_removed),
+            "component_area_removed": round(float(self.component_area_removed), 6),
+        }
+
+
+def _normals(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit normals (zero for degenerate faces) and areas of the faces."""
+    p = v[f]
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    length = np.linalg.norm(n, axis=1)
+    return n / np.maximum(length, 1e-300)[:, None], 0.5 * length
+
+
+@dataclass(frozen=True)
+class _Edges:
+    """Edge structure of a face list, computed once (one sort): each half-edge's edge id
+    ``eid`` (3m,), the edges' ends ``ends`` (k, 2), and the edges of exactly two faces as
+    their half-edges ``h1``, ``h2``."""
+
+    eid: np.ndarray
+    ends: np.ndarray
+    h1: np.ndarray
+    h2: np.ndarray
+
+    @staticmethod
+    def of(f: np.ndarray) -> _Edges:
+        eid, cnt = edge_ids(f)
+        he = half_edges(f)
+        ends = np.empty((len(cnt), 2), dtype=np.int64)
+        ends[eid] = np.sort(he, axis=1)
+        return _Edges(eid, ends, *_pairs(eid, cnt))
+
+    def subset(self, keep: np.ndarray) -> _Edges:
+        """The edges of the faces ``keep`` (bool per face) only, faces renumbered in
+        order: edge ids stay (some edges now unused), pairs are taken again."""
+        eid = self.eid.reshape(-1, 3)[keep].reshape(-1)
+        return _Edges(eid, self.ends, *_pairs(eid, np.bincount(eid, minlength=len(self.ends))))
+
+
+def _pairs(eid: np.ndarray, cnt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The two half-edges of each edge of exactly two faces, without a sort: the first
+    and the last half-edge of each edge, by two scatters."""
+    idx = np.arange(len(eid))
+    first = np.empty(len(cnt), dtype=np.int64)
+    first[eid[::-1]] = idx[::-1]  # the last write wins: the smallest index
+    last = np.empty(len(cnt), dtype=np.int64)
+    last[eid] = idx
+    two = np.flatnonzero(cnt == 2)
+    return first[two], last[two]
+
+
+def _dihedrals(
+    v: np.ndarray, f: np.ndarray, h1: np.ndarray, h2: np.ndarray, n: np.ndarray | None = None
+) -> np.ndarray:
+    """Angle between the normals of the faces of half-edges h1 and h2 (0 flat, pi folded);
+    ``n``: the faces' unit normals, if known."""
+    if n is not None or 2 * len(h1) > len(f):  # most faces: one normal each
+        n = _normals(v, f)[0] if n is None else n
+        n1, n2 = n[h1 // 3], n[h2 // 3]
+    else:
+        n1, _ = _normals(v, f[h1 // 3])
+        n2, _ = _normals(v, f[h2 // 3])
+    return np.arccos(np.clip(np.einsum("ij,ij->i", n1, n2), -1.0, 1.0))
+
+
+def _vertex_max(n_vertices: int, ends: np.ndarray, value: np.ndarray) -> np.ndarray:
+    """Per vertex, the largest ``value`` of the edges (``ends`` (k, 2)) at it (0 if none)."""
+    out = np.zeros(n_vertices)
+    np.maximum.at(out, ends[:, 0], value)
+    np.maximum.at(out, ends[:, 1], value)
+    return out
+
+
+def looks_like_scan(vertices: np.ndarray, faces: np.ndarray, eps: float) -> str:
+    """Why the mesh looks like a scan, or "" when it does not: dense (at least
+    ``SCAN_MIN_FACES`` faces), ragged (at least ``SCAN_MIN_PIECES`` boundary loops or
+    specks) and smooth (at most ``SCAN_MAX_SHARP`` of its edges sharper than 60 degrees,
+    which CAD models with their crisp edges exceed)."""
+    v, f = np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64)
+    if len(f) < SCAN_MIN_FACES:
+        return ""
+    return _scan_signs(v, f, _Edges.of(f), eps, *_normals(v, f))
+
+
+def _scan_signs(
+    v: np.ndarray, f: np.ndarray, e: _Edges, eps: float, n: np.ndarray, area: np.ndarray
+) -> str:
+    sharp = np.count_nonzero(_dihedrals(v, f, e.h1, e.h2, n) > np.radians(60.0))
+    sharp /= max(len(e.h1), 1)
+    if sharp > SCAN_MAX_SHARP:
+        return ""
+    comp = edge_components(f, e.eid)
+    specks = int(np.count_nonzero(np.bincount(comp, weights=area) < SPECK_AREA * eps**2))
+    # Boundary loops: the connected pieces of the boundary edges.
+    b = e.ends[np.bincount(e.eid, minlength=len(e.ends)) == 1]
+    on, local = np.unique(b, return_inverse=True)
+    loops = int(connected_labels(len(on), *local.reshape(-1, 2).T).max()) + 1 if len(b) else 0
+    if max(loops, specks) < SCAN_MIN_PIECES:
+        return ""
+    return (
+        f"looks like a scan: {len(f)} faces, {loops} boundary loops, {specks} specks, "
+        f"{100 * sharp:.2f}% sharp edges"
+    )
+
+
+def _adjacency(n: int, ends: np.ndarray):
+    """Sparse symmetric vertex adjacency (CSR) of the edges."""
+    from scipy.sparse import coo_matrix
+
+    rows, cols = ends.reshape(-1), ends[:, ::-1].reshape(-1)
+    return coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n)).tocsr()
+
+
+def _collapse(
+    v: np.ndarray, f: np.ndarray, e: _Edges, area: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """One round of near-degenerate edge collapses: an independent set of zero and skinny
+    edges (each the shortest candidate at both its ends) passing the link condition.
+    ``area``: of each face (mm²)."""
+    n = len(v)
+    used = np.bincount(e.eid, minlength=len(e.ends)) > 0
+    ends = e.ends
+    length = np.where(used, np.linalg.norm(v[ends[:, 0]] - v[ends[:, 1]], axis=1), np.inf)
+    live = np.where(used, length, 0.0)
+    vert_sum = np.bincount(ends.reshape(-1), weights=np.repeat(live, 2), minlength=n)
+    vert_cnt = np.maximum(np.bincount(ends[used].reshape(-1), minlength=n), 1)
+    local = 0.5 * (vert_sum[ends[:, 0]] / vert_cnt[ends[:, 0]]
+                   + vert_sum[ends[:, 1]] / vert_cnt[ends[:, 1]])  # fmt: skip
+    # Skinny: short against its neighbourhood with a small angle opposite it.
+    e_len = length[e.eid].reshape(-1, 3)  # edge k runs corner k -> k+1
+    # Angle opposite edge k: sin = 2 area / (product of the other two sides).
+    other = e_len[:, [1, 2, 0]] * e_len[:, [2, 0, 1]]
+    small_angle = 2 * area[:, None] / np.maximum(other, 1e-300) < np.sin(np.radians(10.0))
+    skinny = np.zeros(len(ends), dtype=bool)
+    skinny[e.eid[small_angle.reshape(-1)]] = True
+    mean = live.sum() / max(int(np.count_nonzero(used)), 1)
+    c = np.flatnonzero((length < 0.1 * mean) | ((length < 0.25 * local) & skinny))
+    if len(c) == 0:
+        return v, f, 0
+    best = np.full(n, np.inf)
+    np.minimum.at(best, ends[c, 0], length[c])
+    np.minimum.at(best, ends[c, 1], length[c])
+    c = c[(best[ends[c, 0]] == length[c]) & (best[ends[c, 1]] == length[c])]
+    # Link condition: the ends share exactly the vertices opposite the edge (1 or 2).
+    adj = _adjacency(n, ends)
+    a, b = ends[c, 0], ends[c, 1]
+    common = np.asarray(adj[a].multiply(adj[b]).sum(axis=1)).ravel()
+    ok = common == np.bincount(e.eid, minlength=len(ends))[c]
+    a, b = a[ok], b[ok]
+    hit = np.bincount(np.r_[a, b], minlength=n)  # ties of length: a vertex in two edges
+    single = (hit[a] == 1) & (hit[b] == 1)
+    a, b = a[single], b[single]
+    if len(a) == 0:
+        return v, f, 0
+    v = v.copy()
+    v[a] = 0.5 * (v[a] + v[b])
+    remap = np.arange(n)
+    remap[b] = a
+    f = remap[f]
+    keep = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0])
+    return v, f[keep], len(a)
+
+
+def _vertex_theta(n: int, f: np.ndarray, e: _Edges, faces: np.ndarray, pairs: np.ndarray,
+                  angle: np.ndarray) -> np.ndarray:
+    """θ(v): the largest dihedral angle of the edges of the faces round each vertex (its
+    star and its link: a tall spike's sharpest edges are round its base), from the
+    ``angle`` of the paired edges ``pairs`` (indices into ``e.h1``), over ``faces``."""
+    edge_angle = np.zeros(len(e.ends))
+    edge_angle[e.eid[e.h1[pairs]]] = angle
+    face_theta = edge_angle[e.eid.reshape(-1, 3)[faces]].max(axis=1)
+    out = np.zeros(n)
+    np.maximum.at(out, f[faces].reshape(-1), np.repeat(face_theta, 3))
+    return out
+
+
+def _relax_spikes(
+    v: np.ndarray, f: np.ndarray, e: _Edges, n_faces: np.ndarray | None, rounds: int = 20
+):
+    """Eq. 2 on the spiked vertices, ``rounds`` times, the sharpest first: each round moves
+    the spiked vertices whose umbrella vector (relative to their mean edge length) is the
+    largest among their neighbours, so a spike's tip goes down before its base rises.
+    Only the faces round the first spiked vertices are looked at again. Returns the new
+    vertices, how many moved and the mask of those still spiked above ``SPIKE_B``."""
+    n = len(v)
+    every = np.arange(len(e.h1))
+    angle = _dihedrals(v, f, e.h1, e.h2, n_faces)
+    theta = _vertex_theta(n, f, e, np.arange(len(f)), every, angle)
+    near = theta > SPIKE_A
+    if not near.any():
+        return v, 0, np.zeros(n, dtype=bool)
+    adj = _adjacency(n, e.ends)
+    deg = np.maximum(np.asarray(adj.sum(axis=1)).ravel(), 1)
+    local_f = near[f].any(axis=1)
+    pairs = np.flatnonzero(local_f[e.h1 // 3] | local_f[e.h2 // 3])
+    local_f = np.flatnonzero(local_f)
+    local_e = e.ends[near[e.ends].any(axis=1)]
+    edge_len = np.linalg.norm(v[e.ends[:, 0]] - v[e.ends[:, 1]], axis=1)
+    mean_len = np.bincount(e.ends.reshape(-1), weights=np.repeat(edge_len, 2), minlength=n)
+    mean_len = np.maximum(mean_len / deg, 1e-300)
+    moved = np.zeros(n, dtype=bool)
+    v = v.copy()
+    for _ in range(rounds):
+        angle = _dihedrals(v, f, e.h1[pairs], e.h2[pairs])
+        theta = _vertex_theta(n, f, e, local_f, pairs, angle)
+        w = np.clip((theta - SPIKE_A) / (SPIKE_B - SPIKE_A), 0.0, 1.0)
+        s = np.flatnonzero(w > 0)
+        if len(s) == 0:
+            break
+        lap = adj[s] @ v / deg[s][:, None] - v[s]
+        size = np.zeros(n)
+        size[s] = np.linalg.norm(lap, axis=1) / mean_len[s]
+        top = _vertex_max(n, local_e, size[local_e].max(axis=1))
+        first = size[s] >= top[s]
+        v[s[first]] += w[s[first]][:, None] * lap[first]
+        moved[s[first]] = True
+    angle = _dihedrals(v, f, e.h1[pairs], e.h2[pairs])
+    theta = _vertex_theta(n, f, e, local_f, pairs, angle)
+    return v, int(np.count_nonzero(moved)), theta > SPIKE_B
+
+
+def _clean_boundaries(
+    f: np.ndarray, e: _Edges, sharp_vertex: np.ndarray, rounds: int = 30
+) -> tuple[np.ndarray, int]:
+    """Sec. 3.3: the faces to keep (bool) once those at bad boundary vertices are
+    dropped, round after round until none is left, and how many went. Faces are only
+    removed, so the edge ids stay valid: counts are re-taken per round (no sort)."""
+    n = len(sharp_vertex)
+    alive = np.ones(len(f), dtype=bool)
+    n_edges = len(e.ends)
+    for _ in range(rounds):
+        live_he = np.repeat(alive, 3)
+        use = np.bincount(e.eid[live_he], minlength=n_edges)
+        bnd = use == 1
+        if not bnd.any():
+            break
+        b_count = np.bincount(e.ends[bnd].reshape(-1), minlength=n)
+        face_count = np.bincount(f[alive].reshape(-1), minlength=n)
+        bad = (b_count > 0) & ((face_count == 1) | (b_count > 2) | sharp_vertex)
+        drop = alive & bad[f].any(axis=1)
+        if not drop.any():
+            break
+        alive &= ~drop
+    return alive, int(np.count_nonzero(~alive))
+
+
+def _specks(f: np.ndarray, e: _Edges, area: np.ndarray, eps: float) -> tuple[np.ndarray, float]:
+    """Sec. 3.2: mask of the faces (of ``area`` mm² each) of components under
+    ``SPECK_AREA * eps**2`` mm² (the largest component always stays), and their area."""
+    if len(area) == 0:
+        return np.zeros(0, dtype=bool), 0.0
+    comp = edge_components(f, e.eid)
+    comp_area = np.bincount(comp, weights=area)
+    speck = comp_area < SPECK_AREA * eps**2
+    speck[np.argmax(comp_area)] = False
+    return speck[comp], float(comp_area[speck].sum())
+
+
+def clean_scan(
+    vertices: np.ndarray, faces: np.ndarray, eps: float, why: str = "asked"
+) -> tuple[np.ndarray, np.ndarray, ScanCleaned]:
+    """RameshCleaner's steps 1-5 (see the module doc) on a welded mesh; ``why`` is said in
+    the report (asked for, or why the mesh looked like a scan). Returns new vertices
+    (some moved: relaxed spikes, collapsed edges), faces (a subset, re-indexed onto kept
+    vertex indices) and what was done."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    return _clean(v, f, _Edges.of(f), eps, why)
+
+
+def scan_cleanup(
+    vertices: np.ndarray, faces: np.ndarray, eps: float, mode: str
+) -> tuple[np.ndarray, np.ndarray, ScanCleaned | None]:
+    """The mesh cleaned as a scan when ``mode`` is "scan", or is "auto" and it looks like
+    one (:func:`looks_like_scan`); else as it was, and None."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    if mode == "none" or len(f) == 0 or (mode == "auto" and len(f) < SCAN_MIN_FACES):
+        return v, f, None
+    e = _Edges.of(f)
+    normals, area = _normals(v, f)
+    why = "asked (clean = scan)" if mode == "scan" else _scan_signs(v, f, e, eps, normals, area)
+    if not why:
+        return v, f, None
+    return _clean(v, f, e, eps, why, normals, area)
+
+
+def _clean(
+    v: np.ndarray, f: np.ndarray, e: _Edges, eps: float, why: str,
+    normals: np.ndarray | None = None, area: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, ScanCleaned]:
+    if len(f) == 0:
+        return v, f, ScanCleaned(why)
+    if normals is None or area is None:
+        normals, area = _normals(v, f)
+    speck, speck_area = _specks(f, e, area, eps)
+    n_specks = int(np.count_nonzero(speck))
+    f, e, normals = f[~speck], e.subset(~speck), normals[~speck]
+    v, f, collapsed = _collapse(v, f, e, area[~speck])
+    if collapsed:
+        e, normals = _Edges.of(f), None
+    v, relaxed, spiked = _relax_spikes(v, f, e, normals)
+    # Sec. 3.8: what relaxing could not flatten goes (its hole is filled later).
+    spike = spiked[f].any(axis=1)
+    f, e = f[~spike], e.subset(~spike)
+    sharp = _vertex_max(len(v), e.ends[e.eid[e.h1]], _dihedrals(v, f, e.h1, e.h2))
+    alive, boundary_removed = _clean_boundaries(f, e, sharp > BOUNDARY_DIHEDRAL)
+    f, e = f[alive], e.subset(alive)
+    more, more_area = _specks(f, e, _normals(v, f)[1], eps)
+    f = f[~more]
+    return v, f, ScanCleaned(why, collapsed, relaxed, int(np.count_nonzero(spike)),
+                             boundary_removed, n_specks + int(np.count_nonzero(more)),
+                             speck_area + more_area)  # fmt: skip

@@ -1,0 +1,108 @@
+"""Scan cleanup (RameshCleaner) on written float32 files: a noisy scanned-like sphere
+(spikes, specks, ragged holes) comes out closed, spike-free and near the sphere."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scan_models import noisy_scan
+
+from repair.check import check_printable
+from repair.io import load_mesh, write_stl
+from repair.pipeline import repair_file
+from repair.scan import SCAN_MIN_FACES, clean_scan, looks_like_scan
+from repair.topology import edge_stats
+
+EPS = 0.4
+RADIUS = 20.0
+
+
+@pytest.mark.parametrize(("seed", "clean"), [(0, "scan"), (1, "auto"), (2, "scan")])
+def test_noisy_scan_comes_out_closed_without_spikes(tmp_path, seed, clean):
+    v, f = noisy_scan(5, RADIUS, seed=seed)
+    boundary, _, _, shells, _ = edge_stats(f)
+    assert boundary > 100 and shells > 10  # ragged holes and specks
+    assert np.linalg.norm(v, axis=1).max() > 1.15 * RADIUS  # spikes
+    src, out = tmp_path / "scan.stl", tmp_path / "out.stl"
+    write_stl(src, v, f)
+    report = repair_file(src, out, epsilon=EPS, clean=clean)
+    written = load_mesh(out)
+    verdict = check_printable(written.vertices, written.faces)
+    assert verdict.ok, verdict.failures()
+    assert verdict.components == 1  # specks gone, holes closed
+    assert report["after"]["sheet_triangles_thickened"] == 0
+    scan = report["scan_cleanup"]
+    assert scan["why"].startswith("asked" if clean == "scan" else "looks like a scan")
+    assert scan["relaxed_vertices"] > 0 and scan["components_removed"] > 0
+    assert "cleaned as a scan" in report["summary"]
+    # No spike: every written point within 0.25 mm outside the sphere (the spikes stood
+    # 4 mm out); lids sag inwards by their sagitta only.
+    r = np.linalg.norm(written.vertices, axis=1)
+    assert r.max() <= RADIUS * 1.002 + 0.25
+    assert r.min() >= RADIUS - 1.0
+    assert verdict.volume == pytest.approx(4 / 3 * np.pi * RADIUS**3, rel=0.01)
+    # D: lids reach into the holes; elsewhere the surface stays on the input.
+    assert report["deviation"] <= report["holes_closed"]["max_lid_radius"] + 0.05
+    assert report["deviation"] <= 2.5
+
+
+def test_clean_none_leaves_a_scan_to_the_exact_repair(tmp_path):
+    v, f = noisy_scan(5, RADIUS, seed=0, holes=0, specks=0)
+    src, out = tmp_path / "scan.stl", tmp_path / "out.stl"
+    write_stl(src, v, f)
+    report = repair_file(src, out, epsilon=EPS, clean="none")
+    assert "scan_cleanup" not in report
+    # The spikes are kept, exactly (the input is a closed sphere with spikes).
+    assert report["path"] == "unchanged"
+    assert np.linalg.norm(load_mesh(out).vertices, axis=1).max() > 1.15 * RADIUS
+
+
+def test_clean_scan_flattens_the_spikes_of_a_closed_scan(tmp_path):
+    # Closed and printable as it is: only an explicit "scan" touches it.
+    v, f = noisy_scan(5, RADIUS, seed=6, holes=0, specks=0)
+    src, out = tmp_path / "scan.stl", tmp_path / "out.stl"
+    write_stl(src, v, f)
+    report = repair_file(src, out, epsilon=EPS, clean="scan")
+    written = load_mesh(out)
+    assert check_printable(written.vertices, written.faces).ok
+    assert report["scan_cleanup"]["relaxed_vertices"] > 0
+    assert np.linalg.norm(written.vertices, axis=1).max() <= RADIUS * 1.002 + 0.25
+    # Where a spike stood, the surface now spans its base: D is within about an edge.
+    edge = np.linalg.norm(v[f[:, 0]] - v[f[:, 1]], axis=1)
+    assert report["deviation"] <= 1.5 * np.median(edge)
+
+
+def test_only_dense_ragged_smooth_meshes_look_like_scans():
+    v, f = noisy_scan(5, RADIUS, seed=3)
+    assert len(f) >= SCAN_MIN_FACES and looks_like_scan(v, f, EPS)
+    # The same sphere without holes or specks: nothing ragged about it.
+    v, f = noisy_scan(5, RADIUS, seed=3, holes=0, specks=0)
+    assert looks_like_scan(v, f, EPS) == ""
+    # A small ragged mesh is not dense enough.
+    v, f = noisy_scan(3, RADIUS, seed=3)
+    assert looks_like_scan(v, f, EPS) == ""
+
+
+def _bad_boundary_vertices(f: np.ndarray) -> int:
+    """Boundary vertices in one face only (ears) or on more than two boundary edges."""
+    from repair.topology import undirected_edges
+
+    edges, cnt = undirected_edges(f)
+    b = edges[cnt == 1]
+    on = np.unique(b)
+    n_bnd = np.bincount(b.reshape(-1))[on]
+    faces_at = np.bincount(f.reshape(-1))[on]
+    return int(np.count_nonzero((n_bnd > 2) | (faces_at == 1)))
+
+
+def test_clean_scan_removes_ears_and_dangling_faces():
+    from repair.holes import boundary_loops
+
+    v, f = noisy_scan(4, RADIUS, seed=4, spikes=0, holes=3, specks=0)
+    assert _bad_boundary_vertices(f) > 0  # the jittered holes are ragged
+    _, out_f, done = clean_scan(v, f, EPS)
+    assert done.boundary_faces_removed > 0
+    assert _bad_boundary_vertices(out_f) == 0
+    # Every boundary edge is now on a simple loop, which shell closure can lid.
+    loops, _ = boundary_loops(out_f)
+    assert sum(len(lp) for lp in loops) == edge_stats(out_f)[0]
