@@ -73,7 +73,7 @@ def test_aligned_seams_stay_in_one_place_layer_after_layer():
 
     def seam_spread(seam):
         _, _, _, rep = _slice(sphere, seam_position=seam)
-        layers = rep.layers()
+        layers = rep.layers(rep.part)  # the part's paths: not support, skirt or brim
         starts = []
         centre = np.array(BASE.build_volume[:2]) / 2
         for z in sorted(layers)[3:-3]:
