@@ -38,8 +38,19 @@ def printer_log(d: DaemonProc) -> list[str]:
 
 
 def wait_state(d: DaemonProc, job_id: int, state: str):
-    return d.wait_for(lambda: str(d.journal.get(job_id).state) == state and d.journal.get(job_id),
-                      what=f"job {job_id} {state}")
+    """The job once it is in ``state``; for a final state, once its files are archived
+    too (the daemon records the state first, then moves the files and writes reports)."""
+    final = state in ("done", "failed", "cancelled", "interrupted")
+
+    def reached():
+        job = d.journal.get(job_id)
+        if str(job.state) != state:
+            return None
+        if final and "report_json" not in (job.outputs or {}):
+            return None
+        return job
+
+    return d.wait_for(reached, what=f"job {job_id} {state}")
 
 
 def test_prusaslicer_connection_test_and_upload_and_print(web_daemon):
