@@ -47,6 +47,10 @@ BOUNDARY_DIHEDRAL = np.radians(120.0)
 SCAN_MIN_FACES = 20_000
 SCAN_MIN_PIECES = 8
 SCAN_MAX_SHARP = 0.01
+#: ...and at most this fraction of flat (coplanar, < 1e-4 rad) edges: a CAD or generated
+#: tessellation (UV spheres, tori, cylinders, plates: planar quads cut in two) has many,
+#: a measured surface with its noise has almost none.
+SCAN_MAX_FLAT = 0.05
 
 
 @dataclass(frozen=True)
@@ -144,8 +148,9 @@ def _vertex_max(n_vertices: int, ends: np.ndarray, value: np.ndarray) -> np.ndar
 def looks_like_scan(vertices: np.ndarray, faces: np.ndarray, eps: float) -> str:
     """Why the mesh looks like a scan, or "" when it does not: dense (at least
     ``SCAN_MIN_FACES`` faces), ragged (at least ``SCAN_MIN_PIECES`` boundary loops or
-    specks) and smooth (at most ``SCAN_MAX_SHARP`` of its edges sharper than 60 degrees,
-    which CAD models with their crisp edges exceed)."""
+    specks), smooth (at most ``SCAN_MAX_SHARP`` of its edges sharper than 60 degrees,
+    which CAD models with their crisp edges exceed) and noisy (at most ``SCAN_MAX_FLAT``
+    of its edges exactly flat, which smooth CAD tessellations exceed)."""
     v, f = np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64)
     if len(f) < SCAN_MIN_FACES:
         return ""
@@ -155,9 +160,10 @@ def looks_like_scan(vertices: np.ndarray, faces: np.ndarray, eps: float) -> str:
 def _scan_signs(
     v: np.ndarray, f: np.ndarray, e: _Edges, eps: float, n: np.ndarray, area: np.ndarray
 ) -> str:
-    sharp = np.count_nonzero(_dihedrals(v, f, e.h1, e.h2, n) > np.radians(60.0))
-    sharp /= max(len(e.h1), 1)
-    if sharp > SCAN_MAX_SHARP:
+    dihedral = _dihedrals(v, f, e.h1, e.h2, n)
+    sharp = np.count_nonzero(dihedral > np.radians(60.0)) / max(len(e.h1), 1)
+    flat = np.count_nonzero(dihedral < 1e-4) / max(len(e.h1), 1)
+    if sharp > SCAN_MAX_SHARP or flat > SCAN_MAX_FLAT:
         return ""
     comp = edge_components(f, e.eid)
     specks = int(np.count_nonzero(np.bincount(comp, weights=area) < SPECK_AREA * eps**2))

@@ -67,7 +67,9 @@ def test_corpus_model_repairs_to_a_printable_solid(name, tmp_path):
     # there is bounded by how far the lid reaches from its rim, not by eps.
     lid = report["holes_closed"]["max_lid_radius"]
     if thickened:
-        assert report["deviation"] <= max(0.6 * EPS, lid)
+        # A thickened face's prism lies within eps/2 of it; the eps-prisms along the edges
+        # where two sheet faces bend reach eps/2 * sqrt(2) from that edge (a mitre).
+        assert report["deviation"] <= max(EPS / np.sqrt(2) + 1e-6, lid)
     else:
         size = float(np.ptp(written.vertices, axis=0).max())
         assert report["deviation"] <= 1e-5 * size + 1e-6 + lid

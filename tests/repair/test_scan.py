@@ -106,3 +106,14 @@ def test_clean_scan_removes_ears_and_dangling_faces():
     # Every boundary edge is now on a simple loop, which shell closure can lid.
     loops, _ = boundary_loops(out_f)
     assert sum(len(lp) for lp in loops) == edge_stats(out_f)[0]
+
+
+def test_a_holed_cad_tessellation_is_not_taken_for_a_scan():
+    """Overlapping UV spheres, a torus, a cylinder and a plate with 40 small holes are
+    dense, ragged and smooth like a scan, but their flat (planar-quad) edges show they are
+    a tessellation: auto cleanup must leave them exact (it once relaxed 1,321 vertices)."""
+    from broken_models import overlapping_shells
+
+    model = overlapping_shells(40_000, 40, seed=3)
+    assert len(model.faces) >= SCAN_MIN_FACES
+    assert looks_like_scan(model.vertices, model.faces, EPS) == ""
