@@ -188,6 +188,9 @@ def test_pause_answer_and_requeue_after_a_crash_in_chromium(web_daemon, browser,
     if page.locator("#now-body button[data-action=resume]").count():
         page.click("#now-body button[data-action=resume]")
         page.wait_for_selector("#toast.show")
+        answer = page.text_content("#toast")
+        assert answer and "failed" not in answer.split(":")[0], answer
+        page.wait_for_selector("#toast:not(.show)")
 
     # the daemon dies mid-print and comes back: the page reconnects by itself
     job = next(j for j in d.jobs() if j.name == "long.gcode")
@@ -207,7 +210,8 @@ def test_pause_answer_and_requeue_after_a_crash_in_chromium(web_daemon, browser,
     page.click("#confirm-dialog button[value=no]")
     time.sleep(1.0)  # a requeue would have made it ready within the daemon's 0.2 s poll
     assert str(d.journal.get(job.id).state) == "interrupted"
-    assert page.locator("#toast.show").count() == 0
+    shown = page.locator("#toast.show")
+    assert shown.count() == 0, page.text_content("#toast")
     interrupted.locator("button[data-action=requeue]").click()
     page.click("#confirm-yes")
     page.wait_for_selector("#toast:has-text('printed again from the start')")
