@@ -140,7 +140,8 @@ class PrinterLink(threading.Thread):
             printer_config = self.cfg.printer
             host = PrinterHost(port, printer_config.baud, mode=printer_config.mode,
                                nozzle_fallback=printer_config.nozzle_diameter,
-                               nozzle_macro=printer_config.nozzle_macro)
+                               nozzle_macro=printer_config.nozzle_macro,
+                               long_command_timeout=printer_config.long_command_timeout)
             host.connect()
             info = host.query_info().to_dict()
         except Exception as e:  # PrinterError, OSError, or a bug: never kill the thread

@@ -254,6 +254,21 @@ class FirmwareModel:
             return True
         return False
 
+    def heating_keepalive(self, heaters: tuple[str, ...]) -> str | None:
+        """The line this firmware prints about once a second while it waits for heaters:
+        Marlin's report with ``W:``, Prusa MK3's ``T:205.3 E:0 W:?`` (hotend) or
+        ``T:25.0 E:0 B:40.5`` (bed), Klipper's bare report; RepRapFirmware stays silent."""
+        current = self.heaters.current
+        if self.firmware == "rrf":
+            return None
+        if self.firmware == "klipper":
+            return self.temperatures()
+        if self.firmware == "prusa":
+            if heaters == ("B",):
+                return f"T:{current['T']:.1f} E:0 B:{current['B']:.1f}"
+            return f"T:{current['T']:.1f} E:0 W:?"
+        return self.heaters.report("marlin") + " W:?"
+
     def progress(self, state: dict, now: float) -> bool:
         """Advance the head command; True once it has finished."""
         motion = self.motion
@@ -269,11 +284,14 @@ class FirmwareModel:
             state["until"] = now + state.pop("busy_for")
             state["next_keepalive"] = now + self.settings.keepalive
         if "heat" in state:
-            if self.heaters.settled(state["heat"]):
+            cooling_too = state.get("cooling_too", False)
+            if all(self.heaters.settled(h, cooling_too) for h in state["heat"]):
                 return True
             if now >= state.get("next_keepalive", 0.0):
                 state["next_keepalive"] = now + min(self.settings.keepalive, 1.0)
-                self.send(self.temperatures() + " W:?")
+                line = self.heating_keepalive(state["heat"])
+                if line:
+                    self.send(line)
             return False
         until = state.get("until")
         if until is not None and now < until:
