@@ -98,6 +98,21 @@ KEEPALIVE_FORMS = {
 }
 
 
+#: Waits for a temperature: Klipper prints its bare report once a second during these.
+HEAT_WAITS = frozenset({"M109", "M190", "M191", "M116", "TEMPERATURE_WAIT"})
+
+
+def keepalives_promised(family: str, command: str) -> bool:
+    """True when ``family`` prints keep-alives all through the long ``command``, so that
+    silence means it finished (its ``ok`` lost) or died: Marlin, Prusa and Buddy (``W:``
+    lines while heating, ``busy:`` otherwise, HOST_KEEPALIVE_FEATURE being on by default),
+    Klipper while it waits for a temperature. RepRapFirmware, Klipper's homing and
+    levelling, and unknown firmware may stay silent for the whole command."""
+    if family in ("marlin", "prusa", "buddy"):
+        return True
+    return family == "klipper" and lex(command).word in HEAT_WAITS
+
+
 def keepalive_forms(family: str) -> frozenset[str]:
     """The keep-alive line forms the ``family`` sends while a long command runs."""
     return KEEPALIVE_FORMS.get(family, KEEPALIVE_FORMS["unknown"])

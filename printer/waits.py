@@ -12,18 +12,22 @@ The rules, with ``last_ack`` the time the oldest unacknowledged line last change
 
 * a keep-alive of the family's forms is a sign of life (while a long command is in
   flight, for Klipper's bare lines, which look like any temperature report);
-* silence while a long command is in flight and no keep-alive came since
-  ``last_ack`` (RRF heating, a silent G28): one unnumbered ``M105`` probe is sent and
-  then the host waits. The firmware queues the probe behind the command, so it costs
-  nothing while the command runs; if the command has in fact finished and its ``ok``
-  was lost (or the ``ok`` of a line before it), the probe's reply resynchronises
-  within seconds, as for any lost ``ok``;
-* silence after keep-alives: the command ended (its ``ok`` lost?) or the firmware
-  died, so the ordinary lost-``ok`` recovery runs, and it still gives up after its
-  retries. A keep-alive arriving meanwhile proves the firmware is still at work
-  (e.g. Marlin with ``M113 S10``): the outstanding probe is kept, no retry is counted;
+* silence while a long command is in flight, no keep-alive came since ``last_ack``
+  and the family may stay silent through it (RRF heating, Klipper homing): one
+  unnumbered ``M105`` probe is sent and then the host waits. The firmware queues
+  the probe behind the command, so it costs nothing while the command runs; if the
+  command has in fact finished and its ``ok`` was lost (or the ``ok`` of a line
+  before it), the probe's reply resynchronises within seconds, as for any lost ``ok``;
+* silence after keep-alives, or where the family always sends them
+  (:func:`printer.firmware.keepalives_promised`): the command ended (its ``ok``
+  lost?) or the firmware died, so the ordinary lost-``ok`` recovery runs and still
+  gives up after its retries. A keep-alive arriving meanwhile proves the firmware is
+  still at work (e.g. Marlin with ``M113 S10``): the outstanding tickle is kept and
+  no retry is counted;
 * the whole wait is bounded by ``long_command_timeout`` (or a G4's dwell plus the
-  ordinary timeout, when longer): then :class:`PrinterTimeout`.
+  ordinary timeout, when longer): then :class:`PrinterTimeout`. A firmware that
+  dies during a silent wait (RRF heating) is only noticed then: nothing tells the
+  two apart sooner.
 
 Temperatures in any reply (keep-alives, auto-reports, ``ok T:``) go to the stream's
 ``temperatures`` callback, with a missing target filled in from the last report or
@@ -36,7 +40,7 @@ import time
 from typing import TYPE_CHECKING
 
 from printer.errors import PrinterTimeout
-from printer.firmware import long_command_wait
+from printer.firmware import keepalives_promised, long_command_wait
 from printer.gcode import lex
 from printer.replies import Reply, heater_readings, keepalive_form
 
@@ -115,8 +119,8 @@ class LongWaits:
             self.held_probe = False  # still at work since the probe: keep waiting
             self.last_life = now
             return True
-        if self.wait_life:
-            return False  # the keep-alives stopped: finished (ok lost?) or dead
+        if self.wait_life or keepalives_promised(self.host.flavour, self.commands[found[0] - 1]):
+            return False  # no keep-alive when one was due: finished (ok lost?) or dead
         if not self.tickle_tries:
             self.tickle_tries = 1
             self.timeouts += 1

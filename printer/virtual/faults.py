@@ -18,6 +18,8 @@ class Faults:
     (prints ``start``) / the port hangs up. reconnect_after: seconds after a
     disconnect the printer comes back on a new pty (the link is re-pointed).
     garbage: every byte sent to the host is noise (what a wrong baud rate looks like).
+    drop_ok_at: line numbers whose ``ok`` is lost after they ran (a deterministic
+    lost ``ok``, e.g. next to a heat-up).
     """
 
     corrupt: float = 0.0
@@ -28,4 +30,5 @@ class Faults:
     reconnect_after: float | None = None
     garbage: bool = False
     seed: int = 1
+    drop_ok_at: frozenset[int] = frozenset()
 

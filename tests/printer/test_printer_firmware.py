@@ -7,6 +7,7 @@ from printer.firmware import (
     SLICER_FLAVOURS,
     family_of,
     keepalive_forms,
+    keepalives_promised,
     long_command_wait,
     slicer_flavour,
     slicer_flavour_for_firmware,
@@ -76,3 +77,17 @@ def test_every_family_says_what_keeps_a_long_command_alive(family):
     assert forms <= {"busy", "wait", "prusa_wait", "bare"}
     assert (not forms) == (family == "rrf")  # RepRapFirmware is silent while it waits
     assert ("bare" in forms) == (family == "klipper")
+
+
+@pytest.mark.parametrize(
+    ("family", "command", "promised"),
+    [
+        ("marlin", "M190 S60", True), ("marlin", "G28", True), ("prusa", "M109 S210", True),
+        ("buddy", "G29", True), ("klipper", "M190 S60", True), ("klipper", "M109 S210", True),
+        ("klipper", "TEMPERATURE_WAIT SENSOR=extruder MINIMUM=200", True),
+        ("klipper", "G28", False), ("klipper", "BED_MESH_CALIBRATE", False),
+        ("rrf", "M190 S60", False), ("rrf", "M116", False), ("unknown", "M109 S200", False),
+    ],
+)
+def test_which_long_commands_come_with_keepalives(family, command, promised):
+    assert keepalives_promised(family, command) == promised
