@@ -86,7 +86,8 @@ class PrinterConfig:
     nozzle_macro: str | None = setting(None, "Klipper: a macro that reports the nozzle", STR,
                                        optional=True, example="GET_NOZZLE")
     long_command_timeout: float = setting(900.0, "s a heat-up, homing or levelling command "
-                                          "(M109, M190, G28, G29...) may take", FLOAT, low=1, high=86400)
+                                          "(M109, M190, G28, G29...) may take", FLOAT, low=1,
+                                          high=86400)
     reconnect_min_seconds: float = setting(1.0, "first wait before reconnecting", FLOAT,
                                            low=0.01, high=3600)
     reconnect_max_seconds: float = setting(60.0, "longest wait between reconnects", FLOAT,

@@ -238,16 +238,20 @@ class PrinterLink(threading.Thread):
                 last[0] = now
                 fraction = done / of if of else 1.0
                 self._set_status(progress=round(fraction, 4), lines_done=done, lines_total=of)
-                self.journal.update(job.id, progress=fraction)
+                self.journal.update(job.id, progress=fraction, durable=False)
+
+        temperatures = TemperatureLog(self, job.id)
 
         def outcome(acked_lines: int, **more: Any) -> dict[str, Any]:
             return {"acked_lines": acked_lines, "total_lines": total,
-                    "seconds": time.monotonic() - started, **more}
+                    "seconds": time.monotonic() - started,
+                    "temperatures": temperatures.summary(), **more}
 
         log.info("job %d: printing %d lines", job.id, total)
         try:
             result = self.host.stream(lines, progress=progress,
-                                      cancel=AnyEvent(cancel, self.stop_event))
+                                      cancel=AnyEvent(cancel, self.stop_event),
+                                      temperatures=temperatures)
         except StreamCancelled as e:
             if cancel.is_set():
                 self._end(job.id, JobState.CANCELLED, "cancelled by user during the print "
@@ -268,7 +272,8 @@ class PrinterLink(threading.Thread):
             with self._lock:
                 self._cancel.pop(job.id, None)
             self._set_status(state="connected" if self.host else "waiting", job=None,
-                             progress=None, lines_done=None, lines_total=None)
+                             progress=None, lines_done=None, lines_total=None,
+                             temperatures=None)
         print_result = outcome(total, result=_result_dict(result))
         self._end(job.id, JobState.DONE, None, print_result)
         log.info("job %d: printed %d lines in %.1f s", job.id, total, print_result["seconds"])
@@ -314,6 +319,39 @@ class PrinterLink(threading.Thread):
         reason = f"print interrupted: {why}; " + HALF_PRINTED.format(id=job_id)
         self._end(job_id, JobState.INTERRUPTED, reason, print_result or {})
         log.warning("job %d: %s", job_id, reason)
+
+
+class TemperatureLog:
+    """The stream's temperature callback for one job: live readings in the printer
+    status (``preflight status``, the web page), one sample every
+    ``SAMPLE_SECONDS`` into the journal (a soft write), and a summary for the report."""
+
+    SAMPLE_SECONDS = 10.0
+
+    def __init__(self, link: PrinterLink, job_id: int) -> None:
+        self.link = link
+        self.job_id = job_id
+        self.last_sample = -float("inf")
+        self.samples = 0
+        self.peak: dict[str, float] = {}
+
+    def __call__(self, readings: dict[str, tuple[float, float | None]]) -> None:
+        live = {heater: [round(cur, 1), target] for heater, (cur, target) in readings.items()}
+        self.link._set_status(temperatures=live)
+        for heater, (current, _target) in readings.items():
+            self.peak[heater] = max(self.peak.get(heater, current), current)
+        now = time.monotonic()
+        if now - self.last_sample >= self.SAMPLE_SECONDS:
+            self.last_sample = now
+            self.samples += 1
+            try:
+                self.link.journal.add_temperatures(self.job_id, live)
+            except Exception:  # a busy journal must not stop the print
+                log.exception("recording temperatures")
+
+    def summary(self) -> dict[str, Any]:
+        return {"samples": self.samples,
+                "peak": {heater: round(value, 1) for heater, value in self.peak.items()}}
 
 
 def _result_dict(result: Any) -> Any:
