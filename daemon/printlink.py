@@ -354,6 +354,22 @@ class TemperatureLog:
                 "peak": {heater: round(value, 1) for heater, value in self.peak.items()}}
 
 
+_HEATER_NAMES = {"T": "hotend", "B": "bed", "C": "chamber"}
+
+
+def format_temperatures(temps: dict[str, Any] | None) -> str | None:
+    """``{"T": [120.3, 210.0], "B": [41.0, 60.0]}`` -> ``"hotend 120.3/210 °C, bed
+    41.0/60 °C"``; None when there is nothing to show."""
+    if not temps:
+        return None
+    parts = []
+    for heater, (current, target) in sorted(temps.items(), key=lambda kv: kv[0] != "T"):
+        name = _HEATER_NAMES.get(heater, heater)
+        parts.append(f"{name} {current:.1f}" + (f"/{target:g}" if target is not None else "")
+                     + " °C")
+    return ", ".join(parts)
+
+
 def _result_dict(result: Any) -> Any:
     if result is None:
         return None

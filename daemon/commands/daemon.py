@@ -131,6 +131,7 @@ def _journal(args: argparse.Namespace):
 
 
 def cmd_status(args: argparse.Namespace) -> int:
+    from daemon.printlink import format_temperatures
     from daemon.service import Daemon, daemon_alive
 
     cfg, journal = _journal(args)
@@ -162,6 +163,9 @@ def cmd_status(args: argparse.Namespace) -> int:
               f"{' x '.join(f'{v:g}' for v in bv) + ' mm' if bv else 'unknown'}")
     elif printer.get("message"):
         print(f"printer: {printer.get('port')} - {printer.get('state')}: {printer['message']}")
+    temperatures = format_temperatures(printer.get("temperatures"))
+    if temperatures:
+        print(f"temperatures: {temperatures}")
     print(f"spool: {status['spool']} ({status.get('waiting_files', 0)} file(s) being written)")
     web = status.get("web") or {}
     if web:

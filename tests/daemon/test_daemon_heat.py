@@ -35,6 +35,8 @@ def test_heat_up_temperatures_reach_status_journal_and_report(tmp_path, daemon, 
                      and t.get("B", [0, 0])[1] == 60.0 and 30.0 < t["B"][0] < 59.0 and t),
             what="live bed temperature while heating")
         assert seen["B"][1] == 60.0
+        shown = d.cli("status").stdout
+        assert "temperatures: hotend " in shown and "/60 °C" in shown, shown
         job = d.wait_for(lambda: (j := d.journal.get(1)) and str(j.state) == "done" and j,
                          what="printed")
         samples = d.journal.temperatures(1)
