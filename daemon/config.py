@@ -95,8 +95,9 @@ class PrinterConfig:
     virtual_firmware: str = setting("marlin", 'port = "virtual" only: the firmware it plays',
                                     CHOICE, choices=("marlin", "prusa", "buddy", "klipper",
                                                      "rrf"))
-    virtual_speedup: float = setting(50.0, 'port = "virtual" only: how much faster than real '
-                                     "time it prints", FLOAT, low=0.01, high=1e6)
+    virtual_speedup: float = setting(1.0, 'port = "virtual" only: how much faster than real '
+                                     "time it heats and moves (1: real time)", FLOAT, low=0.01,
+                                     high=1e6)
     virtual_log: Path | None = setting(None, 'port = "virtual" only: append every executed '
                                        "command here", PATH, optional=True,
                                        example="/var/log/preflight/virtual.gcode")
