@@ -86,9 +86,10 @@ def test_real_time_heat_up_prints_every_line_once(firmware):
     give_up = SCALED_HOST["timeout"] * (SCALED_HOST["retries"] + 1)
     assert seconds > 3 * give_up
     if firmware in ("rrf", "klipper"):
-        # Silent waits (RRF's heat-ups, Klipper's G28 and M400): one probe M105 each,
-        # never a retry.
-        assert result.timeouts == unnumbered.count("M105") >= 1
+        # Silent waits (RRF's heat-ups, Klipper's G28 and M400): at most one probe M105
+        # each, never a retry; RRF's seconds-long silent heat-ups always get one.
+        assert result.timeouts == unnumbered.count("M105")
+        assert result.timeouts >= 1 or firmware == "klipper"
     else:
         assert result.timeouts == 0 and "M105" not in unnumbered
     if firmware != "rrf":
