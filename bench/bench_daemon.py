@@ -10,9 +10,13 @@ and prints:
   reaching the printer, split into detection, repair, slicing and stream start;
 - the idle daemon's resident memory (RSS, and its peak);
 - jobs per minute for a batch of small models (5-10 mm boxes, one in three
-  broken), end to end (printed), and repair+slice only (auto_print off).
+  broken), end to end (printed), and repair+slice only (auto_print off);
+- fsyncs per minute while the daemon prints (SD-card wear): the daemon runs under
+  ``strace -f -e trace=fsync,fdatasync`` (every thread, SQLite's own syncs included),
+  and the calls between the job's printing and done transitions are counted.
 
 Usage: .venv/bin/python bench/bench_daemon.py [--batch N] [--speedup X]
+       .venv/bin/python bench/bench_daemon.py --only-fsyncs [--fsync-tree DIR ...]
 """
 
 from __future__ import annotations
@@ -87,16 +91,18 @@ def drop(spool: Path, name: str, v, f) -> float:
 
 
 class Run:
-    def __init__(self, auto_print: bool, speedup: float) -> None:
+    def __init__(self, auto_print: bool, speedup: float, *, prefix: tuple[str, ...] = (),
+                 tree: Path = ROOT) -> None:
         self.root = Path(tempfile.mkdtemp(prefix="preflight-bench-"))
+        self.prefix = prefix
         self.vp = VirtualPrinter(speedup=speedup, baud=250000, link=self.root / "tty")
         self.vp.start()
         self.cfg_path = config(self.root, str(self.root / "tty"), auto_print=auto_print)
         self.cfg = load_config(self.cfg_path)
         self.log = open(self.root / "daemon.log", "ab")  # noqa: SIM115
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "daemon", "run", "--config", str(self.cfg_path)],
-            stdout=self.log, stderr=self.log, cwd=ROOT)
+            [*prefix, sys.executable, "-m", "daemon", "run", "--config", str(self.cfg_path)],
+            stdout=self.log, stderr=self.log, cwd=tree)
         self.journal: Journal | None = None
         while True:
             if self.proc.poll() is not None:
@@ -112,7 +118,9 @@ class Run:
         return sum(1 for c in self.vp.executed if c.split()[0] not in QUERY)
 
     def close(self) -> None:
-        self.proc.send_signal(signal.SIGTERM)
+        # Under strace, stop the daemon itself (strace exits when it does).
+        for pid in child_pids(self.proc.pid) if self.prefix else [self.proc.pid]:
+            os.kill(pid, signal.SIGTERM)
         self.proc.wait(timeout=60)
         self.vp.stop()
         self.log.close()
@@ -210,18 +218,71 @@ def bench_batch(n: int, auto_print: bool, speedup: float) -> None:
         r.close()
 
 
+def print_gcode(seconds: float) -> str:
+    """A print of about ``seconds`` of real time at speed-up 1: a short bed heat-up (to
+    40 °C, ~13 s) and 100 mm/s moves of 10 mm."""
+    lines = ["M190 S40", "G28", "G90", "M83", "G1 Z0.3 F6000"]
+    for i in range(int(max(seconds - 15.0, 10.0) * 10)):
+        lines.append(f"G1 X{20 + 10 * (i % 2)} Y{20 + (i // 2) % 2 * 0.1:.1f} E0.3 F6000")
+    return "\n".join([*lines, "M140 S0", "M84"]) + "\n"
+
+
+def bench_fsyncs(seconds: float, tree: Path) -> None:
+    """fsync + fdatasync calls of the daemon (all its threads and children) per minute
+    while it prints, counted by strace between the job's printing and done transitions."""
+    if not shutil.which("strace"):
+        print("fsyncs during a print: strace not installed (apt-get install strace); skipped")
+        return
+    trace = Path(tempfile.mkdtemp(prefix="preflight-strace-")) / "fsync.log"
+    r = Run(auto_print=True, speedup=1.0, tree=tree,
+            prefix=("strace", "-f", "-ttt", "-e", "trace=fsync,fdatasync", "-o", str(trace)))
+    try:
+        spool = r.cfg.spool.path
+        (spool / "print.gcode.part").write_text(print_gcode(seconds))
+        os.rename(spool / "print.gcode.part", spool / "print.gcode")
+        while not (r.journal.jobs() and str(r.journal.jobs()[0].state) in ("done", "failed",
+                                                                             "interrupted")):
+            time.sleep(0.2)
+        job = r.journal.jobs()[0]
+        at = {h["to_state"]: h["at"] for h in r.journal.history(job.id)}
+        start, end = at["printing"], at.get(str(job.state))
+        calls = [float(line.split()[1]) for line in trace.read_text().splitlines()
+                 if "fsync(" in line or "fdatasync(" in line]
+        during = sum(1 for t in calls if start < t < end)
+        minutes = (end - start) / 60.0
+        print(f"fsyncs during a {60 * minutes:.0f} s print ({job.state}, daemon from {tree}): "
+              f"{during} = {during / minutes:.1f} per minute (strace -f, fsync + fdatasync; "
+              f"{len(calls)} in the daemon's whole run)")
+    finally:
+        r.close()
+        shutil.rmtree(trace.parent, ignore_errors=True)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--batch", type=int, default=12)
     ap.add_argument("--speedup", type=float, default=1000.0,
                     help="virtual printer speed-up (moves, heating)")
+    ap.add_argument("--fsync-seconds", type=float, default=70.0,
+                    help="length of the print whose fsyncs are counted (0: skip)")
+    ap.add_argument("--fsync-tree", type=Path, action="append", default=None,
+                    help="count the fsyncs of the daemon in this checkout (repeatable; "
+                    "default: this one), e.g. an export of main for a before/after")
+    ap.add_argument("--only-fsyncs", action="store_true", help="run the fsync count only")
     a = ap.parse_args()
+    if a.only_fsyncs:
+        for tree in a.fsync_tree or [ROOT]:
+            bench_fsyncs(a.fsync_seconds, tree)
+        return 0
     print(f"preflight daemon benchmark ({os.cpu_count()} cores, virtual printer speed-up "
           f"{a.speedup:g}, 250000 baud)")
     bench_child_startup(10)
     bench_latency(a.speedup)
     bench_batch(a.batch, auto_print=False, speedup=a.speedup)
     bench_batch(a.batch, auto_print=True, speedup=a.speedup)
+    if a.fsync_seconds:
+        for tree in a.fsync_tree or [ROOT]:
+            bench_fsyncs(a.fsync_seconds, tree)
     return 0
 
 

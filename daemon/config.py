@@ -96,6 +96,9 @@ class PrinterConfig:
     klipper_config: Path | None = setting(None, "Klipper: printer.cfg, read when the API "
                                           "socket is not there", PATH, optional=True,
                                           example="/home/pi/printer_data/config/printer.cfg")
+    long_command_timeout: float = setting(900.0, "s a heat-up, homing or levelling command "
+                                          "(M109, M190, G28, G29...) may take", FLOAT, low=1,
+                                          high=86400)
     reconnect_min_seconds: float = setting(1.0, "first wait before reconnecting", FLOAT,
                                            low=0.01, high=3600)
     reconnect_max_seconds: float = setting(60.0, "longest wait between reconnects", FLOAT,
@@ -103,8 +106,9 @@ class PrinterConfig:
     virtual_firmware: str = setting("marlin", 'port = "virtual" only: the firmware it plays',
                                     CHOICE, choices=("marlin", "prusa", "buddy", "klipper",
                                                      "rrf"))
-    virtual_speedup: float = setting(50.0, 'port = "virtual" only: how much faster than real '
-                                     "time it prints", FLOAT, low=0.01, high=1e6)
+    virtual_speedup: float = setting(1.0, 'port = "virtual" only: how much faster than real '
+                                     "time it heats and moves (1: real time)", FLOAT, low=0.01,
+                                     high=1e6)
     virtual_log: Path | None = setting(None, 'port = "virtual" only: append every executed '
                                        "command here", PATH, optional=True,
                                        example="/var/log/preflight/virtual.gcode")

@@ -5,10 +5,20 @@ Tables:
   printer info, the reports (JSON text) and the reason of a failure.
 - ``transitions``: every state change with its time (seconds since the epoch).
 - ``requests``: CLI -> daemon requests (print / requeue / cancel), polled by the daemon.
+- ``temperatures``: heater readings sampled during a job's print.
 - ``meta``: key/value; the daemon's status and heartbeat, the last printer info.
 
 The state machine of :mod:`daemon.states` is enforced in :meth:`Journal.transition`.
 All methods are thread-safe (one connection, one lock).
+
+Durability (the journal may live on a Raspberry Pi's SD card): every write is durable
+(``fsync`` at commit, WAL with ``synchronous = FULL``) except the *soft* ones, written
+with ``durable=False``: progress, temperature samples and the status heartbeat. Those
+are committed at once (readers see them) without an ``fsync`` of their own
+(``synchronous = NORMAL``); at most one soft commit every ``soft_sync_seconds`` (10 s)
+is made durable, and any durable commit (a state change) makes every earlier soft one
+durable too, since the WAL is written in order. A power cut loses at most the last
+10 s of progress, never a state change.
 """
 
 from __future__ import annotations
@@ -67,11 +77,20 @@ CREATE TABLE IF NOT EXISTS requests (
     ok INTEGER,
     message TEXT
 );
+CREATE TABLE IF NOT EXISTS temperatures (
+    job_id INTEGER NOT NULL,
+    at REAL NOT NULL,
+    readings TEXT NOT NULL         -- JSON {"T": [current, target], "B": [...]}, degC
+);
+CREATE INDEX IF NOT EXISTS temperatures_job ON temperatures(job_id);
 CREATE TABLE IF NOT EXISTS meta (
     key TEXT PRIMARY KEY,
     value TEXT NOT NULL
 );
 """
+
+#: Seconds between fsyncs for soft writes (progress, temperatures, the heartbeat).
+SOFT_SYNC_SECONDS = 10.0
 
 JSON_FIELDS = ("printer_info", "repair_report", "slice_summary", "print_result", "outputs")
 
@@ -117,6 +136,10 @@ class Journal:
         if not readonly:
             self.path.parent.mkdir(parents=True, exist_ok=True)
         self._lock = threading.RLock()
+        #: Soft writes are made durable at most this often (seconds).
+        self.soft_sync_seconds = SOFT_SYNC_SECONDS
+        self._last_sync = 0.0
+        self._synchronous = "FULL"
         self._db = sqlite3.connect(str(self.path), timeout=10.0, check_same_thread=False,
                                    isolation_level=None)
         self._db.row_factory = sqlite3.Row
@@ -131,8 +154,21 @@ class Journal:
             self._db.close()
 
     # -- low level ------------------------------------------------------------------------
-    def _tx(self):
-        return _Tx(self)
+    def _tx(self, durable: bool = True):
+        return _Tx(self, durable)
+
+    def _begin(self, durable: bool) -> None:
+        """BEGIN a transaction whose COMMIT fsyncs the WAL if it is durable, or if it is a
+        soft one and no commit has been synced for ``soft_sync_seconds``."""
+        now = time.monotonic()
+        sync = durable or now - self._last_sync >= self.soft_sync_seconds
+        level = "FULL" if sync else "NORMAL"
+        if level != self._synchronous:
+            self._db.execute(f"PRAGMA synchronous = {level}")
+            self._synchronous = level
+        if sync:
+            self._last_sync = now
+        self._db.execute("BEGIN IMMEDIATE")
 
     @staticmethod
     def _row_to_job(row: sqlite3.Row) -> Job:
@@ -251,9 +287,10 @@ class Journal:
         assert job is not None
         return job
 
-    def update(self, job_id: int, **fields: Any) -> None:
-        """Set fields without a state change (progress, reports)."""
-        with self._tx() as db:
+    def update(self, job_id: int, *, durable: bool = True, **fields: Any) -> None:
+        """Set fields without a state change (progress, reports). ``durable=False``: a
+        soft write (see the module docstring), for values rewritten every few seconds."""
+        with self._tx(durable) as db:
             self._set(db, job_id, updated=time.time(), **fields)
 
     @staticmethod
@@ -300,9 +337,24 @@ class Journal:
             row = self._db.execute("SELECT * FROM requests WHERE id=?", (req_id,)).fetchone()
         return dict(row) if row else None
 
+    # -- temperatures ---------------------------------------------------------------------
+    def add_temperatures(self, job_id: int, readings: dict[str, Any]) -> None:
+        """Record one sample of heater readings for a printing job (a soft write)."""
+        with self._tx(durable=False) as db:
+            db.execute("INSERT INTO temperatures VALUES (?,?,?)",
+                       (job_id, time.time(), json.dumps(readings)))
+
+    def temperatures(self, job_id: int) -> list[dict[str, Any]]:
+        """The job's samples in order: ``{"at": epoch s, "T": [current, target], ...}``."""
+        with self._lock:
+            rows = self._db.execute("SELECT at, readings FROM temperatures WHERE job_id=?"
+                                    " ORDER BY rowid", (job_id,)).fetchall()
+        return [{"at": r[0], **json.loads(r[1])} for r in rows]
+
     # -- meta -----------------------------------------------------------------------------
-    def set_meta(self, key: str, value: Any) -> None:
-        with self._tx() as db:
+    def set_meta(self, key: str, value: Any, *, durable: bool = True) -> None:
+        """Set a meta value; ``durable=False`` for a soft write (the status heartbeat)."""
+        with self._tx(durable) as db:
             db.execute("INSERT INTO meta (key, value) VALUES (?, ?) ON CONFLICT(key)"
                        " DO UPDATE SET value=excluded.value", (key, json.dumps(value)))
 
@@ -318,13 +370,14 @@ class Journal:
 class _Tx:
     """``with journal._tx() as db``: an IMMEDIATE transaction under the journal's lock."""
 
-    def __init__(self, journal: Journal) -> None:
+    def __init__(self, journal: Journal, durable: bool = True) -> None:
         self.journal = journal
+        self.durable = durable
 
     def __enter__(self) -> sqlite3.Connection:
         self.journal._lock.acquire()
         try:
-            self.journal._db.execute("BEGIN IMMEDIATE")
+            self.journal._begin(self.durable)
         except BaseException:
             self.journal._lock.release()
             raise

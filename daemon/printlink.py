@@ -167,6 +167,7 @@ class PrinterLink(threading.Thread):
         return PrinterHost(port, baud, mode=printer_config.mode,
                            nozzle_fallback=printer_config.nozzle_diameter,
                            nozzle_macro=printer_config.nozzle_macro,
+                           long_command_timeout=printer_config.long_command_timeout,
                            handshake_timeout=max(printer_config.probe_seconds, 5.0))
 
     def _open_host(self):
@@ -342,17 +343,21 @@ class PrinterLink(threading.Thread):
                 last[0] = now
                 fraction = done / of if of else 1.0
                 self._set_status(progress=round(fraction, 4), lines_done=done, lines_total=of)
-                self.journal.update(job.id, progress=fraction)
+                self.journal.update(job.id, progress=fraction, durable=False)
+
+        temperatures = TemperatureLog(self, job.id)
 
         def outcome(acked_lines: int, **more: Any) -> dict[str, Any]:
             return {"acked_lines": acked_lines, "total_lines": total,
-                    "seconds": time.monotonic() - started, **more}
+                    "seconds": time.monotonic() - started,
+                    "temperatures": temperatures.summary(), **more}
 
         log.info("job %d: printing %d lines", job.id, total)
         control = self._print_control(job)
         try:
             result = self.host.stream(lines, progress=progress,
-                                      cancel=AnyEvent(cancel, self.stop_event), control=control)
+                                      cancel=AnyEvent(cancel, self.stop_event), control=control,
+                                      temperatures=temperatures)
         except StreamCancelled as e:
             by = control.cancelled_by or ("the user" if cancel.is_set() else None)
             if by is not None:
@@ -386,7 +391,8 @@ class PrinterLink(threading.Thread):
                 self._cancel.pop(job.id, None)
                 self._controls.pop(job.id, None)
             self._set_status(state="connected" if self.host else "waiting", job=None,
-                             progress=None, lines_done=None, lines_total=None, message=None)
+                             progress=None, lines_done=None, lines_total=None, message=None,
+                             temperatures=None)
         print_result = outcome(total, result=_result_dict(result))
         self._end(job.id, JobState.DONE, None, print_result)
         log.info("job %d: printed %d lines in %.1f s", job.id, total, print_result["seconds"])
@@ -432,6 +438,55 @@ class PrinterLink(threading.Thread):
         reason = f"print interrupted: {why}; " + HALF_PRINTED.format(id=job_id)
         self._end(job_id, JobState.INTERRUPTED, reason, print_result or {})
         log.warning("job %d: %s", job_id, reason)
+
+
+class TemperatureLog:
+    """The stream's temperature callback for one job: live readings in the printer
+    status (``preflight status``, the web page), one sample every
+    ``SAMPLE_SECONDS`` into the journal (a soft write), and a summary for the report."""
+
+    SAMPLE_SECONDS = 10.0
+
+    def __init__(self, link: PrinterLink, job_id: int) -> None:
+        self.link = link
+        self.job_id = job_id
+        self.last_sample = -float("inf")
+        self.samples = 0
+        self.peak: dict[str, float] = {}
+
+    def __call__(self, readings: dict[str, tuple[float, float | None]]) -> None:
+        live = {heater: [round(cur, 1), target] for heater, (cur, target) in readings.items()}
+        self.link._set_status(temperatures=live)
+        for heater, (current, _target) in readings.items():
+            self.peak[heater] = max(self.peak.get(heater, current), current)
+        now = time.monotonic()
+        if now - self.last_sample >= self.SAMPLE_SECONDS:
+            self.last_sample = now
+            self.samples += 1
+            try:
+                self.link.journal.add_temperatures(self.job_id, live)
+            except Exception:  # a busy journal must not stop the print
+                log.exception("recording temperatures")
+
+    def summary(self) -> dict[str, Any]:
+        return {"samples": self.samples,
+                "peak": {heater: round(value, 1) for heater, value in self.peak.items()}}
+
+
+_HEATER_NAMES = {"T": "hotend", "B": "bed", "C": "chamber"}
+
+
+def format_temperatures(temps: dict[str, Any] | None) -> str | None:
+    """``{"T": [120.3, 210.0], "B": [41.0, 60.0]}`` -> ``"hotend 120.3/210 °C, bed
+    41.0/60 °C"``; None when there is nothing to show."""
+    if not temps:
+        return None
+    parts = []
+    for heater, (current, target) in sorted(temps.items(), key=lambda kv: kv[0] != "T"):
+        name = _HEATER_NAMES.get(heater, heater)
+        parts.append(f"{name} {current:.1f}" + (f"/{target:g}" if target is not None else "")
+                     + " °C")
+    return ", ".join(parts)
 
 
 def _result_dict(result: Any) -> Any:

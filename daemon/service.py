@@ -308,7 +308,7 @@ class Daemon:
                 if now - last_status >= 1.0:
                     last_status = now
                     status = self.status()
-                    self.journal.set_meta("status", status)
+                    self.journal.set_meta("status", status, durable=False)  # a heartbeat
                     notify(f"STATUS={self.status_line(status)}")
             except Exception:  # e.g. the journal locked for too long: log and go on
                 log.exception("main loop")

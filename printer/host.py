@@ -10,7 +10,9 @@ in order, or ``stream`` raises. The mechanism:
   already in flight triggers are swallowed (no resend storm); Marlin's
   ``ok`` after ``Resend:`` is consumed, Prusa MK3's missing one is not expected;
 * a lost ``ok`` (or a silently dropped line, as RepRapFirmware does) is detected by
-  a timeout that busy keepalives extend; the host then sends an unnumbered ``M105``
+  a timeout that busy keepalives extend (while a long-running command such as a
+  heat-up is in flight, silence is expected and bounded by ``long_command_timeout``
+  instead: :mod:`printer.waits`); the host then sends an unnumbered ``M105``
   tickle. Its ``ok T:`` reply is a resynchronisation point: the firmware processes
   in order, so every line sent before it has either been executed or never arrived.
   The unresolved lines are then probed one at a time with their original line
@@ -53,11 +55,13 @@ from printer.gcode import clean_lines, frame
 from printer.identify import query_info, read_identity
 from printer.info import PrinterInfo
 from printer.replies import Reply, parse_reply
-from printer.stream import Streamer, StreamResult
+from printer.stream import Streamer, StreamResult, TemperatureCallback
 
 MODES = ("auto", "ping-pong", "buffered")
 DEFAULT_FILAMENT = 1.75
 COOLDOWN = ("M104 S0", "M140 S0", "M107", "M84")
+#: Seconds a long-running command (a heat-up, homing, levelling) may take.
+LONG_COMMAND_TIMEOUT = 900.0
 
 class _Hangup:
     def __init__(self, reason: str) -> None:
@@ -88,6 +92,9 @@ class PrinterHost:
     which a bare newline is sent once, to finish a line whose newline noise ate.
     rx_buffer / queue_size: the
     firmware's RX buffer bytes and command queue length (Marlin defaults 128 and 4).
+    long_command_timeout: seconds a long-running command (M109, M190, G28, G29, M400...)
+    may take before the host gives up; while one runs, silence is not a lost ``ok``
+    (see :mod:`printer.waits`).
     """
 
     def __init__(
@@ -106,6 +113,7 @@ class PrinterHost:
         rx_buffer: int = 128,
         queue_size: int = 4,
         filament_fallback: float = DEFAULT_FILAMENT,
+        long_command_timeout: float = LONG_COMMAND_TIMEOUT,
     ) -> None:
         if mode not in MODES:
             raise ValueError(f"mode must be one of {', '.join(MODES)}, not {mode!r}")
@@ -122,6 +130,7 @@ class PrinterHost:
         self.rx_buffer = int(rx_buffer)
         self.queue_size = int(queue_size)
         self.filament_fallback = float(filament_fallback)
+        self.long_command_timeout = float(long_command_timeout)
 
         self.firmware = ""
         self.flavour = "unknown"
@@ -379,6 +388,7 @@ class PrinterHost:
         progress: Callable[[int, int], None] | None = None,
         cancel: threading.Event | None = None,
         control: PrintControl | None = None,
+        temperatures: TemperatureCallback | None = None,
     ) -> StreamResult:
         """Deliver the commands of ``lines`` (comments/blank lines dropped) exactly once,
         in order. Returns when the firmware has acknowledged every one; raises a
@@ -386,9 +396,11 @@ class PrinterHost:
         whose ``lines_sent`` attribute counts the job's lines written to the port.
         ``control``: pause / resume / cancel / emergency stop while it runs (see
         :mod:`printer.control`); the printer's host actions are obeyed either way.
+        ``temperatures`` is called with ``{"T": (current, target), "B": ...}`` (°C)
+        whenever the printer reports temperatures (while heating, about once a second).
         """
         commands = clean_lines(lines)
-        streamer = Streamer(self, commands, progress, cancel, control)
+        streamer = Streamer(self, commands, progress, cancel, control, temperatures)
         try:
             return streamer.run()
         except PrinterError as exc:

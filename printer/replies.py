@@ -292,3 +292,44 @@ def parse_position(text: str) -> dict[str, float] | None:
     for axis, value in _POSITION_RE.findall(head):
         found.setdefault(axis, float(value))
     return found if all(a in found for a in "XYZ") else None
+
+
+# ---------------------------------------------------------------- keep-alives
+_PRUSA_WAIT_RE = re.compile(r"^T:\s*-?\d+(?:\.\d+)?\s+E:\s*\d+\b")
+_HEATERS = re.compile(r"^(?:T\d*|B|C)$")
+
+
+def keepalive_form(reply: Reply) -> str | None:
+    """Which keep-alive form a reply line is, or None when it is not one.
+
+    ``"busy"``: Marlin's ``echo:busy: processing`` (also ``busy: paused for user``).
+    ``"prusa_wait"``: Prusa MK3's wait report, ``T:205.3 E:0 W:3`` (M109) or
+    ``T:25.0 E:0 B:40.5`` (M190). ``"wait"``: a temperature line with ``W:`` (Marlin's
+    ``T:25.00 /210.00 B:25.00 /60.00 @:0 B@:0 W:?``). ``"bare"``: a temperature line
+    with targets and no power fields, as Klipper prints once a second while it waits
+    (``B:41.0 /60.0 T0:120.3 /210.0``). A Marlin auto-report (it carries ``@:``) is none
+    of these: it arrives whether or not the firmware is working on our lines.
+    """
+    if reply.kind == "busy":
+        return "busy"
+    if reply.kind != "temperature":
+        return None
+    text = reply.text
+    if _PRUSA_WAIT_RE.match(text):
+        return "prusa_wait"
+    if reply.waiting:
+        return "wait"
+    if "@:" not in text and all(target is not None for _, target in reply.temps.values()):
+        return "bare"
+    return None
+
+
+def heater_readings(temps: dict[str, tuple[float, float | None]]
+                    ) -> dict[str, tuple[float, float | None]]:
+    """The heaters of a temperature report, for display: hotends (``T``, ``T1``...), bed
+    ``B`` and chamber ``C``; Klipper's lone ``T0`` becomes ``T``; Prusa's PINDA ``P`` and
+    ambient ``A`` probes are dropped."""
+    out = {key: value for key, value in temps.items() if _HEATERS.match(key)}
+    if "T0" in out and "T" not in out:
+        out["T"] = out.pop("T0")
+    return out

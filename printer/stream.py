@@ -17,11 +17,17 @@ from typing import TYPE_CHECKING
 
 from printer.control import PrintControl
 from printer.errors import PrinterError, PrinterTimeout, StreamCancelled
+from printer.firmware import keepalive_forms
 from printer.gcode import command_word, frame
 from printer.replies import Reply, parse_reply
+from printer.waits import LongWaits
 
 if TYPE_CHECKING:
     from printer.host import PrinterHost
+
+#: Called with ``{"T": (current, target), "B": (...)}`` (°C; target None when unknown)
+#: whenever the printer reports temperatures during a stream.
+TemperatureCallback = Callable[[dict[str, tuple[float, float | None]]], None]
 
 
 @dataclass(frozen=True)
@@ -41,13 +47,16 @@ class StreamResult:
         return asdict(self)
 
 
-class Streamer:
-    """The state machine of one stream (see the module docstring)."""
+class Streamer(LongWaits):
+    """The state machine of one stream (see the module docstring; long-running commands
+    and temperature reports: :mod:`printer.waits`)."""
 
     def __init__(self, host: PrinterHost, commands: list[str],
                  progress: Callable[[int, int], None] | None,
-                 cancel: threading.Event | None, control: PrintControl | None = None) -> None:
+                 cancel: threading.Event | None, control: PrintControl | None = None,
+                 temperatures: TemperatureCallback | None = None) -> None:
         self.host = host
+        self.temperatures = temperatures
         self.commands = commands
         self.total = len(commands)
         #: Lines up to this one may be sent (held below ``total`` while pausing).
@@ -80,6 +89,11 @@ class Streamer:
         self.last_life = time.monotonic()
         self.last_progress = 0.0
         self.reported = -1
+        self.keepalives = keepalive_forms(host.flavour)
+        self.last_ack = time.monotonic()  # when the oldest unacknowledged line last changed
+        self.wait_life = False  # a keep-alive arrived since last_ack
+        self.held_probe = False  # a keep-alive arrived while a probe M105 was outstanding
+        self.targets: dict[str, float] = {}
 
     # ---------------------------------------------------------------- helpers
     def frame_of(self, n: int) -> str:
@@ -114,6 +128,8 @@ class Streamer:
         n, size = self.inflight.popleft()
         self.inflight_bytes -= size
         self.noise *= 0.97
+        self.last_ack = time.monotonic()
+        self.wait_life = False
 
     def drop_inflight_from(self, n: int) -> None:
         """Forget in-flight entries with N >= n (they will be sent again)."""
@@ -144,6 +160,9 @@ class Streamer:
 
     def send_next(self) -> None:
         n = self.next_n
+        if not self.inflight:
+            self.last_ack = time.monotonic()
+            self.wait_life = False
         text = self.frame_of(n)
         self.host.write(text)
         self.inflight.append([n, len(text) + 1])
@@ -233,10 +252,12 @@ class Streamer:
         after_resend, self.after_resend = self.after_resend, False
         if kind in ("start", "fatal"):
             self.host.raise_if_fatal(reply, "during the print")
+        if reply.temps:
+            self.note_temperatures(reply.temps)
         if kind in ("comment", "busy", "ok"):
             self.control.on_reply(self, reply)  # host actions, M600 waiting for the user
-        if kind == "temperature" and not reply.waiting:
-            return  # auto-report: not a sign that our lines are moving
+        if kind in ("temperature", "busy") and not self.keeps_alive(reply):
+            return  # an auto-report: not a sign that our lines are moving
         if kind == "other" and reply.text == "wait":
             self.on_idle()
             return
@@ -327,6 +348,8 @@ class Streamer:
 
     def on_timeout(self) -> None:
         host = self.host
+        if self.waiting_on_long_command():
+            return
         if self.tickle_tries > host.retries:
             raise PrinterTimeout(
                 f"the printer on {host.port} stopped answering: no reply to M105 in "

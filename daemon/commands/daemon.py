@@ -136,6 +136,7 @@ def _journal(args: argparse.Namespace):
 
 
 def cmd_status(args: argparse.Namespace) -> int:
+    from daemon.printlink import format_temperatures
     from daemon.service import Daemon, daemon_alive
 
     cfg, journal = _journal(args)
@@ -169,6 +170,9 @@ def cmd_status(args: argparse.Namespace) -> int:
                  else ""))
     elif printer.get("message"):
         print(f"printer: {printer.get('port')} - {printer.get('state')}: {printer['message']}")
+    temperatures = format_temperatures(printer.get("temperatures"))
+    if temperatures:
+        print(f"temperatures: {temperatures}")
     print(f"spool: {status['spool']} ({status.get('waiting_files', 0)} file(s) being written)")
     web = status.get("web") or {}
     if web:

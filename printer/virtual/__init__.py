@@ -14,8 +14,12 @@ port. It models what matters for a serial host:
   number + checksum checked, ``Error:`` + ``Resend:`` + ``ok``), Prusa MK3 (the same
   but ``Resend:`` without ``ok``), Klipper (ignores N and checksum, never resends,
   ``ok`` on every line) and RepRapFirmware (silently drops a bad-checksum line);
-* a thermal model for M104/M109/M140/M190, replies to M105, M115, M211, M208,
-  M200, M862.1 and a Klipper nozzle macro;
+* a first-order thermal model in real time (a bed to 60 °C in about 35 s, a
+  hotend to 210 °C in about 45 s, times ``speedup``) for M104/M109/M140/M190/M116,
+  and each firmware's way of waiting: Marlin's ``W:`` temperature lines and
+  ``echo:busy: processing`` while any command blocks, Prusa MK3's ``T:… E:0 W:…``,
+  Klipper's bare temperature lines, RepRapFirmware's silence;
+* replies to M105, M115, M211, M208, M200, M862.1 and a Klipper nozzle macro;
 * faults (:class:`Faults`): byte corruption, lost ``ok``, busy keepalives, a board
   reset or a disconnect after N lines (optionally coming back on a new pty, the
   ``link`` symlink updated, as a re-plugged USB device does), and line noise.

@@ -4,7 +4,8 @@ sends and what it waits for (a planner slot, an empty planner, a time, a tempera
 :func:`begin` returns the command's execution state, a dict the firmware's
 ``progress`` advances: ``replies`` (sent when it finishes), ``move`` (seconds of
 motion to plan), ``drain`` (wait for the planner to empty), ``until`` / ``busy_for``
-(a wait, with ``busy`` keepalives), ``heat`` (wait for a heater), ``ok_extra``.
+(a wait, with ``busy`` keepalives), ``heat`` (wait for these heaters; ``cooling_too``:
+M109/M190 R waits for a cooler target too), ``ok_extra``.
 """
 
 from __future__ import annotations
@@ -85,7 +86,10 @@ def _heating(model: FirmwareModel, word: str, params: dict[str, float], state: d
         heater = "T" if word in ("M104", "M109") else "B"
         heaters.target[heater] = params.get("S", params.get("R", 0.0))
         if word in ("M109", "M190"):
-            state["heat"] = heater
+            state["heat"] = (heater,)
+            state["cooling_too"] = "R" in params and "S" not in params
+    elif word == "M116":
+        state["heat"] = ("T", "B")
     elif word == "M155":
         model.autoreport = params.get("S", 0.0)
         model.next_report = now + model.autoreport

@@ -23,6 +23,8 @@ class Faults:
     ``runout:S`` (a filament runout: it pauses itself with ``//action:paused``, waits S
     real seconds for the user with busy keep-alives, then ``//action:resumed``), or a line
     starting with ``//`` sent as it is (``//action:cancel``, ``//action:pause``).
+    drop_ok_at: line numbers whose ``ok`` is lost after they ran (a deterministic
+    lost ``ok``, e.g. next to a heat-up).
     """
 
     corrupt: float = 0.0
@@ -34,4 +36,5 @@ class Faults:
     garbage: bool = False
     seed: int = 1
     events: tuple[tuple[int, str], ...] = ()
+    drop_ok_at: frozenset[int] = frozenset()
 

@@ -87,8 +87,10 @@ class FirmwareModel:
     def send(self, text: str) -> None:
         self.wire.send(text)
 
-    def ok(self, extra: str = "", *, executed: bool = True) -> None:
-        if executed and self.faults.drop_ok and self.rng.random() < self.faults.drop_ok:
+    def ok(self, extra: str = "", *, executed: bool = True, number: int | None = None) -> None:
+        faults = self.faults
+        if executed and ((faults.drop_ok and self.rng.random() < faults.drop_ok)
+                         or (number is not None and number in faults.drop_ok_at)):
             self.stats["oks_dropped"] += 1
             return
         if self.firmware == "klipper":
@@ -220,6 +222,7 @@ class FirmwareModel:
             if self.current is None:
                 self.current = begin(self, self.queue[0][1], now)
             if not self.progress(self.current, now):
+                self.busy_keepalive(self.current, now)
                 return
             number, command = self.queue.popleft()
             current = self.current
@@ -228,7 +231,7 @@ class FirmwareModel:
             for line in current.get("replies", ()):
                 self.send(line)
             if current.get("ok", True):
-                self.ok(current.get("ok_extra", ""))
+                self.ok(current.get("ok_extra", ""), number=number)
             if number is not None and command_word(command) != "M110":
                 self.numbered_done += 1
                 if self.fault_after_line(now) or self.event_after_line(now):
@@ -299,6 +302,21 @@ class FirmwareModel:
         for line in lines:
             self.send(line)
 
+    def heating_keepalive(self, heaters: tuple[str, ...]) -> str | None:
+        """The line this firmware prints about once a second while it waits for heaters:
+        Marlin's report with ``W:``, Prusa MK3's ``T:205.3 E:0 W:?`` (hotend) or
+        ``T:25.0 E:0 B:40.5`` (bed), Klipper's bare report; RepRapFirmware stays silent."""
+        current = self.heaters.current
+        if self.firmware == "rrf":
+            return None
+        if self.firmware == "klipper":
+            return self.temperatures()
+        if self.firmware == "prusa":
+            if heaters == ("B",):
+                return f"T:{current['T']:.1f} E:0 B:{current['B']:.1f}"
+            return f"T:{current['T']:.1f} E:0 W:?"
+        return self.heaters.report("marlin") + " W:?"
+
     def progress(self, state: dict, now: float) -> bool:
         """Advance the head command; True once it has finished."""
         motion = self.motion
@@ -312,19 +330,26 @@ class FirmwareModel:
             return False
         if "busy_for" in state:
             state["until"] = now + state.pop("busy_for")
-            state["next_keepalive"] = now + self.settings.keepalive
         if "heat" in state:
-            if self.heaters.settled(state["heat"]):
+            cooling_too = state.get("cooling_too", False)
+            if all(self.heaters.settled(h, cooling_too) for h in state["heat"]):
                 return True
             if now >= state.get("next_keepalive", 0.0):
                 state["next_keepalive"] = now + min(self.settings.keepalive, 1.0)
-                self.send(self.temperatures() + " W:?")
+                line = self.heating_keepalive(state["heat"])
+                if line:
+                    self.send(line)
             return False
         until = state.get("until")
-        if until is not None and now < until:
-            if "next_keepalive" in state and now >= state["next_keepalive"]:
-                state["next_keepalive"] = now + self.settings.keepalive
-                if self.firmware in ("marlin", "prusa", "buddy"):
-                    self.send("echo:busy: processing")
-            return False
-        return True
+        return until is None or now >= until
+
+    def busy_keepalive(self, state: dict, now: float) -> None:
+        """Marlin's HOST_KEEPALIVE_FEATURE: ``echo:busy: processing`` every ``keepalive``
+        seconds while the head command is blocked (homing, a dwell, M400, a full planner);
+        a heat-up prints its temperature lines instead. Klipper and RRF say nothing."""
+        if "heat" in state or self.firmware not in ("marlin", "prusa", "buddy"):
+            return
+        due = state.setdefault("next_busy", now + self.settings.keepalive)
+        if now >= due:
+            state["next_busy"] = now + self.settings.keepalive
+            self.send("echo:busy: processing")

@@ -6,6 +6,9 @@ from printer.firmware import (
     FAMILIES,
     SLICER_FLAVOURS,
     family_of,
+    keepalive_forms,
+    keepalives_promised,
+    long_command_wait,
     slicer_flavour,
     slicer_flavour_for_firmware,
 )
@@ -49,3 +52,42 @@ def test_every_family_has_a_flavour():
 ])
 def test_spellings(spelling, flavour):
     assert slicer_flavour(spelling) == flavour
+
+
+@pytest.mark.parametrize(
+    ("command", "wait"),
+    [
+        ("M109 S210", 0.0), ("M109 R180", 0.0), ("M190 S60", 0.0), ("M190 R40", 0.0),
+        ("M191 S45", 0.0), ("M116", 0.0), ("M116 P0", 0.0), ("G28", 0.0), ("G28 X Y", 0.0),
+        ("G29", 0.0), ("G29 P1", 0.0), ("G32", 0.0), ("G34", 0.0), ("M400", 0.0),
+        ("M600", 0.0), ("m 190 s60", 0.0), ("G4 S30", 30.0), ("G4 P2500", 2.5),
+        ("G4 S1", 1.0), ("TEMPERATURE_WAIT SENSOR=extruder MINIMUM=200", 0.0),
+        ("BED_MESH_CALIBRATE", 0.0),
+        ("G4 P200", None), ("G4", None), ("G1 X10 Y10 E0.5", None), ("M104 S210", None),
+        ("M140 S60", None), ("M105", None), ("G92 E0", None), ("M106 S255", None),
+    ],
+)
+def test_long_commands(command, wait):
+    assert long_command_wait(command) == wait
+
+
+@pytest.mark.parametrize("family", FAMILIES)
+def test_every_family_says_what_keeps_a_long_command_alive(family):
+    forms = keepalive_forms(family)
+    assert forms <= {"busy", "wait", "prusa_wait", "bare"}
+    assert (not forms) == (family == "rrf")  # RepRapFirmware is silent while it waits
+    assert ("bare" in forms) == (family == "klipper")
+
+
+@pytest.mark.parametrize(
+    ("family", "command", "promised"),
+    [
+        ("marlin", "M190 S60", True), ("marlin", "G28", True), ("prusa", "M109 S210", True),
+        ("buddy", "G29", True), ("klipper", "M190 S60", True), ("klipper", "M109 S210", True),
+        ("klipper", "TEMPERATURE_WAIT SENSOR=extruder MINIMUM=200", True),
+        ("klipper", "G28", False), ("klipper", "BED_MESH_CALIBRATE", False),
+        ("rrf", "M190 S60", False), ("rrf", "M116", False), ("unknown", "M109 S200", False),
+    ],
+)
+def test_which_long_commands_come_with_keepalives(family, command, promised):
+    assert keepalives_promised(family, command) == promised

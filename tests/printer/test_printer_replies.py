@@ -222,3 +222,48 @@ def test_huge_numbers_in_replies_saturate(line, kind):
     reply = replies.parse_reply(line)
     assert reply.kind == kind
     assert reply.number == 2**31 - 1
+
+
+# (line, keep-alive form) -- what each firmware prints while M109/M190/G28/G29 run, and
+# lines that look alike but are not keep-alives (auto-reports, M105 replies, echoes)
+KEEPALIVE_TABLE = [
+    ("echo:busy: processing", "busy"),  # Marlin HOST_KEEPALIVE during G28/G29/M400
+    ("busy: processing", "busy"),
+    ("echo:busy: paused for user", "busy"),  # M600 / M0
+    (" T:180.52 /210.00 B:60.01 /60.00 @:127 B@:0 W:?", "wait"),  # Marlin M109
+    (" T:209.31 /210.00 B:60.00 /60.00 @:64 B@:0 W:8", "wait"),  # Marlin, residency count
+    ("T:25.3 /210.0 B:41.2 /60.0 @:127 B@:127 W:?", "wait"),  # Marlin M190
+    ("T:205.3 E:0 W:3", "prusa_wait"),  # Prusa MK3 M109
+    ("T:201.2 E:0 W:?", "prusa_wait"),
+    ("T:25.0 E:0 B:40.5", "prusa_wait"),  # Prusa MK3 M190
+    ("B:41.0 /60.0 T0:120.3 /210.0", "bare"),  # Klipper M190 / M109, once a second
+    ("T0:120.3 /210.0 B:41.0 /60.0", "bare"),
+    (" T:210.00 /210.00 B:60.00 /60.00 @:127 B@:0", None),  # Marlin M155 auto-report
+    ("T:20.2 /0.0 B:19.6 /0.0 T0:20.2 /0.0 @:0 B@:0 P:0.0 A:26.4", None),  # Prusa M155
+    ("ok T:210.00 /210.00 B:60.00 /60.00 @:127 B@:0", None),  # M105 reply
+    ("ok B:60.0 /60.0 T0:210.0 /210.0", None),  # Klipper M105 reply
+    ("T:25.0 B:24.0", None),  # targets unknown: could be anything
+    ("echo:Marlin 2.1.2.1", None),
+    ("ok", None),
+    ("X:0.00 Y:0.00 Z:0.00 E:0.00 Count X:0 Y:0 Z:0", None),  # M114
+]
+
+
+@pytest.mark.parametrize(("line", "form"), KEEPALIVE_TABLE)
+def test_keepalive_forms(line, form):
+    assert replies.keepalive_form(replies.parse_reply(line)) == form
+
+
+@pytest.mark.parametrize(
+    ("temps", "expected"),
+    [
+        ({"T": (25.0, 210.0), "B": (40.0, 60.0), "P": (30.0, None), "A": (26.4, None)},
+         {"T": (25.0, 210.0), "B": (40.0, 60.0)}),  # Prusa probe and ambient dropped
+        ({"B": (41.0, 60.0), "T0": (120.3, 210.0)}, {"B": (41.0, 60.0), "T": (120.3, 210.0)}),
+        ({"T0": (1.0, 2.0), "T1": (3.0, 4.0)}, {"T": (1.0, 2.0), "T1": (3.0, 4.0)}),
+        ({"T": (1.0, 2.0), "T0": (1.0, 2.0)}, {"T": (1.0, 2.0), "T0": (1.0, 2.0)}),
+        ({"C": (30.0, 45.0)}, {"C": (30.0, 45.0)}),
+    ],
+)
+def test_heater_readings(temps, expected):
+    assert replies.heater_readings(temps) == expected
