@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path as FsPath
 from typing import Any
 
@@ -52,30 +52,76 @@ def _to_manifold(vertices: np.ndarray, faces: np.ndarray):
     return man
 
 
+class _Reporter:
+    """Forwards ``(stage, fraction of the whole job)`` to ``progress`` when the stage
+    changes or the job moved on by at least 0.5 %."""
+
+    def __init__(self, progress: Progress) -> None:
+        self.progress = progress
+        self.stage = ""
+        self.fraction = -1.0
+
+    def __call__(self, stage: str, fraction: float) -> None:
+        if self.progress is None:
+            return
+        fraction = float(min(max(fraction, 0.0), 1.0))
+        if stage != self.stage or fraction - self.fraction >= 0.005 or fraction >= 1.0:
+            self.stage, self.fraction = stage, fraction
+            self.progress(stage, fraction)
+
+
+@dataclass
+class _Model:
+    """The placed model (mm), its layers and what is planned for them. Per-layer lists
+    are emptied (set to None) as the layers are written."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    layout: dict[str, Any]
+    size: np.ndarray
+    tops: np.ndarray
+    heights: np.ndarray
+    sections: list = field(default_factory=list)
+    widths: list[float] = field(default_factory=list)
+    shells: list = field(default_factory=list)
+    spacing: list[float] = field(default_factory=list)
+    solids: list = field(default_factory=list)
+    supports: list | None = None
+    brim: list = field(default_factory=list)
+    first_area: Any = None
+
+
+@dataclass
+class _Written:
+    """The G-code of each layer, its time (s), and the totals over the layers."""
+
+    bodies: list[str] = field(default_factory=list)
+    seconds: list[float] = field(default_factory=list)
+    filament_mm: float = 0.0
+    support_mm: float = 0.0
+    support_seconds: float = 0.0
+
+
 def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progress = None
                ) -> SliceResult:
     """Slice a closed triangle mesh (mm) with ``profile``; raises SliceError on bad input."""
+    report = _Reporter(progress)
+    model, man = _placed(*_checked_mesh(vertices, faces), profile)
+    head, tail = _head_and_tail(profile, model.tops)  # before the heavy work: fail fast
+    _plan_layers(model, man, profile, report)
+    del man
+    written = _write_layers(model, profile, report)
+    if written.filament_mm <= 0:
+        raise SliceError("nothing to print: the model produced no extrusions")
+    summary = _summary(model, written, profile)
+    gcode = _assemble(model, written, profile, head, tail, summary)
+    report("done", 1.0)
+    return SliceResult(gcode, summary)
+
+
+def _checked_mesh(vertices: Any, faces: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The mesh as arrays, with coincident vertices merged; SliceError if it is not one."""
     from slicer import geometry as geo
-    from slicer.arrange import layout_model
-    from slicer.gcode import GcodeWriter, fan_command, m73, start_block
-    from slicer.ordering import order_paths
-    from slicer.planner import LayerPlan, infill_paths, plan_shells, skin_regions, skirt_paths
-    from slicer.profile import thumbnail_sizes
-    from slicer.templates import render_template
-    from slicer.thumbnail import thumbnail_blocks
-    from slicer.travel import SeamAligner, TravelRouter
-
-    last = ["", -1.0]
-
-    def report(stage: str, fraction: float) -> None:
-        """Called for every layer in every stage with the fraction of the whole job (0..1);
-        forwarded when the stage changes or the job moved on by ≥ 0.5 %."""
-        if progress is None:
-            return
-        fraction = float(min(max(fraction, 0.0), 1.0))
-        if stage != last[0] or fraction - last[1] >= 0.005 or fraction >= 1.0:
-            last[0], last[1] = stage, fraction
-            progress(stage, fraction)
 
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces)
@@ -85,132 +131,179 @@ def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progres
         raise SliceError("mesh has non-finite vertex coordinates")
     if f.min() < 0 or f.max() >= len(v):
         raise SliceError("mesh faces index missing vertices")
-    v, f = geo.merge_vertices(v, f.astype(np.int64))
-    v, layout = layout_model(v, f, profile)  # orient = keep | auto | if-needed; arrange
+    return geo.merge_vertices(v, f.astype(np.int64))
+
+
+def _placed(v: np.ndarray, f: np.ndarray, profile: Profile) -> tuple[_Model, Any]:
+    """Orient and arrange the model (``orient``, ``arrange``), put it on the bed, and find
+    its layer tops; with its manifold3d solid."""
+    from slicer import geometry as geo
+    from slicer.arrange import layout_model
+
+    v, layout = layout_model(v, f, profile)
     v, size = geo.place_on_bed(v, profile.build_volume)
     man = _to_manifold(v, f)
     tops = geo.layer_tops(float(size[2]), profile.first_layer_height, profile.layer_height)
     if len(tops) == 0:
         raise SliceError(f"model is only {size[2]:.3f} mm tall, thinner than half a first layer")
-    heights = np.diff(tops, prepend=0.0)
-    mids = tops - heights / 2
-    n = len(tops)
-    res = profile.resolution
+    return _Model(v, f, layout, size, tops, np.diff(tops, prepend=0.0)), man
+
+
+def _head_and_tail(profile: Profile, tops: np.ndarray) -> tuple[str, str]:
+    """The rendered start and end G-code; SliceError for a bad template."""
+    from slicer.gcode import start_block
+    from slicer.templates import render_template
+
     values = dict(profile.to_dict())
     values.update(
-        layer_count=n, max_z=float(tops[-1]),
+        layer_count=len(tops), max_z=float(tops[-1]),
         park_z=float(min(tops[-1] + 10.0, profile.build_volume[2])),
         park_y=float(profile.build_volume[1] * 0.9),
         travel_feedrate=profile.travel_speed * 60.0,
     )
-    try:  # before the heavy work: a bad template fails fast
-        head = start_block(profile, values)
-        tail = render_template(profile.end_gcode, values)
+    try:
+        return start_block(profile, values), render_template(profile.end_gcode, values)
     except ValueError as exc:
         raise SliceError(str(exc)) from None
 
-    sections = []
-    for i, z in enumerate(mids):
-        sections.append(man.slice(float(z)).simplify(res))
-        report("slice", i / n * 0.2)
-    del man
 
-    widths = [profile.first_layer_line_width if i == 0 else profile.line_width for i in range(n)]
-    shells = []
+def _plan_layers(model: _Model, man: Any, profile: Profile, report: _Reporter) -> None:
+    """Slice at mid-layer heights, then plan shells, skins, support and the brim."""
+    from slicer import geometry as geo
+    from slicer.brim import brim_paths, needs_brim
+    from slicer.planner import plan_shells, skin_regions
+    from slicer.support import bead_area_of, support_regions
+
+    heights, res = model.heights, profile.resolution
+    n = len(model.tops)
+    for i, z in enumerate(model.tops - heights / 2):
+        model.sections.append(man.slice(float(z)).simplify(res))
+        report("slice", i / n * 0.2)
+    model.widths = [profile.first_layer_line_width if i == 0 else profile.line_width
+                    for i in range(n)]
     for i in range(n):
-        shells.append(plan_shells(sections[i], widths[i], float(heights[i]), profile.perimeters,
-                                  profile.thin_walls, res))
+        model.shells.append(plan_shells(model.sections[i], model.widths[i], float(heights[i]),
+                                        profile.perimeters, profile.thin_walls, res))
         report("shells", 0.2 + i / n * 0.2)
-    spacing = [geo.bead_spacing(widths[i], float(heights[i])) for i in range(n)]
-    solids = skin_regions([s.inner for s in shells], sections, profile.top_layers,
-                          profile.bottom_layers, spacing, profile.infill_percent >= 100)
+    model.spacing = [geo.bead_spacing(model.widths[i], float(heights[i])) for i in range(n)]
+    model.solids = skin_regions([s.inner for s in model.shells], model.sections,
+                                profile.top_layers, profile.bottom_layers, model.spacing,
+                                profile.infill_percent >= 100)
     report("skins", 0.45)
+    model.supports = support_regions(model.sections, heights, profile, model.widths,
+                                     [bead_area_of(sh.thin) for sh in model.shells])
+    report("support", 0.5)
+    model.first_area = model.sections[0]
+    if needs_brim(profile, model.sections[0], float(model.tops[-1])):
+        model.brim, covered = brim_paths(profile, model.sections[0], model.widths[0],
+                                         float(heights[0]))
+        model.first_area = model.first_area + covered
+    if model.supports is not None:
+        model.first_area = model.first_area + model.supports[0].area()
+
+
+def _layer_paths(model: _Model, i: int, profile: Profile, support_cache: dict) -> list:
+    """Everything layer ``i`` extrudes, unordered: skirt, brim, support, shells, infill."""
     from manifold3d import CrossSection
 
-    from slicer.brim import brim_paths, needs_brim
-    from slicer.support import bead_area_of, support_paths, support_regions
+    from slicer.planner import infill_paths, skirt_paths
+    from slicer.support import support_paths
 
-    supports = support_regions(sections, heights, profile, widths,
-                               [bead_area_of(sh.thin) for sh in shells])
-    report("support", 0.5)
-    brim, first_area = [], sections[0]
-    if needs_brim(profile, sections[0], float(tops[-1])):
-        brim, covered = brim_paths(profile, sections[0], widths[0], float(heights[0]))
-        first_area = first_area + covered
-    if supports is not None:
-        first_area = first_area + supports[0].area()
+    h, width, shells = float(model.heights[i]), model.widths[i], model.shells[i]
+    paths = []
+    if i < profile.skirt_height:
+        paths.extend(skirt_paths(profile, model.first_area, width, h))
+    if i == 0:
+        paths.extend(model.brim)
+    if model.supports is not None:
+        paths.extend(support_paths(model.supports[i], profile, width, h, support_cache))
+        model.supports[i] = None
+    paths.extend(shells.loops)
+    paths.extend(shells.thin)
+    n = len(model.tops)
+    paths.extend(infill_paths(profile, i, shells.inner, model.solids[i], width, h,
+                              model.sections[i - 1] if i > 0 else None,
+                              model.sections[i + 1] if i + 1 < n else CrossSection()))
+    return paths
 
-    # plan, order and write one layer at a time, so only one layer's paths exist at once
+
+def _write_layers(model: _Model, profile: Profile, report: _Reporter) -> _Written:
+    """Plan, order and write one layer at a time, so only one layer's paths exist at once."""
+    from slicer import geometry as geo
+    from slicer.gcode import GcodeWriter
+    from slicer.ordering import order_paths
+    from slicer.planner import LayerPlan
+    from slicer.travel import SeamAligner, TravelRouter
+
     writer = GcodeWriter(profile)
     aligner = SeamAligner() if profile.seam_position == "aligned" else None
     pos = np.array([0.0, 0.0])
-    bodies: list[str] = []
-    seconds: list[float] = []
-    filament = support_mm = support_s = 0.0
+    out = _Written()
     support_cache: dict = {}
+    n = len(model.tops)
     for i in range(n):
-        sh = shells[i]
-        h = float(heights[i])
-        paths = []
-        if i < profile.skirt_height:
-            paths.extend(skirt_paths(profile, first_area, widths[i], h))
-        if i == 0:
-            paths.extend(brim)
-        if supports is not None:
-            paths.extend(support_paths(supports[i], profile, widths[i], h, support_cache))
-            supports[i] = None
-        paths.extend(sh.loops)
-        paths.extend(sh.thin)
-        paths.extend(infill_paths(profile, i, sh.inner, solids[i], widths[i], h,
-                                  sections[i - 1] if i > 0 else None,
-                                  sections[i + 1] if i + 1 < n else CrossSection()))
-        plan = LayerPlan(i, float(tops[i]), h, paths, geo.contours(sections[i]))
+        paths = _layer_paths(model, i, profile, support_cache)
+        plan = LayerPlan(i, float(model.tops[i]), float(model.heights[i]), paths,
+                         geo.contours(model.sections[i]))
         ordered, _ = order_paths(plan.paths, pos, profile.seam_position, aligner)
-        router = TravelRouter(sections[i], spacing[i]) \
-            if profile.avoid_crossing_perimeters else None
+        router = (TravelRouter(model.sections[i], model.spacing[i])
+                  if profile.avoid_crossing_perimeters else None)
         code = writer.layer(plan, ordered, pos, router)
-        bodies.append(code.text)
-        seconds.append(code.seconds + 0.1)  # Z move and layer change
-        filament += code.filament_mm
-        support_mm += code.support_mm
-        support_s += code.support_seconds
+        out.bodies.append(code.text)
+        out.seconds.append(code.seconds + 0.1)  # Z move and layer change
+        out.filament_mm += code.filament_mm
+        out.support_mm += code.support_mm
+        out.support_seconds += code.support_seconds
         pos = code.end_pos
-        shells[i] = solids[i] = None  # free as we go
+        model.shells[i] = model.solids[i] = None  # free as we go
         if i > 0:
-            sections[i - 1] = None  # (section 0 stays: the skirt follows it)
+            model.sections[i - 1] = None  # (section 0 stays: the skirt follows it)
         report("gcode", 0.5 + i / n * 0.5)
-    del shells, solids, sections, first_area
-    if filament <= 0:
-        raise SliceError("nothing to print: the model produced no extrusions")
+    model.shells = model.solids = model.sections = []
+    model.first_area = None
+    return out
 
-    total = float(sum(seconds))
-    p = profile
-    cm3 = filament * p.filament_area / 1000.0
-    summary = {
-        "layers": n,
-        "filament_mm": round(filament, 2),
+
+def _summary(model: _Model, written: _Written, p: Profile) -> dict[str, Any]:
+    cm3 = written.filament_mm * p.filament_area / 1000.0
+    return {
+        "layers": len(model.tops),
+        "filament_mm": round(written.filament_mm, 2),
         "filament_cm3": round(cm3, 3),
         "filament_g": round(cm3 * p.filament_density, 2),
-        "estimated_seconds": round(total, 1),
-        "height_mm": round(float(tops[-1]), 3),
-        "size_mm": [round(float(s), 3) for s in size],
+        "estimated_seconds": round(float(sum(written.seconds)), 1),
+        "height_mm": round(float(model.tops[-1]), 3),
+        "size_mm": [round(float(s), 3) for s in model.size],
         "slicer": "embedded",
-        "support": profile.support if supports is not None else "none needed"
-        if profile.support != "off" else "off",
-        "support_cm3": round(support_mm * p.filament_area / 1000.0, 3),
-        "support_seconds": round(support_s, 1),
-        "brim": bool(brim),
-        **layout,
+        "support": p.support if model.supports is not None else "none needed"
+        if p.support != "off" else "off",
+        "support_cm3": round(written.support_mm * p.filament_area / 1000.0, 3),
+        "support_seconds": round(written.support_seconds, 1),
+        "brim": bool(model.brim),
+        **model.layout,
     }
+
+
+def _assemble(model: _Model, written: _Written, p: Profile, head: str, tail: str,
+              summary: dict[str, Any]) -> str:
+    """The whole file: thumbnails, header comments, start G-code, the layers with M73
+    progress, temperature and fan changes and Z moves, then the end G-code."""
+    from slicer.gcode import fan_command, m73
+    from slicer.profile import thumbnail_sizes
+    from slicer.thumbnail import thumbnail_blocks
+
     parts: list[str] = []
     sizes = thumbnail_sizes(p.thumbnails)
     if sizes:  # first in the file, where printers and UIs look for them
-        parts.append(thumbnail_blocks(v, f, sizes))
+        parts.append(thumbnail_blocks(model.vertices, model.faces, sizes))
         summary["thumbnails"] = [f"{w}x{h}" for w, h in sizes]
+    total = float(sum(written.seconds))
+    filament = written.filament_mm
+    cm3 = filament * p.filament_area / 1000.0
     if p.comments:
         parts.append(
             "; generated by preflight embedded slicer\n"
-            f"; layers: {n}, filament: {filament:.1f} mm ({cm3:.2f} cm3), "
+            f"; layers: {len(model.tops)}, filament: {filament:.1f} mm ({cm3:.2f} cm3), "
             f"estimated time: {total:.0f} s\n"
             f"; nozzle {p.nozzle_diameter} mm, layer {p.layer_height} mm, "
             f"line {p.line_width} mm, infill {p.infill_percent:g}% {p.infill_pattern}\n"
@@ -218,8 +311,8 @@ def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progres
     parts.append(head)
     done = 0.0
     z_feed = 600.0
-    for i, body in enumerate(bodies):
-        z = tops[i]
+    for i, body in enumerate(written.bodies):
+        z = model.tops[i]
         parts.append(f";LAYER:{i}\n;Z:{z:.3f}\n" if p.comments else "")
         parts.append(m73(100.0 * done / total if total > 0 else 0, total - done))
         if i == 1:
@@ -231,11 +324,10 @@ def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progres
             parts.append(fan_command(p.fan_speed))
         parts.append(f"G1 Z{z:.3f} F{z_feed:.0f}\n")
         parts.append(body)
-        done += seconds[i]
+        done += written.seconds[i]
     parts.append("M73 P100 R0\n")
     parts.append(tail)
-    report("done", 1.0)
-    return SliceResult("".join(parts), summary)
+    return "".join(parts)
 
 
 def _load_mesh(path: FsPath) -> tuple[np.ndarray, np.ndarray]:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -122,33 +123,43 @@ class GcodeWriter:
         All segment lengths, E values and the time estimate are computed for the whole layer
         at once; the text is produced by one ``%`` formatting of a layer-wide template.
         """
-        p = self.p
         first = plan.index == 0
-        h = plan.height
-        z = plan.z
         self.feed = -1.0  # the layer's Z move changes the modal F
         head = ""
-        if not p.relative_e:
+        if not self.p.relative_e:
             head = "G92 E0\n"
             self.e_abs = 0.0
         pos = np.asarray(pos, dtype=np.float64)
         if not ordered:
             return LayerCode(head, 0.0, 0.0, pos)
-        counts = np.fromiter((len(o[0]) for o in ordered), dtype=np.int64, count=len(ordered))
-        pts = np.concatenate([o[0] for o in ordered])
-        ends = np.cumsum(counts)
-        begins = ends - counts
-        npaths = len(ordered)
+        paths = _LayerPaths.of(ordered)
         speeds = np.array([self.speed(o[1].role, first) for o in ordered])
-        epm = np.array([self.e_per_mm(o[1].width, h) * self.flow(o[1].role) for o in ordered])
+        epm = np.array([self.e_per_mm(o[1].width, plan.height) * self.flow(o[1].role)
+                        for o in ordered])
+        travels = self._travels(plan, paths, pos, router)
+        beads = self._beads(paths, epm)
+        seconds, speeds = self._timing(paths, travels, beads, pos, speeds)
+        is_support = np.array([o[1].role in SUPPORT_ROLES for o in ordered])
+        support_mm = support_s = 0.0
+        if is_support.any():
+            support_mm = float(beads.e[is_support[beads.path]].sum())
+            cruise = np.bincount(beads.path, beads.length, minlength=paths.count) / speeds
+            support_s = seconds * float(cruise[is_support].sum() / max(cruise.sum(), 1e-12))
+        text = self._text(plan, ordered, travels, beads, speeds, head)
+        return LayerCode(text, seconds, float(beads.e.sum()), paths.points[-1].copy(),
+                         support_mm, support_s)
 
-        # travels into each path and whether they retract
-        prev = np.vstack([pos[None], pts[ends[:-1] - 1]])
-        starts = pts[begins]
+    def _travels(self, plan: LayerPlan, paths: _LayerPaths, pos: np.ndarray,
+                 router: TravelRouter | None) -> _Travels:
+        """The travel into each path, its route and whether it retracts: when it leaves the
+        part or is long (with a router), else when long or crossing the outline."""
+        p = self.p
+        prev = np.vstack([pos[None], paths.points[paths.ends[:-1] - 1]])
+        starts = paths.points[paths.begins]
         dist = np.hypot(*(starts - prev).T)
         moving = dist > 1e-6
         routes = router.plan(prev, starts, moving) if router is not None else None
-        if routes is not None:  # retract when leaving the part or travelling far
+        if routes is not None:
             retract = moving & (routes.leaves | (routes.length > p.retract_min_travel))
         else:
             retract = moving & (dist > p.retract_min_travel)
@@ -158,44 +169,46 @@ class GcodeWriter:
                 retract[short] = segments_cross(prev[short], starts[short], a, b)
         if p.retract_length <= 0:
             retract[:] = False
+        return _Travels(starts, dist, moving, retract, routes)
 
-        # extrusion segments (within paths), dropping ones too short to matter
+    def _beads(self, paths: _LayerPaths, epm: np.ndarray) -> _Beads:
+        """The extrusion segments within paths (too short ones dropped), their E values and
+        the flat ``x, y, e`` list the text is formatted from."""
+        pts, ends = paths.points, paths.ends
         seg = np.diff(pts, axis=0)
         seglen = np.hypot(seg[:, 0], seg[:, 1])
         inside = np.ones(len(seglen), dtype=bool)
         inside[ends[:-1] - 1] = False  # boundary between paths: a travel, not a segment
-        keep = inside & (seglen > 1e-4)
-        seg_path = np.repeat(np.arange(npaths), counts)[1:]
-        kept = np.flatnonzero(keep)
+        kept = np.flatnonzero(inside & (seglen > 1e-4))
+        seg_path = np.repeat(np.arange(paths.count), paths.counts)[1:]
         kpath = seg_path[kept]
         e = seglen[kept] * epm[kpath]
-        filament = float(e.sum())
-        m_per_path = np.bincount(kpath, minlength=npaths)
-        xy = pts[kept + 1]
         block = np.empty((len(kept), 3))
-        block[:, :2] = xy
-        if p.relative_e:
-            block[:, 2] = e
-        else:
-            block[:, 2] = self.e_abs + np.cumsum(e)
-        flat = block.ravel().tolist()
+        block[:, :2] = pts[kept + 1]
+        block[:, 2] = e if self.p.relative_e else self.e_abs + np.cumsum(e)
+        return _Beads(kpath, seglen[kept], e, np.bincount(kpath, minlength=paths.count),
+                      block.ravel().tolist())
 
-        # time: the whole layer as one polyline (travels included); a layer faster than
-        # min_layer_time is slowed down (not below min_print_speed) so it can cool
-        seq = np.vstack([pos[None], pts])
-        active = moving & (m_per_path > 0)
-        n_retract = int((retract & active).sum())
+    def _timing(self, paths: _LayerPaths, travels: _Travels, beads: _Beads, pos: np.ndarray,
+                speeds: np.ndarray) -> tuple[float, np.ndarray]:
+        """The layer's time (s), the whole layer as one polyline with travels, and the path
+        speeds: a layer faster than min_layer_time is slowed down (not below
+        min_print_speed) so it can cool."""
+        p = self.p
+        seq = np.vstack([pos[None], paths.points])
+        active = travels.moving & (beads.per_path > 0)
+        n_retract = int((travels.retract & active).sum())
         lift = p.retract_lift
         extra = n_retract * (2 * p.retract_length / p.retract_speed
                              + (2 * lift / p.travel_speed if lift > 0 else 0.0))
-        if routes is not None:  # detours, at travel speed
-            extra += float((routes.length - dist)[active].sum()) / p.travel_speed
-        accel = np.full(len(pts), p.print_acceleration)
-        accel[begins] = p.travel_acceleration
+        if travels.routes is not None:  # detours, at travel speed
+            extra += float((travels.routes.length - travels.dist)[active].sum()) / p.travel_speed
+        accel = np.full(len(paths.points), p.print_acceleration)
+        accel[paths.begins] = p.travel_acceleration
 
         def layer_seconds(path_speeds: np.ndarray) -> float:
-            v = np.repeat(path_speeds, counts)  # speed of the segment *ending* at each point
-            v[begins] = p.travel_speed
+            v = np.repeat(path_speeds, paths.counts)  # speed of the segment ending at each point
+            v[paths.begins] = p.travel_speed
             return trapezoid_time(seq, v, accel, p.max_jerk) + extra
 
         seconds = layer_seconds(speeds)
@@ -205,15 +218,40 @@ class GcodeWriter:
             floor = np.minimum(speeds, p.min_print_speed)
             speeds = np.maximum(speeds * (seconds / p.min_layer_time), floor)
             seconds = layer_seconds(speeds)
-        is_support = np.array([o[1].role in SUPPORT_ROLES for o in ordered])
-        support_mm = support_s = 0.0
-        if is_support.any():
-            support_mm = float(e[is_support[kpath]].sum())
-            cruise = np.bincount(kpath, seglen[kept], minlength=npaths) / speeds
-            support_s = seconds * float(cruise[is_support].sum() / max(cruise.sum(), 1e-12))
+        return seconds, speeds
 
+    def _travel_text(self, i: int, travels: _Travels, z: float, e_abs: float,
+                     fmt: list[str], vals: list[float]) -> float:
+        """Append the travel into path ``i`` (retract, lift, route, return); the feed left."""
+        p = self.p
         travel_f = p.travel_speed * 60.0
         r_feed = p.retract_speed * 60.0
+        lift = p.retract_lift
+        if travels.retract[i]:
+            fmt.append("G1 E%.5f F%.0f\n")
+            vals += (-p.retract_length if p.relative_e else e_abs - p.retract_length, r_feed)
+            if lift > 0:
+                fmt.append("G1 Z%.3f F%.0f\n")
+                vals += (z + lift, travel_f)
+        way = travels.routes.waypoints[i] if travels.routes is not None else None
+        if way is not None:
+            fmt.append("G0 X%.3f Y%.3f F%.0f\n" * len(way))
+            vals += [c for pt in way.tolist() for c in (pt[0], pt[1], travel_f)]
+        fmt.append("G0 X%.3f Y%.3f F%.0f\n")
+        vals += (float(travels.starts[i, 0]), float(travels.starts[i, 1]), travel_f)
+        if not travels.retract[i]:
+            return travel_f
+        if lift > 0:
+            fmt.append("G1 Z%.3f F%.0f\n")
+            vals += (z, travel_f)
+        fmt.append("G1 E%.5f F%.0f\n")
+        vals += (p.retract_length if p.relative_e else e_abs, r_feed)
+        return r_feed
+
+    def _text(self, plan: LayerPlan, ordered: list[tuple[np.ndarray, Path]],
+              travels: _Travels, beads: _Beads, speeds: np.ndarray, head: str) -> str:
+        """The layer's text: travels, ``;TYPE:`` labels, bridge fan changes, feeds, beads."""
+        p = self.p
         fmt: list[str] = [head]
         vals: list[float] = []
         cursor = 0
@@ -223,35 +261,12 @@ class GcodeWriter:
         normal_fan = p.fan_speed if plan.index >= p.disable_fan_first_layers else 0.0
         in_bridge = False
         label = ""
-        for i in range(npaths):
-            m = int(m_per_path[i])
-            if moving[i] and m:
-                if retract[i]:
-                    if p.relative_e:
-                        fmt.append("G1 E%.5f F%.0f\n")
-                        vals += (-p.retract_length, r_feed)
-                    else:
-                        fmt.append("G1 E%.5f F%.0f\n")
-                        vals += (e_abs - p.retract_length, r_feed)
-                    if lift > 0:
-                        fmt.append("G1 Z%.3f F%.0f\n")
-                        vals += (z + lift, travel_f)
-                way = routes.waypoints[i] if routes is not None else None
-                if way is not None:
-                    fmt.append("G0 X%.3f Y%.3f F%.0f\n" * len(way))
-                    vals += [c for pt in way.tolist() for c in (pt[0], pt[1], travel_f)]
-                fmt.append("G0 X%.3f Y%.3f F%.0f\n")
-                vals += (float(starts[i, 0]), float(starts[i, 1]), travel_f)
-                feed = travel_f
-                if retract[i]:
-                    if lift > 0:
-                        fmt.append("G1 Z%.3f F%.0f\n")
-                        vals += (z, travel_f)
-                    fmt.append("G1 E%.5f F%.0f\n")
-                    vals += (p.retract_length if p.relative_e else e_abs, r_feed)
-                    feed = r_feed
+        for i in range(len(ordered)):
+            m = int(beads.per_path[i])
             if m == 0:
                 continue
+            if travels.moving[i]:
+                feed = self._travel_text(i, travels, plan.z, e_abs, fmt, vals)
             is_bridge = ordered[i][1].role == "bridge_infill"
             if is_bridge != in_bridge and p.bridge_fan_speed != normal_fan:
                 fmt.append(fan_command(p.bridge_fan_speed if is_bridge else normal_fan))
@@ -266,16 +281,58 @@ class GcodeWriter:
                 vals.append(f)
                 feed = f
             fmt.append("G1 X%.3f Y%.3f E%.5f\n" * m)
-            vals += flat[cursor:cursor + 3 * m]
+            vals += beads.flat[cursor:cursor + 3 * m]
             cursor += 3 * m
             if not p.relative_e:
-                e_abs = flat[cursor - 1]
+                e_abs = beads.flat[cursor - 1]
         if in_bridge and p.bridge_fan_speed != normal_fan:
             fmt.append(fan_command(normal_fan))
         self.e_abs = e_abs
-        text = "".join(fmt) % tuple(vals)
+        return "".join(fmt) % tuple(vals)
 
-        return LayerCode(text, seconds, filament, pts[-1].copy(), support_mm, support_s)
+
+@dataclass(frozen=True)
+class _LayerPaths:
+    """A layer's ordered paths as one point array: path k is ``points[begins[k]:ends[k]]``."""
+
+    points: np.ndarray
+    counts: np.ndarray
+    begins: np.ndarray
+    ends: np.ndarray
+
+    @property
+    def count(self) -> int:
+        return len(self.counts)
+
+    @classmethod
+    def of(cls, ordered: list[tuple[np.ndarray, Path]]) -> _LayerPaths:
+        counts = np.fromiter((len(o[0]) for o in ordered), dtype=np.int64, count=len(ordered))
+        ends = np.cumsum(counts)
+        return cls(np.concatenate([o[0] for o in ordered]), counts, ends - counts, ends)
+
+
+@dataclass(frozen=True)
+class _Travels:
+    """Per path: where it starts, the straight travel's length, whether it moves, whether
+    it retracts, and the router's detours (None without a router)."""
+
+    starts: np.ndarray
+    dist: np.ndarray
+    moving: np.ndarray
+    retract: np.ndarray
+    routes: Any
+
+
+@dataclass(frozen=True)
+class _Beads:
+    """The kept extrusion segments: their path, length (mm) and E (mm of filament), the
+    segment count per path, and the flat ``x, y, e`` values for the text."""
+
+    path: np.ndarray
+    length: np.ndarray
+    e: np.ndarray
+    per_path: np.ndarray
+    flat: list[float]
 
 
 _HEAT_WAIT = re.compile(r"^\s*M109\b", re.MULTILINE | re.IGNORECASE)
