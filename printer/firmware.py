@@ -113,6 +113,13 @@ def keepalives_promised(family: str, command: str) -> bool:
     return family == "klipper" and lex(command).word in HEAT_WAITS
 
 
+def heat_wait_break(family: str) -> str | None:
+    """The command that ends a running heat-up wait at once (through the emergency
+    parser, ahead of the queue): ``M108`` on Marlin, Prusa, Buddy and RepRapFirmware;
+    None on Klipper, which has none, so a cancel's cool-down follows its wait."""
+    return None if family == "klipper" else "M108"
+
+
 def keepalive_forms(family: str) -> frozenset[str]:
     """The keep-alive line forms the ``family`` sends while a long command runs."""
     return KEEPALIVE_FORMS.get(family, KEEPALIVE_FORMS["unknown"])

@@ -389,6 +389,7 @@ class Streamer(LongWaits):
     def cancelled(self) -> None:
         host = self.host
         done = self.delivered()
+        self.break_heat_wait()
         deadline = time.monotonic() + host.timeout
         while self.inflight and time.monotonic() < deadline:
             line = host.next_line(0.05)

@@ -40,7 +40,7 @@ import time
 from typing import TYPE_CHECKING
 
 from printer.errors import PrinterTimeout
-from printer.firmware import keepalives_promised, long_command_wait
+from printer.firmware import HEAT_WAITS, heat_wait_break, keepalives_promised, long_command_wait
 from printer.gcode import lex
 from printer.replies import Reply, heater_readings, keepalive_form
 
@@ -78,6 +78,16 @@ class LongWaits:
             if least is not None:
                 return n, least
         return None
+
+    def break_heat_wait(self) -> None:
+        """On cancel: a heat-up wait in flight would hold the cool-down behind it for
+        minutes, so end it first where the firmware can (:func:`heat_wait_break`)."""
+        found = self.long_in_flight()
+        if found is None or lex(self.commands[found[0] - 1]).word not in HEAT_WAITS:
+            return
+        command = heat_wait_break(self.host.flavour)
+        if command is not None:
+            self.host.write(command)
 
     def keeps_alive(self, reply: Reply) -> bool:
         """True when ``reply`` (a busy or temperature line) shows the firmware at work on

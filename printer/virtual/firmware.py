@@ -119,6 +119,15 @@ class FirmwareModel:
             self.next_report = now + self.autoreport
             self.send(self.temperatures())
 
+    def break_heat_wait(self) -> None:
+        """M108 through the emergency parser (Marlin, Prusa, Buddy, RepRapFirmware): a
+        running M109/M190/M116 stops waiting and its ``ok`` follows; otherwise nothing.
+        Klipper has no such command: its waits run to the end."""
+        if self.firmware == "klipper" or self.current is None or "heat" not in self.current:
+            return
+        self.record(None, "M108")
+        self.current["heat_broken"] = True
+
     def halt(self, why: str) -> None:
         """M112 or a fatal error: stop, clear everything, switch the heaters off."""
         self.record(None, "M112")
@@ -331,6 +340,8 @@ class FirmwareModel:
         if "busy_for" in state:
             state["until"] = now + state.pop("busy_for")
         if "heat" in state:
+            if state.get("heat_broken"):
+                return True
             cooling_too = state.get("cooling_too", False)
             if all(self.heaters.settled(h, cooling_too) for h in state["heat"]):
                 return True

@@ -338,12 +338,14 @@ class VirtualPrinter:
             self._emergency_scan(byte)
 
     def _emergency_scan(self, byte: int) -> None:
-        """Marlin's emergency parser: M112 acts as soon as its line arrives."""
+        """Marlin's emergency parser: M112 and M108 act as soon as their line arrives."""
         if byte in (10, 13):
             line = self._em_line.decode("ascii", "replace")
             self._em_line.clear()
             if "112" in line and lex(line).word == "M112":
                 self.machine.halt("M112")
+            elif "108" in line and lex(line).word == "M108":
+                self.machine.break_heat_wait()
         elif len(self._em_line) < _MAX_LINE:
             self._em_line.append(byte)
 

@@ -289,3 +289,23 @@ def test_resume_restores_relative_modes_and_never_moves_to_an_unknown_point():
     unknown = PausePoint(None, False, False, None)
     assert pause_moves(unknown, park) == ["M83", "G1 E-2 F2400"]
     assert resume_moves(unknown, park) == ["M83", "G1 E2 F2400", "G90", "M82"]
+
+
+@pytest.mark.parametrize("firmware", ["marlin", "rrf"])
+def test_cancel_during_a_heat_up_ends_the_wait_and_cools_down_at_once(firmware):
+    """A cancel while M190 waits (real-time heating: the bed needs ~35 s) must not sit
+    behind the wait: M108 ends it, then the cool-down runs; nothing after M190 runs."""
+    lines = ["M140 S60", "M190 S60", *program(50)]
+    control = PrintControl()
+    with VirtualPrinter(firmware, speedup=1.0, baud=1_000_000, keepalive=0.05) as vp:
+        thread, box = run_stream(vp, lines, control, mode="ping-pong")
+        assert wait_until(lambda: "M190 S60" in vp.executed or (
+            vp.machine.current is not None and "heat" in vp.machine.current))
+        time.sleep(0.5)
+        control.ask("cancel")
+        thread.join(60)
+        assert isinstance(box.get("error"), StreamCancelled), box
+        assert vp.machine.heaters.target == {"T": 0.0, "B": 0.0}
+        assert vp.machine.heaters.current["B"] < 50.0  # the wait was ended, not sat out
+        assert "M108" in vp.executed
+        assert not any(c.startswith("G1 X") and "E" in c for c in vp.executed)
