@@ -19,7 +19,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from manifold3d import CrossSection, JoinType
-from scipy.sparse.csgraph import shortest_path
 
 from slicer.geometry import contours, points_inside, polygon_edges, segments_cross
 
@@ -47,6 +46,26 @@ class TravelPlan:
     waypoints: list[np.ndarray | None]
     leaves: np.ndarray
     length: np.ndarray
+
+
+def all_shortest_paths(legs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Floyd–Warshall over a dense symmetric matrix of leg lengths (0: no leg), one
+    vectorised relaxation per corner (n ≤ MAX_NODES, so a few ms): (dist, pred) where
+    dist[i, j] is the shortest way i → j (inf: none) and pred[i, j] the corner before j
+    on it (-1: none). In numpy because importing scipy's graph module cost more CPU than all
+    of a small model's routing."""
+    n = len(legs)
+    dist = np.where(legs > 0, legs, np.inf)
+    np.fill_diagonal(dist, 0.0)
+    pred = np.where(np.isfinite(dist), np.arange(n)[:, None], -1)
+    np.fill_diagonal(pred, -1)
+    for k in range(n):
+        via = dist[:, k, None] + dist[None, k, :]
+        better = via < dist
+        if better.any():
+            dist = np.where(better, via, dist)
+            pred = np.where(better, pred[None, k, :], pred)
+    return dist, pred
 
 
 def _reflex_corners(polys: list[np.ndarray]) -> np.ndarray:
@@ -108,7 +127,7 @@ class TravelRouter:
             legs[i, j] = length  # 0: no leg
             legs[j, i] = length
         # all pairs at once (n ≤ MAX_NODES): each route is then a few array look-ups
-        isl.dist, isl.pred = shortest_path(legs, directed=False, return_predecessors=True)
+        isl.dist, isl.pred = all_shortest_paths(legs)
         isl.nodes = nodes
 
     def _route(self, isl: _Island, p: np.ndarray, q: np.ndarray) -> np.ndarray | None:

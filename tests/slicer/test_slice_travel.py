@@ -86,3 +86,26 @@ def test_aligned_seams_stay_in_one_place_layer_after_layer():
 
     assert seam_spread("aligned") < 0.35
     assert seam_spread("nearest") > seam_spread("aligned")
+
+
+@pytest.mark.parametrize("n", [1, 2, 7, 60, 120])
+def test_route_graph_shortest_paths_match_scipy(n):
+    """The routes' all-pairs shortest paths (numpy Floyd–Warshall) against scipy's Dijkstra
+    on random sparse corner graphs, and every predecessor chain walks a path of that length."""
+    from scipy.sparse.csgraph import shortest_path
+
+    from slicer.travel import all_shortest_paths
+
+    rng = np.random.default_rng(n)
+    legs = np.triu(rng.random((n, n)) * (rng.random((n, n)) < 0.15), 1)
+    legs = legs + legs.T
+    dist, pred = all_shortest_paths(legs)
+    expected = shortest_path(legs, directed=False)
+    assert np.array_equal(np.isinf(dist), np.isinf(expected))
+    assert np.allclose(dist[np.isfinite(dist)], expected[np.isfinite(expected)])
+    for i, j in zip(*np.nonzero(np.isfinite(dist) & ~np.eye(n, dtype=bool)), strict=True):
+        walked, node = 0.0, j
+        while node != i:
+            walked += legs[pred[i, node], node]
+            node = pred[i, node]
+        assert walked == pytest.approx(dist[i, j])
