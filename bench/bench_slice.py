@@ -6,16 +6,21 @@ tipped 20° forward so its chin overhangs). Every slicer runs with the default p
 support is on where needed (PrusaSlicer: automatic support, the same angle, gaps, spacing
 and interface layers); "support cm3" is the filament under ``;TYPE:Support material*``.
 
-Run: .venv/bin/python bench/bench_slice.py [--repeat N]
+Run: .venv/bin/python bench/bench_slice.py [--repeat N] [--only mushroom,bunny]
 
-Every slice runs in its own child process; peak memory is that child's ru_maxrss (from
-os.wait4), so the figures include the interpreter and imported libraries. Linux counts the
-parent's resident memory at fork into a child's ru_maxrss, so this parent stays small: mesh
-generation and G-code parsing run in helper children too. For the embedded
-slicer, "slice s" is measured inside the child around slice_file (load STL + slice + write
-G-code); "wall s" is the whole child including Python start-up and imports. External
-slicers only have "wall s". Volume accuracy: the sphere sliced at 100 % infill, extruded
-filament volume ÷ mesh volume.
+Every slice is a whole process, as a user runs it: the embedded slicer is ``preflight slice
+IN -o OUT --json`` (python -m daemon.cli: interpreter start-up, imports, load, slice,
+thumbnails, write), PrusaSlicer/CuraEngine their own binaries. The slicers' runs are
+interleaved (embedded, prusa, cura, embedded, ...) so a load change on a shared machine
+hits them alike; each figure is the median of the repeats, and "emb/prusa" gives the
+per-pair ratios of runs made back to back (median, and the range). "wall s" is the child's
+elapsed time, "cpu s" its user+system CPU (resource.getrusage(RUSAGE_CHILDREN) before and
+after; PrusaSlicer's threads are included), "slice s" (embedded only) the CLI's own time
+after its imports. Peak memory is the child's ru_maxrss (from os.wait4), so the figures
+include the interpreter and imported libraries. Linux counts the parent's resident memory
+at fork into a child's ru_maxrss, so this parent stays small: mesh generation and G-code
+parsing run in helper children too. Volume accuracy: the sphere sliced at 100 % infill,
+extruded filament volume ÷ mesh volume.
 """
 
 from __future__ import annotations
@@ -23,6 +28,8 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -32,24 +39,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-CHILD = r"""
-import json, sys, time
-t0 = time.perf_counter()
-import manifold3d, numpy  # noqa: F401  (import cost reported apart from slicing)
-import repair.io, slicer.gcode, slicer.ordering, slicer.planner  # noqa: F401
-from slicer.engine import slice_file
-from slicer.profile import Profile
-profile = Profile.for_printer().with_overrides(json.loads(sys.argv[3]))
-t1 = time.perf_counter()
-summary = slice_file(sys.argv[1], sys.argv[2], profile)
-t2 = time.perf_counter()
-print(json.dumps({"slice_s": t2 - t1, "import_s": t1 - t0, "summary": summary}))
-"""
-
-
 def make_models(folder: Path) -> dict[str, tuple[Path, float, int]]:
     """Write the three STL files (in a helper child, to keep this process small)."""
-    _, _, code_, out, err = run_child([sys.executable, __file__, "--make-models", str(folder)])
+    _, _, code_, out, err, _ = run_child([sys.executable, __file__, "--make-models", str(folder)])
     if code_ != 0:
         raise SystemExit(f"cannot build the models: {err.strip()}")
     data = json.loads(out.strip().splitlines()[-1])
@@ -125,32 +117,43 @@ def support_cm3(gcode: Path, filament_diameter: float) -> float:
     return total * math.pi * (filament_diameter / 2) ** 2 / 1000.0
 
 
-def run_child(cmd: list[str], env: dict | None = None) -> tuple[float, float, int, str, str]:
-    """(wall seconds, peak RSS MB, exit code, stdout, stderr) of one child process."""
+def _children_cpu() -> float:
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+def run_child(cmd: list[str], env: dict | None = None
+              ) -> tuple[float, float, int, str, str, float]:
+    """(wall seconds, peak RSS MB, exit code, stdout, stderr, CPU seconds) of one child."""
     with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
+        cpu0 = _children_cpu()
         t0 = time.perf_counter()
         proc = subprocess.Popen(cmd, stdout=out, stderr=err, env=env)
         _, status, usage = os.wait4(proc.pid, 0)
         wall = time.perf_counter() - t0
+        cpu = _children_cpu() - cpu0
         proc.returncode = os.waitstatus_to_exitcode(status)
         out.seek(0)
         err.seek(0)
         return (wall, usage.ru_maxrss / 1024.0, proc.returncode,
-                out.read().decode(errors="replace"), err.read().decode(errors="replace"))
+                out.read().decode(errors="replace"), err.read().decode(errors="replace"), cpu)
 
 
 def embedded(stl: Path, gcode: Path, overrides: dict) -> dict:
-    wall, mb, code, out, err = run_child([sys.executable, "-c", CHILD, str(stl), str(gcode),
-                                          json.dumps(overrides)],
-                                         env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    """``preflight slice`` as a whole process (the console script's module, this venv)."""
+    sets = [arg for k, v in overrides.items() for arg in ("--set", f"{k}={v}")]
+    wall, mb, code, out, err, cpu = run_child(
+        [sys.executable, "-m", "daemon.cli", "slice", str(stl), "-o", str(gcode), "--json",
+         *sets], env=dict(os.environ, PYTHONPATH=str(ROOT)))
     if code != 0:
         return {"error": err.strip().splitlines()[-1] if err.strip() else f"exit {code}"}
-    data = json.loads(out.strip().splitlines()[-1])
-    return {"slice_s": data["slice_s"], "wall_s": wall, "peak_mb": mb,
-            "summary": data["summary"]}
+    summary = json.loads(out)
+    return {"slice_s": summary["wall_seconds"], "wall_s": wall, "cpu_s": cpu, "peak_mb": mb,
+            "summary": summary}
 
 
-def external(name: str, stl: Path, gcode: Path, overrides: dict) -> dict:
+def external(name: str, stl: Path, gcode: Path, overrides: dict, summarise: bool = True
+             ) -> dict:
     from slicer import adapters
     from slicer.profile import Profile
 
@@ -164,13 +167,15 @@ def external(name: str, stl: Path, gcode: Path, overrides: dict) -> dict:
         cmd = [exe, "--export-gcode", *adapters.prusa_args(profile), "--output", str(gcode),
                str(stl)]
         env = dict(os.environ)
-    wall, mb, code, out, err = run_child(cmd, env=env)
+    wall, mb, code, out, err, cpu = run_child(cmd, env=env)
     if code != 0 or not gcode.exists():
         return {"error": adapters._error_line(err + out, name, code)}
+    if not summarise:
+        return {"slice_s": None, "wall_s": wall, "cpu_s": cpu, "peak_mb": mb, "summary": None}
     summary = _summary_in_child(gcode, overrides)
     if name == "cura":
         summary["estimated_seconds"] = adapters.cura_print_time(err)
-    return {"slice_s": None, "wall_s": wall, "peak_mb": mb, "summary": summary}
+    return {"slice_s": None, "wall_s": wall, "cpu_s": cpu, "peak_mb": mb, "summary": summary}
 
 
 def _summary_in_child(gcode: Path, overrides: dict) -> dict:
@@ -179,7 +184,8 @@ def _summary_in_child(gcode: Path, overrides: dict) -> dict:
             ".with_overrides(json.loads(sys.argv[2])); print(json.dumps(gcode_summary("
             "Path(sys.argv[1]).read_text(errors='replace'), p) | {'support_cm3': "
             "__import__('bench_slice').support_cm3(Path(sys.argv[1]), p.filament_diameter)}))")
-    _, _, rc, out, err = run_child([sys.executable, "-c", code, str(gcode), json.dumps(overrides)],
+    _, _, rc, out, err, _ = run_child([sys.executable, "-c", code, str(gcode),
+                                      json.dumps(overrides)],
                                    env=dict(os.environ, PYTHONPATH=f"{ROOT}:{ROOT / 'bench'}"))
     if rc != 0:
         raise SystemExit(f"cannot read {gcode}: {err.strip()}")
@@ -219,9 +225,81 @@ def clip_comparison() -> str:
             f"numpy {t_mf / t_np:.0f}x faster")
 
 
+def timed_runs(models: dict, tools: list[str], repeat: int, folder: Path
+               ) -> dict[tuple[str, str], list[dict]]:
+    """``repeat`` rounds per model, the slicers interleaved within each round; the G-code
+    of each slicer's first run is summarised (layers, filament, support)."""
+    runs: dict[tuple[str, str], list[dict]] = {}
+    for mname, (stl, _vol, _tris) in models.items():
+        for r in range(repeat):
+            for tool in tools:
+                gcode = folder / f"{stl.stem}.{tool}.gcode"
+                done = runs.setdefault((mname, tool), [])
+                if done and "error" in done[0]:
+                    continue
+                done.append(embedded(stl, gcode, {}) if tool == "embedded" else
+                            external(tool, stl, gcode, {}, summarise=r == 0))
+    return runs
+
+
+def _median(runs: list[dict], key: str) -> float:
+    values = [r[key] for r in runs if r.get(key) is not None]
+    return statistics.median(values) if values else float("nan")
+
+
+def print_table(models: dict, tools: list[str], runs: dict) -> None:
+    print(f"{'model':12s} {'tris':>7s} {'slicer':9s} {'slice s':>8s} {'wall s':>8s} "
+          f"{'cpu s':>7s} {'peak MB':>8s} {'layers':>6s} {'filament m':>10s} "
+          f"{'est. min':>8s} {'support cm3':>11s}")
+    for mname, (_stl, _vol, tris) in models.items():
+        for tool in tools:
+            rs = runs[(mname, tool)]
+            if "error" in rs[0]:
+                print(f"{mname:12s} {tris:7d} {tool:9s} error: {rs[0]['error']}")
+                continue
+            s = rs[0]["summary"]
+            est = s.get("estimated_seconds")
+            print(f"{mname:12s} {tris:7d} {tool:9s} {_median(rs, 'slice_s'):8.3f} "
+                  f"{_median(rs, 'wall_s'):8.3f} {_median(rs, 'cpu_s'):7.3f} "
+                  f"{max(r['peak_mb'] for r in rs):8.1f} {s['layers']:6d} "
+                  f"{s['filament_mm'] / 1000:10.3f} {(est / 60 if est else float('nan')):8.1f} "
+                  f"{s.get('support_cm3', float('nan')):11.2f}")
+
+
+def print_ratios(models: dict, runs: dict) -> None:
+    """Embedded ÷ PrusaSlicer per back-to-back pair: wall and CPU, median and range."""
+    print("embedded ÷ prusa-slicer, whole processes, per interleaved pair (target ≤ 0.5):")
+    for mname in models:
+        emb, ext = runs.get((mname, "embedded")), runs.get((mname, "prusa"))
+        if not emb or not ext or "error" in emb[0] or "error" in ext[0]:
+            continue
+        for key, label in (("wall_s", "wall"), ("cpu_s", "cpu")):
+            ratios = sorted(e[key] / x[key] for e, x in zip(emb, ext, strict=False))
+            print(f"  {mname:12s} {label:4s} median {statistics.median(ratios):5.2f}  "
+                  f"range {ratios[0]:.2f}-{ratios[-1]:.2f}  "
+                  f"({' '.join(f'{r:.2f}' for r in ratios)})")
+        print(f"  {mname:12s} peak {max(e['peak_mb'] for e in emb):.0f} MB vs "
+              f"{max(x['peak_mb'] for x in ext):.0f} MB")
+
+
+def print_accuracy(models: dict, tools: list[str], folder: Path) -> None:
+    print("volume accuracy, sphere at 100 % infill (extruded ÷ mesh volume):")
+    stl, vol, _ = models["sphere 82k"]
+    over = {"infill_percent": 100, "skirts": 0}
+    for tool in tools:
+        gcode = folder / f"acc.{tool}.gcode"
+        r = embedded(stl, gcode, over) if tool == "embedded" else \
+            external(tool, stl, gcode, over)
+        if "error" in r:
+            print(f"  {tool:9s} error: {r['error']}")
+            continue
+        print(f"  {tool:9s} {r['summary']['filament_cm3'] * 1000 / vol:6.3f}")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--repeat", type=int, default=3, help="runs per case; best time is shown")
+    ap.add_argument("--repeat", type=int, default=5,
+                    help="interleaved rounds per model (default 5); medians are shown")
     ap.add_argument("--only", metavar="NAMES",
                     help="comma-separated model name prefixes to run (e.g. mushroom,bunny)")
     ap.add_argument("--make-models", metavar="DIR", help=argparse.SUPPRESS)  # helper child
@@ -237,7 +315,8 @@ def main() -> int:
     missing = [t for t in ("prusa", "cura") if not have[t]]
     print(f"slicers: {', '.join(tools)}"
           + (f" (not installed: {', '.join(missing)})" if missing else ""))
-    print(f"python {sys.version.split()[0]}, {os.cpu_count()} CPUs, repeat {args.repeat}")
+    print(f"python {sys.version.split()[0]}, {os.cpu_count()} CPUs, repeat {args.repeat}, "
+          f"load average {os.getloadavg()[0]:.1f}")
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         models = make_models(folder)
@@ -245,70 +324,18 @@ def main() -> int:
             wanted = tuple(w.strip() for w in args.only.split(",") if w.strip())
             models = {k: v for k, v in models.items() if k.startswith(wanted)}
         print()
-        print(f"{'model':12s} {'tris':>7s} {'slicer':9s} {'slice s':>8s} {'wall s':>8s} "
-              f"{'peak MB':>8s} {'layers':>6s} {'filament m':>10s} {'est. min':>8s} "
-              f"{'support cm3':>11s}")
-        results: dict[tuple[str, str], dict] = {}
-        for mname, (stl, _vol, tris) in models.items():
-            for tool in tools:
-                best: dict | None = None
-                for _ in range(args.repeat):
-                    gcode = folder / f"{stl.stem}.{tool}.gcode"
-                    r = embedded(stl, gcode, {}) if tool == "embedded" else \
-                        external(tool, stl, gcode, {})
-                    if "error" in r:
-                        best = r
-                        break
-                    key = r["slice_s"] if r["slice_s"] is not None else r["wall_s"]
-                    if best is None or key < (best["slice_s"] or best["wall_s"]):
-                        best = r
-                results[(mname, tool)] = best
-                if "error" in best:
-                    print(f"{mname:12s} {tris:7d} {tool:9s} error: {best['error']}")
-                    continue
-                s = best["summary"]
-                est = s.get("estimated_seconds")
-                print(f"{mname:12s} {tris:7d} {tool:9s} "
-                      f"{best['slice_s'] if best['slice_s'] is not None else float('nan'):8.3f} "
-                      f"{best['wall_s']:8.3f} {best['peak_mb']:8.1f} {s['layers']:6d} "
-                      f"{s['filament_mm'] / 1000:10.3f} "
-                      f"{(est / 60 if est else float('nan')):8.1f} "
-                      f"{s.get('support_cm3', float('nan')):11.2f}")
+        runs = timed_runs(models, tools, max(1, args.repeat), folder)
+        print_table(models, tools, runs)
         print()
-        print("ratios (external wall time ÷ embedded time):")
-        for mname in models:
-            emb = results.get((mname, "embedded"))
-            if not emb or "error" in emb:
-                continue
-            for tool in tools[1:]:
-                ext = results.get((mname, tool))
-                if ext and "error" not in ext:
-                    print(f"  {mname:12s} {tool:6s}: {ext['wall_s'] / emb['slice_s']:5.2f}x vs "
-                          f"slice, {ext['wall_s'] / emb['wall_s']:5.2f}x vs embedded wall")
+        print_ratios(models, runs)
+        print(f"(load average after the runs {os.getloadavg()[0]:.1f})")
+        if "sphere 82k" in models:
+            print()
+            print_accuracy(models, tools, folder)
+    if not args.only or "sphere".startswith(tuple(args.only.split(","))):
         print()
-        print("embedded ÷ prusa-slicer, whole processes (wall time; target ≤ 0.5):")
-        for mname in models:
-            emb, ext = results.get((mname, "embedded")), results.get((mname, "prusa"))
-            if emb and ext and "error" not in emb and "error" not in ext:
-                print(f"  {mname:12s} {emb['wall_s'] / ext['wall_s']:5.2f}  "
-                      f"(peak {emb['peak_mb']:.0f} MB vs {ext['peak_mb']:.0f} MB)")
-        print()
-        print("volume accuracy, sphere at 100 % infill (extruded ÷ mesh volume):")
-        if "sphere 82k" not in models:
-            return 0
-        stl, vol, _ = models["sphere 82k"]
-        over = {"infill_percent": 100, "skirts": 0}
-        for tool in tools:
-            gcode = folder / f"acc.{tool}.gcode"
-            r = embedded(stl, gcode, over) if tool == "embedded" else \
-                external(tool, stl, gcode, over)
-            if "error" in r:
-                print(f"  {tool:9s} error: {r['error']}")
-                continue
-            print(f"  {tool:9s} {r['summary']['filament_cm3'] * 1000 / vol:6.3f}")
-    print()
-    print("infill clipping, sphere 82k, 200 layers (in this process, after the runs above):")
-    print("  " + clip_comparison())
+        print("infill clipping, sphere 82k, 200 layers (in this process, after the runs above):")
+        print("  " + clip_comparison())
     return 0
 
 
