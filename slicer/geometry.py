@@ -142,26 +142,34 @@ def hatch(
 def segments_cross(
     p: np.ndarray, q: np.ndarray, a: np.ndarray, b: np.ndarray, chunk: int = 2_000_000
 ) -> np.ndarray:
-    """For each segment p[i]→q[i], does it properly cross any edge a[j]→b[j]? (bool (n,))."""
+    """For each segment p[i]→q[i], does it properly cross any edge a[j]→b[j]? (bool (n,)).
+
+    Both orientation tests are linear in the tested point, so each is one (n, 3) @ (3, m)
+    matrix product (coordinates taken relative to the first edge, to keep their size small)
+    instead of a dozen (n, m) temporaries."""
     n, m = len(p), len(a)
     out = np.zeros(n, dtype=bool)
     if n == 0 or m == 0:
         return out
+    origin = a[0]
+    p, q, a, b = p - origin, q - origin, a - origin, b - origin
+    one_m, one_n = np.ones(m), np.ones(n)
+    e = b - a
+    # cross(b - a, x - a) = ex·xy − ey·xx + (ey·ax − ex·ay), for x = p and x = q
+    edge_side = np.stack([e[:, 0], -e[:, 1], e[:, 1] * a[:, 0] - e[:, 0] * a[:, 1]])
+    u = q - p
+    # cross(q - p, y - p) = ux·yy − uy·yx + (uy·px − ux·py), for y = a and y = b
+    seg_side = np.stack([u[:, 0], -u[:, 1], u[:, 1] * p[:, 0] - u[:, 0] * p[:, 1]], axis=1)
+    at = np.stack([a[:, 1], a[:, 0], one_m])
+    bt = np.stack([b[:, 1], b[:, 0], one_m])
+    pt = np.stack([p[:, 1], p[:, 0], one_n], axis=1)
+    qt = np.stack([q[:, 1], q[:, 0], one_n], axis=1)
     step = max(1, chunk // m)
     for i0 in range(0, n, step):
-        P, Q = p[i0:i0 + step, None, :], q[i0:i0 + step, None, :]
-        A, B = a[None], b[None]
-
-        def orient(u, v, w):
-            return (v[..., 0] - u[..., 0]) * (w[..., 1] - u[..., 1]) - (
-                v[..., 1] - u[..., 1]) * (w[..., 0] - u[..., 0])
-
-        d1 = orient(P, Q, A)
-        d2 = orient(P, Q, B)
-        d3 = orient(A, B, P)
-        d4 = orient(A, B, Q)
-        hit = (d1 * d2 < 0) & (d3 * d4 < 0)
-        out[i0:i0 + step] = hit.any(axis=1)
+        rows = slice(i0, i0 + step)
+        hit = (seg_side[rows] @ at) * (seg_side[rows] @ bt) < 0
+        hit &= (pt[rows] @ edge_side) * (qt[rows] @ edge_side) < 0
+        out[rows] = hit.any(axis=1)
     return out
 
 

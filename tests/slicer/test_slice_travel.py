@@ -109,3 +109,27 @@ def test_route_graph_shortest_paths_match_scipy(n):
             walked += legs[pred[i, node], node]
             node = pred[i, node]
         assert walked == pytest.approx(dist[i, j])
+
+
+def test_segments_cross_finds_proper_crossings_only():
+    from slicer.geometry import segments_cross
+
+    square = np.array([[10.0, 10.0], [20.0, 10.0], [20.0, 20.0], [10.0, 20.0]])
+    a, b = square, np.roll(square, -1, axis=0)
+    p = np.array([[5.0, 15.0], [12.0, 12.0], [15.0, 10.0], [5.0, 10.0], [0.0, 0.0]])
+    q = np.array([[25.0, 15.0], [18.0, 18.0], [15.0, 5.0], [25.0, 10.0], [30.0, 30.0]])
+    # through both sides; inside; ending on an edge; along an edge; through two corners
+    assert segments_cross(p, q, a, b).tolist() == [True, False, False, False, False]
+    rng = np.random.default_rng(3)
+    p, q = rng.uniform(90, 130, (400, 2)), rng.uniform(90, 130, (400, 2))
+    a, b = rng.uniform(90, 130, (70, 2)), rng.uniform(90, 130, (70, 2))
+
+    def side(u, v, w):
+        return (v[..., 0] - u[..., 0]) * (w[..., 1] - u[..., 1]) - (
+            v[..., 1] - u[..., 1]) * (w[..., 0] - u[..., 0])
+
+    P, Q = p[:, None], q[:, None]
+    expected = ((side(P, Q, a[None]) * side(P, Q, b[None]) < 0)
+                & (side(a[None], b[None], P) * side(a[None], b[None], Q) < 0)).any(axis=1)
+    assert 0.2 < expected.mean() < 1.0
+    assert np.array_equal(segments_cross(p, q, a, b, chunk=1000), expected)
