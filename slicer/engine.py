@@ -181,10 +181,15 @@ def _plan_layers(model: _Model, man: Any, profile: Profile, report: _Reporter) -
         report("slice", i / n * 0.2)
     model.widths = [profile.first_layer_line_width if i == 0 else profile.line_width
                     for i in range(n)]
+    planned: dict = {}  # identical layers (prismatic parts) share their shells
     for i in range(n):
-        model.shells.append(plan_shells(model.sections[i], model.widths[i], float(heights[i]),
-                                        profile.perimeters, profile.thin_walls, res))
+        key = (geo.shape_key(model.sections[i]), model.widths[i], float(heights[i]))
+        if key not in planned:
+            planned[key] = plan_shells(model.sections[i], model.widths[i], float(heights[i]),
+                                       profile.perimeters, profile.thin_walls, res)
+        model.shells.append(planned[key])
         report("shells", 0.2 + i / n * 0.2)
+    del planned
     model.spacing = [geo.bead_spacing(model.widths[i], float(heights[i])) for i in range(n)]
     model.solids = skin_regions([s.inner for s in model.shells], model.sections,
                                 profile.top_layers, profile.bottom_layers, model.spacing,
@@ -240,14 +245,17 @@ def _write_layers(model: _Model, profile: Profile, report: _Reporter) -> _Writte
     pos = np.array([0.0, 0.0])
     out = _Written()
     support_cache: dict = {}
+    router, router_key = None, None
     n = len(model.tops)
     for i in range(n):
         paths = _layer_paths(model, i, profile, support_cache)
         plan = LayerPlan(i, float(model.tops[i]), float(model.heights[i]), paths,
                          geo.contours(model.sections[i]))
         ordered, _ = order_paths(plan.paths, pos, profile.seam_position, aligner)
-        router = (TravelRouter(model.sections[i], model.spacing[i])
-                  if profile.avoid_crossing_perimeters else None)
+        if profile.avoid_crossing_perimeters:
+            key = (geo.shape_key(model.sections[i]), model.spacing[i])
+            if key != router_key:  # a layer like the one below keeps its router and graphs
+                router, router_key = TravelRouter(model.sections[i], model.spacing[i]), key
         code = writer.layer(plan, ordered, pos, router)
         out.bodies.append(code.text)
         out.seconds.append(code.seconds + 0.1)  # Z move and layer change

@@ -74,6 +74,12 @@ def contours(cs) -> list[np.ndarray]:
     return [np.asarray(p, dtype=np.float64) for p in cs.to_polygons() if len(p) >= 3]
 
 
+def shape_key(cs) -> tuple[bytes, ...]:
+    """A CrossSection's exact identity (its contours' bytes): equal keys, equal shapes. Layers
+    of prismatic parts repeat, and what is planned for one serves them all."""
+    return tuple(np.asarray(p).tobytes() for p in cs.to_polygons())
+
+
 def polygon_edges(polys: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """All edges of closed polygons as two (E, 2) arrays of start and end points."""
     if not polys:

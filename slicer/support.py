@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from manifold3d import CrossSection, FillRule, JoinType, OpType
 
-from slicer.geometry import bead_spacing, contours, hatch, points_inside
+from slicer.geometry import bead_spacing, contours, hatch, points_inside, shape_key
 from slicer.overhang import overhangs
 from slicer.planner import Path
 from slicer.profile import Profile
@@ -151,8 +151,7 @@ def support_paths(layer: SupportLayer, profile: Profile, width: float, height: f
             continue
         key = None
         if cache is not None:
-            key = (role, width, height,
-                   hash(tuple(np.asarray(q).tobytes() for q in region.to_polygons())))
+            key = (role, width, height, hash(shape_key(region)))
             if key in cache:
                 out.extend(cache[key])
                 continue
