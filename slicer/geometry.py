@@ -86,8 +86,11 @@ def polygon_edges(polys: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
         z = np.zeros((0, 2))
         return z, z
     a = np.concatenate(polys)
-    b = np.concatenate([np.roll(p, -1, axis=0) for p in polys])
-    return a, b
+    counts = np.fromiter((len(p) for p in polys), dtype=np.int64, count=len(polys))
+    ends = np.cumsum(counts)
+    following = np.arange(1, len(a) + 1)
+    following[ends - 1] = ends - counts  # each polygon's last corner closes to its first
+    return a, a[following]
 
 
 def hatch(
@@ -179,9 +182,11 @@ def segments_cross(
     return out
 
 
-def points_inside(polys: list[np.ndarray], pts: np.ndarray, chunk: int = 2_000_000) -> np.ndarray:
-    """Even-odd test of points (k, 2) against closed polygons; bool (k,). Vectorised."""
-    a, b = polygon_edges(polys)
+def points_inside(polys: list[np.ndarray], pts: np.ndarray, chunk: int = 2_000_000,
+                  edges: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """Even-odd test of points (k, 2) against closed polygons; bool (k,). Vectorised.
+    ``edges``: the polygons' ``polygon_edges``, when the caller has them already."""
+    a, b = polygon_edges(polys) if edges is None else edges
     out = np.zeros(len(pts), dtype=bool)
     if len(a) == 0 or len(pts) == 0:
         return out

@@ -34,12 +34,17 @@ def _nearest_neighbour(
     pid = np.repeat(np.arange(len(paths)), counts)
     vidx = np.arange(len(pts)) - begins[pid]
     dead = np.zeros(len(pts))
+    gap, dy = np.empty(len(pts)), np.empty(len(pts))  # reused: no allocation per step
     out: list[tuple[np.ndarray, Path]] = []
     x, y = float(pos[0]), float(pos[1])
     for _ in range(len(paths)):
-        dx = px - x
-        dy = py - y
-        j = int(np.argmin(dx * dx + dy * dy + dead))
+        np.subtract(px, x, out=gap)
+        np.multiply(gap, gap, out=gap)
+        np.subtract(py, y, out=dy)
+        np.multiply(dy, dy, out=dy)
+        gap += dy
+        gap += dead
+        j = int(gap.argmin())
         i = int(pid[j])
         dead[begins[i]:ends[i]] = np.inf
         p = paths[i]

@@ -106,7 +106,8 @@ class TravelRouter:
         s = self.spacing
         fence = contours(isl.shape.offset(-s / 8, JoinType.Miter).simplify(s / 8))
         isl.fence_a, isl.fence_b = polygon_edges(fence)
-        isl.edge_a, isl.edge_b = polygon_edges(isl.polys)
+        if isl.edge_a is None:
+            isl.edge_a, isl.edge_b = polygon_edges(isl.polys)
         # corners on the external perimeter's middle line (narrow necks stay passable),
         # kept only where they lie inside the fence
         shape = isl.shape.offset(-s / 2, JoinType.Miter)
@@ -168,7 +169,8 @@ class TravelRouter:
             return TravelPlan(waypoints, leaves, length)
         # ends inside the fence: testing the fence's few edges is enough; other travels
         # (to the skirt, along thin walls) are tested against the outline itself
-        inside = points_inside(self._fence, np.concatenate([prev[todo], starts[todo]]))
+        inside = points_inside(self._fence, np.concatenate([prev[todo], starts[todo]]),
+                               edges=(self._fa, self._fb))
         fenced = inside[:len(todo)] & inside[len(todo):]
         hit = np.zeros(len(todo), dtype=bool)
         hit[fenced] = segments_cross(prev[todo[fenced]], starts[todo[fenced]], self._fa,
@@ -182,7 +184,10 @@ class TravelRouter:
         islands = self._all_islands()
         where = np.full((len(crossing), 2), -1)
         for k, isl in enumerate(islands):
-            inside = points_inside(isl.polys, np.concatenate([prev[crossing], starts[crossing]]))
+            if isl.edge_a is None:
+                isl.edge_a, isl.edge_b = polygon_edges(isl.polys)
+            inside = points_inside(isl.polys, np.concatenate([prev[crossing], starts[crossing]]),
+                                   edges=(isl.edge_a, isl.edge_b))
             where[inside[:len(crossing)], 0] = k
             where[inside[len(crossing):], 1] = k
         for t, (i0, i1) in zip(crossing, where, strict=True):
