@@ -95,11 +95,11 @@ def arrange_bodies(vertices: np.ndarray, faces: np.ndarray,
 def layout_model(vertices: np.ndarray, faces: np.ndarray, profile) -> tuple[np.ndarray, dict]:
     """Orientation (``profile.orient``), then arrangement (``profile.arrange``) of the mesh;
     returns the moved vertices and a report for the slice summary."""
-    from slicer.orient import choose_orientation
-
     v = np.asarray(vertices, dtype=np.float64)
     report: dict = {"orientation": {"mode": "keep", "rotated": False}}
     if profile.orient != "keep":
+        from slicer.orient import choose_orientation
+
         chosen = choose_orientation(v, faces, profile.orient,
                                     bed_tolerance=profile.first_layer_height / 2)
         if chosen.rotated:

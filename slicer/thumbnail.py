@@ -101,7 +101,8 @@ def render_png(vertices: np.ndarray, faces: np.ndarray, width: int, height: int)
         draw.polygon(corners, fill=colour, outline=colour)  # Pillow fills one at a time
     img = img.resize((width, height), Image.Resampling.LANCZOS)
     out = io.BytesIO()
-    img.save(out, format="PNG", optimize=True)
+    out.name = "thumbnail.png"  # the format from the name: Pillow loads its PNG plugin only
+    img.save(out, optimize=True)
     return out.getvalue()
 
 
