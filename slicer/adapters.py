@@ -147,7 +147,8 @@ def prusa_support_args(profile: Profile) -> list[str]:
         "support-material-threshold": 90.0 - p.support_angle,
         "support-material-contact-distance": p.layer_height,
         "support-material-xy-spacing": p.support_xy_gap,
-        "support-material-spacing": p.support_spacing,
+        # PrusaSlicer's spacings are the gaps between lines, ours centre to centre
+        "support-material-spacing": max(p.support_spacing - p.line_width, 0.0),
         "support-material-interface-layers": p.support_interface_layers,
         "support-material-interface-spacing": max(p.support_interface_spacing - p.line_width,
                                                   0.0),

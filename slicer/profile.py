@@ -112,7 +112,7 @@ class Profile:
     support: str = "auto"
     support_angle: float = 50.0
     support_xy_gap: float = 0.4
-    support_spacing: float = 2.0
+    support_spacing: float = 2.5  # base lines, centre to centre (2.05 mm of gap)
     support_interface_layers: int = 2
     support_interface_spacing: float = 0.6
     support_speed: float = 50.0
