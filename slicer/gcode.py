@@ -133,9 +133,15 @@ class GcodeWriter:
         if not ordered:
             return LayerCode(head, 0.0, 0.0, pos)
         paths = _LayerPaths.of(ordered)
-        speeds = np.array([self.speed(o[1].role, first) for o in ordered])
-        epm = np.array([self.e_per_mm(o[1].width, plan.height) * self.flow(o[1].role)
-                        for o in ordered])
+        # per (role, width), not per path: a layer has hundreds of paths, a handful of kinds
+        kinds: dict[tuple[str, float], tuple[float, float]] = {}
+        for o in ordered:
+            kind = (o[1].role, o[1].width)
+            if kind not in kinds:
+                kinds[kind] = (self.speed(kind[0], first),
+                               self.e_per_mm(kind[1], plan.height) * self.flow(kind[0]))
+        per_path = np.array([kinds[(o[1].role, o[1].width)] for o in ordered])
+        speeds, epm = per_path[:, 0].copy(), per_path[:, 1].copy()
         travels = self._travels(plan, paths, pos, router)
         beads = self._beads(paths, epm)
         seconds, speeds = self._timing(paths, travels, beads, pos, speeds)
