@@ -37,14 +37,14 @@ def planar_patches(vertices: np.ndarray, faces: np.ndarray, free: np.ndarray) ->
     return out
 
 
-def _loops(faces: np.ndarray, n_vertices: int) -> list[np.ndarray]:
+def border_loops(faces: np.ndarray, n_vertices: int) -> list[np.ndarray]:
     """The border loops of a set of faces, each a vertex sequence along the faces' winding."""
     he = np.stack([faces.reshape(-1), faces[:, [1, 2, 0]].reshape(-1)], axis=1)
     key = he[:, 0] * n_vertices + he[:, 1]
     border = he[~np.isin(key, he[:, 1] * n_vertices + he[:, 0])]
     succ = np.full(n_vertices, -1, dtype=np.int64)
     if len(np.unique(border[:, 0])) != len(border):
-        raise ValueError("a flat face next to the feature touches itself at a vertex")
+        raise ValueError("a region's border touches itself at a vertex")
     succ[border[:, 0]] = border[:, 1]
     seen = np.zeros(n_vertices, bool)
     loops = []
@@ -56,7 +56,7 @@ def _loops(faces: np.ndarray, n_vertices: int) -> list[np.ndarray]:
         nxt = succ[start]
         while nxt != start:
             if nxt < 0 or seen[nxt]:
-                raise ValueError("a flat face next to the feature has a broken border")
+                raise ValueError("a region's border is broken")
             loop.append(nxt)
             seen[nxt] = True
             nxt = succ[nxt]
@@ -68,7 +68,7 @@ def retriangulate(vertices: np.ndarray, faces: np.ndarray, normal: np.ndarray) -
     """New faces for the flat region ``faces`` with unit ``normal``: its border loops
     triangulated in its plane (interior vertices are dropped; the plane is the same).
     Raises ValueError when the region's outline is not a valid polygon."""
-    loops = _loops(faces, len(vertices))
+    loops = border_loops(faces, len(vertices))
     helper = np.eye(3)[np.argmin(np.abs(normal))]
     u = np.cross(normal, helper)
     u /= np.linalg.norm(u)

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from repair.surface.band import zip_band
 from repair.surface.fit import Surface
 from repair.surface.patches import retriangulate
 from repair.surface.regions import face_geometry
@@ -88,14 +89,15 @@ class _Mesh:
         return self.labels == self.fid
 
 
-def _split_edges(s: Surface, m: _Mesh, target: float) -> int:
-    """One round of conforming edge splits; the number of edges split."""
+def _split_edges(s: Surface, m: _Mesh, target: float, rims_only: bool = False) -> int:
+    """One round of conforming edge splits (only the feature's border edges with
+    ``rims_only``); the number of edges split."""
     f = m.f
     eid, _ = edge_ids(f)
     first, second, _ = paired_half_edges(eid)
     fa, fb = first // 3, second // 3
     feature = m.feature
-    touch = feature[fa] | feature[fb]
+    touch = (feature[fa] != feature[fb]) if rims_only else (feature[fa] | feature[fb])
     first, second, fa, fb = first[touch], second[touch], fa[touch], fb[touch]
     a = f.reshape(-1)[first]
     b = f[fa, (first % 3 + 1) % 3]
@@ -198,11 +200,32 @@ def refine_feature(surface: Surface, vertices: np.ndarray, faces: np.ndarray,
               patch.copy(), np.zeros(len(faces), bool))
     normals = face_geometry(m.v, m.f)[0]
     target = MARGIN * tolerance
+    if surface.kind in ("cylinder", "cone"):
+        _rims_then_zip(surface, m, target)
     for _ in range(MAX_ROUNDS):
         if _split_edges(s := surface, m, target) == 0 and _split_interiors(s, m, target) == 0:
             _retriangulate_patches(m, normals, patch)
             return m.v, m.f, m.labels, m.patch
     raise ValueError(f"no convergence to {tolerance:g} mm in {MAX_ROUNDS} rounds")
+
+
+def _rims_then_zip(surface: Surface, m: _Mesh, target: float) -> None:
+    """A band feature: refine its rims, then re-connect it rim to rim (``band.py``); any
+    other shape is left to the general rounds."""
+    mine = m.feature
+    try:
+        zip_band(surface, m.v, m.f[mine])  # is it a band at all?
+    except ValueError:
+        return
+    for _ in range(MAX_ROUNDS):
+        if _split_edges(surface, m, target, rims_only=True) == 0:
+            break
+    mine = m.feature
+    new = zip_band(surface, m.v, m.f[mine])
+    m.f = np.vstack([m.f[~mine], new])
+    m.labels = np.concatenate([m.labels[~mine], np.full(len(new), m.fid)])
+    m.patch = np.concatenate([m.patch[~mine], np.full(len(new), -1)])
+    m.born = np.concatenate([m.born[~mine], np.ones(len(new), bool)])
 
 
 def _retriangulate_patches(m: _Mesh, normals: np.ndarray, patch: np.ndarray) -> None:
