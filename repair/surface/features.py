@@ -21,12 +21,18 @@ from repair.surface.fit import Surface, fit_surface
 from repair.surface.patches import planar_patches
 from repair.surface.refine import error_summary, refine_feature
 from repair.surface.regions import face_geometry, face_regions
+from repair.topology import edge_ids, paired_half_edges
 
 MODES = {"off": (), "holes": ("cylinder", "cone"), "all": ("sphere", "cylinder", "cone", "torus")}
 #: a region needs this many facets to be offered to the fits
-MIN_FACES = 6
+MIN_FACES = 12
 #: share of the tolerance a feature's vertices may lie off the fitted surface
 FIT_SHARE = 0.25
+#: ... and at most this share of the region's size (a small patch of a scan fits anything
+#: within a fixed distance); float32 rounding of a CAD export is ~1e-7 of the coordinates
+FIT_RELATIVE = 1e-4
+#: a face joins a fitted feature when its normal is within this of the surface's
+ABSORB_ANGLE_DEG = 40.0
 
 
 def surface_tolerance(epsilon: float) -> float:
@@ -98,11 +104,42 @@ def find_features(vertices: np.ndarray, faces: np.ndarray, *, tolerance: float,
         if len(group) < MIN_FACES:
             continue
         pts = v[np.unique(f[group])]
+        size = float(np.linalg.norm(np.ptp(pts, axis=0)))
+        accept = min(FIT_SHARE * tolerance, FIT_RELATIVE * size)
         surface = fit_surface(pts, centroids[group], normals[group], areas[group], kinds,
-                              accept=FIT_SHARE * tolerance)
+                              accept=accept)
         if surface is not None:
-            found.append((surface, group))
-    return found
+            found.append((surface, group, accept))
+    return _absorbed(v, f, found)
+
+
+def _absorbed(v: np.ndarray, f: np.ndarray, found: list) -> list[tuple[Surface, np.ndarray]]:
+    """Each feature grown by the neighbouring faces that lie on its surface too (vertices
+    within its fit's residual, normal within ``ABSORB_ANGLE_DEG`` of the surface's), which
+    the region growing split off; a face goes to the first feature that claims it."""
+    owner = np.full(len(f), -1, dtype=np.int64)
+    for fid, (_, group, _) in enumerate(found):
+        owner[group] = fid
+    normals, _, centroids = face_geometry(v, f)
+    eid, _ = edge_ids(f)
+    first, second, _ = paired_half_edges(eid)
+    fa, fb = first // 3, second // 3
+    for fid, (surface, group, accept) in enumerate(found):
+        side = np.sign(np.einsum("ij,ij->i", normals[group],
+                                 surface.normal(centroids[group])).sum())
+        for _ in range(len(f)):
+            mine = owner == fid
+            cand = np.unique(np.r_[fb[mine[fa] & (owner[fb] < 0)], fa[mine[fb] & (owner[fa] < 0)]])
+            if len(cand) == 0:
+                break
+            on = (np.abs(surface.distance(v[f[cand]].reshape(-1, 3))).reshape(-1, 3).max(1)
+                  <= accept)
+            facing = side * np.einsum("ij,ij->i", normals[cand], surface.normal(
+                centroids[cand])) >= np.cos(np.radians(ABSORB_ANGLE_DEG))
+            if not (on & facing).any():
+                break
+            owner[cand[on & facing]] = fid
+    return [(s, np.flatnonzero(owner == fid)) for fid, (s, _, _) in enumerate(found)]
 
 
 def _refine_one(surface: Surface, v: np.ndarray, f: np.ndarray, labels: np.ndarray,

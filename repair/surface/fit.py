@@ -16,7 +16,14 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-KINDS = ("sphere", "cylinder", "cone", "torus")
+#: the order fits are tried in: two coaxial circles (a cylinder's or cone's rims) also lie
+#: on a sphere and a torus, so the ruled surfaces come first
+KINDS = ("cylinder", "cone", "sphere", "torus")
+#: vertices a fit is first tried on
+SUBSAMPLE = 256
+#: a guess whose median vertex distance exceeds this share of the region's size is not
+#: refined (on a true feature the guesses from normals and circles are nearly exact)
+GUESS_SHARE = 0.02
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
@@ -214,13 +221,21 @@ def fit_surface(points: np.ndarray, centroids: np.ndarray, normals: np.ndarray,
     if np.linalg.eigh(np.cov((p - c).T))[0][0] ** 0.5 < accept / 3 and np.abs(
             (p - c) @ np.linalg.eigh(np.cov((p - c).T))[1][:, 0]).max() <= accept:
         return None
+    # fit a few hundred vertices first: a region that is no such surface fails cheaply
+    few = p[np.linspace(0, len(p) - 1, min(len(p), SUBSAMPLE)).astype(int)]
     for kind in (k for k in KINDS if k in kinds):
         with np.errstate(all="ignore"):
             guess = _GUESS[kind](p, centroids, normals, areas)
-            if not _sane(guess, extent * 10):
-                continue
-            sol = least_squares(lambda x, k=kind: _unpack(k, x).distance(p), _pack(guess),
-                                method="lm", max_nfev=200 * (len(_pack(guess)) + 1))
+            if not _sane(guess, extent * 10) or np.median(
+                    np.abs(guess.distance(few))) > GUESS_SHARE * extent:
+                continue  # the normals' guess is far off: not this kind of surface
+            x = _pack(guess)
+            for pts in (few, p) if len(p) > len(few) else (p,):
+                sol = least_squares(lambda x, k=kind, q=pts: _unpack(k, x).distance(q), x,
+                                    method="lm", max_nfev=50 * (len(x) + 1))
+                x = sol.x
+                if np.abs(_unpack(kind, x).distance(pts)).max() > accept:
+                    break
         fitted = _unpack(kind, sol.x)
         if kind == "cone" and fitted.half_angle < 0:  # the same cone, axis the other way
             fitted = Surface(kind, fitted.origin, -fitted.axis, half_angle=-fitted.half_angle)

@@ -27,7 +27,7 @@ from repair.surface.regions import face_geometry
 from repair.topology import edge_ids, paired_half_edges
 
 #: samples per edge (the face grid uses the same spacing, so both see the same points)
-GRID = 16
+GRID = 8
 #: split where the error exceeds this share of the tolerance (a margin for sampling)
 MARGIN = 0.9
 MAX_ROUNDS = 24
