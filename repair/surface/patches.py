@@ -77,7 +77,8 @@ def retriangulate(vertices: np.ndarray, faces: np.ndarray, normal: np.ndarray) -
     ids = np.concatenate(loops)
     tris = np.asarray(triangulate(flat), dtype=np.int64).reshape(-1, 3)
     pts = np.vstack(flat)[tris]
-    area = np.cross(pts[:, 1] - pts[:, 0], pts[:, 2] - pts[:, 0])
+    e1, e2 = pts[:, 1] - pts[:, 0], pts[:, 2] - pts[:, 0]
+    area = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
     holes = len(loops) - 1
     if len(tris) != len(ids) + 2 * holes - 2 or (area <= 0).any():
         raise ValueError("a flat face next to the feature could not be re-triangulated")
