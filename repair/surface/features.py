@@ -19,7 +19,12 @@ import numpy as np
 from repair.check import check_printable
 from repair.surface.fit import Surface, fit_surface
 from repair.surface.patches import planar_patches
-from repair.surface.refine import error_summary, refine_feature
+from repair.surface.refine import (
+    error_summary,
+    refine_feature,
+    retriangulate_patches,
+    start_state,
+)
 from repair.surface.regions import face_geometry, face_regions
 from repair.topology import edge_ids, paired_half_edges
 
@@ -142,24 +147,21 @@ def _absorbed(v: np.ndarray, f: np.ndarray, found: list) -> list[tuple[Surface, 
     return [(s, np.flatnonzero(owner == fid)) for fid, (s, _, _) in enumerate(found)]
 
 
-def _refine_one(surface: Surface, v: np.ndarray, f: np.ndarray, labels: np.ndarray,
-                patch: np.ndarray, fid: int, tolerance: float) -> tuple[tuple, Feature]:
-    """((v, f, labels) after VTA on feature ``fid``, its Feature record); the input arrays
+def _refine_one(surface: Surface, state, fid: int, tolerance: float) -> tuple[object, Feature]:
+    """(the state after VTA on feature ``fid``, its Feature record); the state unchanged
     when the feature is already within tolerance or VTA fails."""
-    mine = labels == fid
-    before = error_summary(surface, v, f[mine])
+    mine = state.labels == fid
+    before = error_summary(surface, state.v, state.f[mine])
     n0 = int(mine.sum())
     if before[0] <= tolerance:
-        return (v, f, labels, patch), Feature(surface, n0, n0, *before, *before,
-                                              "within tolerance")
+        return state, Feature(surface, n0, n0, *before, *before, "within tolerance")
     try:
-        v2, f2, l2, p2 = refine_feature(surface, v, f, labels, fid, tolerance, patch)
+        new = refine_feature(surface, state, fid, tolerance)
     except ValueError as exc:
-        return (v, f, labels, patch), Feature(surface, n0, n0, *before, *before,
-                                              f"undone: {exc}")
-    after = error_summary(surface, v2, f2[l2 == fid])
-    return (v2, f2, l2, p2), Feature(surface, n0, int((l2 == fid).sum()), *before, *after,
-                                 "refined")
+        return state, Feature(surface, n0, n0, *before, *before, f"undone: {exc}")
+    mine = new.labels == fid
+    after = error_summary(surface, new.v, new.f[mine])
+    return new, Feature(surface, n0, int(mine.sum()), *before, *after, "refined")
 
 
 def _undone(feat: Feature, reason: str) -> Feature:
@@ -168,49 +170,75 @@ def _undone(feat: Feature, reason: str) -> Feature:
                    f"undone: {reason}")
 
 
+def _finished(state, planes: np.ndarray, check: bool):
+    """The state with its touched flat patches re-triangulated, or the reason it cannot be
+    kept (a patch cannot be re-triangulated, or, with ``check``, the float32 mesh fails the
+    exact check)."""
+    try:
+        done = retriangulate_patches(state, planes)
+    except ValueError as exc:
+        return None, str(exc)
+    if check:
+        verdict = check_printable(done.v, done.f, as_float32=True)
+        if not verdict.ok:
+            return None, ("the refined mesh fails the printability check ("
+                          + "; ".join(verdict.failures()) + ")")
+    return done, ""
+
+
+def _refine_group(found: list, fids: list[int], state, planes: np.ndarray, tol: float,
+                  check: bool) -> tuple[object, dict[int, Feature]]:
+    """Refine the features ``fids`` together; when the result cannot be kept, each half
+    on its own (so one bad feature costs a few checks, not one per feature)."""
+    new, records = state, {}
+    for fid in fids:
+        new, records[fid] = _refine_one(found[fid][0], new, fid, tol)
+    if not any(r.status == "refined" for r in records.values()):
+        return state, records
+    done, why = _finished(new, planes, check)
+    if done is not None:
+        return done, records
+    if len(fids) == 1:
+        return state, {fids[0]: _undone(records[fids[0]], why)}
+    half = len(fids) // 2
+    state, first = _refine_group(found, fids[:half], state, planes, tol, check)
+    state, second = _refine_group(found, fids[half:], state, planes, tol, check)
+    return state, first | second
+
+
 def refine_surfaces(vertices: np.ndarray, faces: np.ndarray, *, epsilon: float,
                     mode: str = "holes", tolerance: float | None = None) -> SurfaceResult:
     """FIA + VTA on a closed mesh: features of ``mode``'s kinds refined to ``tolerance``
     (default :func:`surface_tolerance` of ``epsilon``); the mesh is returned unchanged when
-    none is found. Raises ValueError for an unknown mode."""
+    none is found. A feature whose refinement would leave a printable input unprintable
+    (the exact check on float32 coordinates) is undone. Raises ValueError for an unknown
+    mode."""
     if mode not in MODES:
         raise ValueError(f"surface mode must be one of {', '.join(MODES)}, not {mode!r}")
     tol = surface_tolerance(epsilon) if tolerance is None else float(tolerance)
     v0 = np.asarray(vertices, dtype=float)
     f0 = np.asarray(faces, dtype=np.int64)
     found = find_features(v0, f0, tolerance=tol, kinds=MODES[mode])
+    if not found:
+        return SurfaceResult(v0, f0, (), tol, mode, len(f0))
     labels = np.full(len(f0), -1, dtype=np.int64)
     for fid, (_, group) in enumerate(found):
         labels[group] = fid
-    patch = planar_patches(v0, f0, labels < 0) if found else np.full(len(f0), -1)
-    state, records = (v0, f0, labels, patch), []
-    for fid, (surface, _) in enumerate(found):
-        state, record = _refine_one(surface, *state, fid, tol)
-        records.append(record)
-    if any(r.status == "refined" for r in records) and not check_printable(
-            state[0], state[1], as_float32=True).ok and check_printable(v0, f0).ok:
-        state, records = _checked_one_by_one(found, (v0, f0, labels, patch), tol)
-    v, f = _compact(state[0], state[1]) if state[1] is not f0 else (v0, f0)
-    return SurfaceResult(v, f, tuple(records), tol, mode, len(f0))
+    patch = planar_patches(v0, f0, labels < 0)
+    normals = face_geometry(v0, f0)[0]
+    planes = np.zeros((int(patch.max()) + 1, 3))
+    planes[patch[patch >= 0]] = normals[patch >= 0]
+    check = check_printable(v0, f0).ok  # keep a printable input printable
+    state, records = _refine_group(found, list(range(len(found))),
+                                   start_state(v0, f0, labels, patch), planes, tol, check)
+    ordered = tuple(records[fid] for fid in range(len(found)))
+    if not any(r.status == "refined" for r in ordered):
+        return SurfaceResult(v0, f0, ordered, tol, mode, len(f0))
+    v, f = _compact(state.v, state.f)
+    return SurfaceResult(v, f, ordered, tol, mode, len(f0))
 
 
 def _compact(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Drop the vertices no face uses (a re-triangulated flat patch's interior ones)."""
     used, inverse = np.unique(faces, return_inverse=True)
     return vertices[used], inverse.reshape(faces.shape).astype(np.int64)
-
-
-def _checked_one_by_one(found: list, state: tuple, tol: float) -> tuple[tuple, list[Feature]]:
-    """Refine the features one at a time, undoing each that leaves the mesh unprintable."""
-    records = []
-    for fid, (surface, _) in enumerate(found):
-        new_state, record = _refine_one(surface, *state, fid, tol)
-        if record.status == "refined":
-            verdict = check_printable(new_state[0], new_state[1], as_float32=True)
-            if not verdict.ok:
-                record = _undone(record, "the refined mesh fails the printability check ("
-                                 + "; ".join(verdict.failures()) + ")")
-                new_state = state
-        state = new_state
-        records.append(record)
-    return state, records

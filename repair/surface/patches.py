@@ -76,10 +76,38 @@ def retriangulate(vertices: np.ndarray, faces: np.ndarray, normal: np.ndarray) -
     flat = [np.column_stack([vertices[lp] @ u, vertices[lp] @ w]) for lp in loops]
     ids = np.concatenate(loops)
     tris = np.asarray(triangulate(flat), dtype=np.int64).reshape(-1, 3)
-    pts = np.vstack(flat)[tris]
-    e1, e2 = pts[:, 1] - pts[:, 0], pts[:, 2] - pts[:, 0]
-    area = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    tris = _without_slivers(tris, np.vstack(flat))
     holes = len(loops) - 1
-    if len(tris) != len(ids) + 2 * holes - 2 or (area <= 0).any():
+    if len(tris) != len(ids) + 2 * holes - 2 or (_areas(tris, np.vstack(flat)) <= 0).any():
         raise ValueError("a flat face next to the feature could not be re-triangulated")
     return ids[tris]
+
+
+def _areas(tris: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    p = pts[tris]
+    e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+    return e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+
+
+def _without_slivers(tris: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Flip away the zero-area triangles an ear-clipper leaves where vertices of different
+    loops line up (a row of equal holes): a triangle (a, b, c) with c on ab and the triangle
+    (b, a, d) across ab become (b, c, d) and (c, a, d). A loop per sliver (there are few)."""
+    tris = tris.copy()
+    for _ in range(len(tris)):
+        bad = np.flatnonzero(_areas(tris, pts) <= 0)
+        if len(bad) == 0:
+            break
+        t = bad[0]
+        tri = tris[t]
+        lengths = np.linalg.norm(pts[tri[[1, 2, 0]]] - pts[tri], axis=1)
+        k = int(np.argmax(lengths))  # the longest edge runs corner k -> k+1
+        a, b, c = tri[k], tri[(k + 1) % 3], tri[(k + 2) % 3]
+        across = np.flatnonzero(((tris == b) | (tris == a)).sum(1) == 2)
+        across = across[across != t]
+        if len(across) != 1:
+            break
+        o = tris[across[0]]
+        d = o[(o != a) & (o != b)][0]
+        tris[t], tris[across[0]] = (b, c, d), (c, a, d)
+    return tris

@@ -187,25 +187,34 @@ def _split_interiors(s: Surface, m: _Mesh, target: float) -> int:
     return len(faces)
 
 
-def refine_feature(surface: Surface, vertices: np.ndarray, faces: np.ndarray,
-                   labels: np.ndarray, fid: int, tolerance: float, patch: np.ndarray
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(vertices, faces, labels) after VTA on the faces labelled ``fid`` (``labels``: a
-    feature id per face, children inherit their parent's), until every facet of the feature
-    is within ``tolerance`` of ``surface``. ``patch``: the flat patch id of each face (see
-    ``patches.py``); a patch split along the feature's border is re-triangulated. Returns
-    (vertices, faces, labels, patch). Raises ValueError when a split would fold the mesh, a
-    patch cannot be re-triangulated or the rounds run out."""
-    m = _Mesh(np.asarray(vertices, float), np.asarray(faces, np.int64), labels.copy(), fid,
-              patch.copy(), np.zeros(len(faces), bool))
-    normals = face_geometry(m.v, m.f)[0]
+def start_state(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
+                patch: np.ndarray) -> _Mesh:
+    """The mesh VTA works on: ``labels`` a feature id per face (-1: none), ``patch`` a flat
+    patch id per non-feature face (see ``patches.py``)."""
+    return _Mesh(np.asarray(vertices, float), np.asarray(faces, np.int64), labels.copy(), -1,
+                 patch.copy(), np.zeros(len(faces), bool))
+
+
+def refine_feature(surface: Surface, state: _Mesh, fid: int, tolerance: float) -> _Mesh:
+    """A new state after VTA on the faces labelled ``fid`` (children inherit their parent's
+    labels), until every facet of the feature is within ``tolerance`` of ``surface``. Flat
+    patches split along the feature's border still need :func:`retriangulate_patches`.
+    Raises ValueError when a split would fold the mesh or the rounds run out."""
+    # work on the feature and the faces across its edges only, then splice them back
+    mine = state.labels == fid
+    near = np.zeros(len(state.f), bool)
+    near[np.isin(state.f, state.f[mine]).any(1)] = True
+    m = _Mesh(state.v, state.f[near], state.labels[near], fid, state.patch[near],
+              state.born[near])
     target = MARGIN * tolerance
     if surface.kind in ("cylinder", "cone"):
         _rims_then_zip(surface, m, target)
     for _ in range(MAX_ROUNDS):
         if _split_edges(s := surface, m, target) == 0 and _split_interiors(s, m, target) == 0:
-            _retriangulate_patches(m, normals, patch)
-            return m.v, m.f, m.labels, m.patch
+            return _Mesh(m.v, np.vstack([state.f[~near], m.f]),
+                         np.concatenate([state.labels[~near], m.labels]), -1,
+                         np.concatenate([state.patch[~near], m.patch]),
+                         np.concatenate([state.born[~near], m.born]))
     raise ValueError(f"no convergence to {tolerance:g} mm in {MAX_ROUNDS} rounds")
 
 
@@ -228,15 +237,25 @@ def _rims_then_zip(surface: Surface, m: _Mesh, target: float) -> None:
     m.born = np.concatenate([m.born[~mine], np.ones(len(new), bool)])
 
 
-def _retriangulate_patches(m: _Mesh, normals: np.ndarray, patch: np.ndarray) -> None:
-    """Re-triangulate each flat patch that a border split touched (``normals``/``patch``:
-    the faces' before VTA, for each patch's plane)."""
+def retriangulate_patches(state: _Mesh, planes: np.ndarray) -> _Mesh:
+    """A new state with each flat patch that a border split touched re-triangulated
+    (``planes``: each patch's unit normal). Raises ValueError when one cannot be."""
+    m = _Mesh(state.v, state.f, state.labels, -1, state.patch, state.born)
     touched = np.unique(m.patch[m.born & (m.patch >= 0)])
+    if len(touched) == 0:
+        return m
+    keep = ~np.isin(m.patch, touched)
+    order = np.argsort(m.patch, kind="stable")
+    ids = m.patch[order]
+    new_faces, new_patch = [], []
     for pid in touched:
-        mine = m.patch == pid
-        plane = normals[np.flatnonzero(patch == pid)[0]]
-        new = retriangulate(m.v, m.f[mine], plane)
-        m.f = np.vstack([m.f[~mine], new])
-        m.labels = np.concatenate([m.labels[~mine], np.full(len(new), -1)])
-        m.patch = np.concatenate([m.patch[~mine], np.full(len(new), pid)])
-        m.born = np.concatenate([m.born[~mine], np.ones(len(new), bool)])
+        lo, hi = np.searchsorted(ids, [pid, pid + 1])
+        tri = retriangulate(m.v, m.f[order[lo:hi]], planes[pid])
+        new_faces.append(tri)
+        new_patch.append(np.full(len(tri), pid))
+    new = np.vstack(new_faces)
+    m.f = np.vstack([m.f[keep], new])
+    m.labels = np.concatenate([m.labels[keep], np.full(len(new), -1)])
+    m.patch = np.concatenate([m.patch[keep], np.concatenate(new_patch)])
+    m.born = np.concatenate([m.born[keep], np.ones(len(new), bool)])
+    return m
