@@ -202,8 +202,9 @@ def refine_feature(surface: Surface, state: _Mesh, fid: int, tolerance: float) -
     Raises ValueError when a split would fold the mesh or the rounds run out."""
     # work on the feature and the faces across its edges only, then splice them back
     mine = state.labels == fid
-    near = np.zeros(len(state.f), bool)
-    near[np.isin(state.f, state.f[mine]).any(1)] = True
+    touched = np.zeros(len(state.v), bool)
+    touched[state.f[mine]] = True
+    near = touched[state.f].any(1)
     m = _Mesh(state.v, state.f[near], state.labels[near], fid, state.patch[near],
               state.born[near])
     target = MARGIN * tolerance
@@ -220,17 +221,15 @@ def refine_feature(surface: Surface, state: _Mesh, fid: int, tolerance: float) -
 
 def _rims_then_zip(surface: Surface, m: _Mesh, target: float) -> None:
     """A band feature: refine its rims, then re-connect it rim to rim (``band.py``); any
-    other shape is left to the general rounds."""
-    mine = m.feature
-    try:
-        zip_band(surface, m.v, m.f[mine])  # is it a band at all?
-    except ValueError:
-        return
+    other shape keeps its refined rims and is left to the general rounds."""
     for _ in range(MAX_ROUNDS):
         if _split_edges(surface, m, target, rims_only=True) == 0:
             break
     mine = m.feature
-    new = zip_band(surface, m.v, m.f[mine])
+    try:
+        new = zip_band(surface, m.v, m.f[mine])
+    except ValueError:
+        return
     m.f = np.vstack([m.f[~mine], new])
     m.labels = np.concatenate([m.labels[~mine], np.full(len(new), m.fid)])
     m.patch = np.concatenate([m.patch[~mine], np.full(len(new), -1)])
