@@ -147,7 +147,8 @@ def _absorbed(v: np.ndarray, f: np.ndarray, found: list) -> list[tuple[Surface, 
     return [(s, np.flatnonzero(owner == fid)) for fid, (s, _, _) in enumerate(found)]
 
 
-def _refine_one(surface: Surface, state, fid: int, tolerance: float) -> tuple[object, Feature]:
+def _refine_one(surface: Surface, state, fid: int, tolerance: float,
+                others: dict[int, Surface]) -> tuple[object, Feature]:
     """(the state after VTA on feature ``fid``, its Feature record); the state unchanged
     when the feature is already within tolerance or VTA fails."""
     mine = state.labels == fid
@@ -156,7 +157,7 @@ def _refine_one(surface: Surface, state, fid: int, tolerance: float) -> tuple[ob
     if before[0] <= tolerance:
         return state, Feature(surface, n0, n0, *before, *before, "within tolerance")
     try:
-        new = refine_feature(surface, state, fid, tolerance)
+        new = refine_feature(surface, state, fid, tolerance, others)
     except ValueError as exc:
         return state, Feature(surface, n0, n0, *before, *before, f"undone: {exc}")
     mine = new.labels == fid
@@ -191,8 +192,10 @@ def _refine_group(found: list, fids: list[int], state, planes: np.ndarray, tol: 
     """Refine the features ``fids`` together; when the result cannot be kept, each half
     on its own (so one bad feature costs a few checks, not one per feature)."""
     new, records = state, {}
+    surfaces = {i: s for i, (s, _) in enumerate(found)}
     for fid in fids:
-        new, records[fid] = _refine_one(found[fid][0], new, fid, tol)
+        others = {i: s for i, s in surfaces.items() if i != fid}
+        new, records[fid] = _refine_one(found[fid][0], new, fid, tol, others)
     if not any(r.status == "refined" for r in records.values()):
         return state, records
     done, why = _finished(new, planes, check)

@@ -16,7 +16,7 @@ Everything is vectorised over the facets of one feature; the loop is over iterat
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -75,6 +75,14 @@ def _onto(surface: Surface, x: np.ndarray, d: np.ndarray) -> np.ndarray:
     return x + t[:, None] * d
 
 
+def _onto_both(a: Surface, b: Surface, x: np.ndarray) -> np.ndarray:
+    """Points ``x`` moved onto the intersection of surfaces ``a`` and ``b`` (alternating
+    projections; both meet near ``x`` along an edge the two features share)."""
+    for _ in range(8):
+        x = _onto(b, _onto(a, x, a.normal(x)), b.normal(x))
+    return x
+
+
 @dataclass
 class _Mesh:
     v: np.ndarray
@@ -83,6 +91,7 @@ class _Mesh:
     fid: int
     patch: np.ndarray  # flat patch id per non-feature face (-1: none)
     born: np.ndarray  # the face was made by a split
+    others: dict = field(default_factory=dict)  # the other features' surfaces by id
 
     @property
     def feature(self) -> np.ndarray:
@@ -130,11 +139,18 @@ def _split_edges(s: Surface, m: _Mesh, target: float, rims_only: bool = False) -
     in_plane = d - np.einsum("ij,ij->i", d, plane_n)[:, None] * plane_n
     norm = np.linalg.norm(in_plane, axis=1, keepdims=True)
     d = np.where(border[:, None], in_plane / np.maximum(norm, 1e-12), d)
-    ok = ~border | (norm[:, 0] > 0.2)  # the surface must cross the neighbour's plane
-    sel, x, d = sel[ok], x[ok], d[ok]
+    twin = m.labels[other] if len(m.others) else np.full(len(sel), -1)
+    shared = border & (twin >= 0) & np.isin(twin, list(m.others))
+    # the surface must cross the flat neighbour's plane; an edge shared with another
+    # feature goes onto both surfaces (their intersection curve)
+    ok = ~border | shared | (norm[:, 0] > 0.2)
+    sel, x, d, shared, twin = sel[ok], x[ok], d[ok], shared[ok], twin[ok]
     if len(sel) == 0:
         return 0
     new_v = _onto(s, x, d)
+    for fid in np.unique(twin[shared]):
+        pick = shared & (twin == fid)
+        new_v[pick] = _onto_both(s, m.others[int(fid)], x[pick])
     base = len(m.v)
     m.v = np.vstack([m.v, new_v])
     mid = base + np.arange(len(sel))
@@ -195,10 +211,13 @@ def start_state(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
                  patch.copy(), np.zeros(len(faces), bool))
 
 
-def refine_feature(surface: Surface, state: _Mesh, fid: int, tolerance: float) -> _Mesh:
+def refine_feature(surface: Surface, state: _Mesh, fid: int, tolerance: float,
+                   others: dict[int, Surface] | None = None) -> _Mesh:
     """A new state after VTA on the faces labelled ``fid`` (children inherit their parent's
     labels), until every facet of the feature is within ``tolerance`` of ``surface``. Flat
     patches split along the feature's border still need :func:`retriangulate_patches`.
+    ``others``: the other features' surfaces by id (an edge shared with one is split onto
+    both).
     Raises ValueError when a split would fold the mesh or the rounds run out."""
     # work on the feature and the faces across its edges only, then splice them back
     mine = state.labels == fid
@@ -206,7 +225,7 @@ def refine_feature(surface: Surface, state: _Mesh, fid: int, tolerance: float) -
     touched[state.f[mine]] = True
     near = touched[state.f].any(1)
     m = _Mesh(state.v, state.f[near], state.labels[near], fid, state.patch[near],
-              state.born[near])
+              state.born[near], others or {})
     target = MARGIN * tolerance
     if surface.kind in ("cylinder", "cone"):
         _rims_then_zip(surface, m, target)

@@ -215,3 +215,27 @@ def test_refinement_that_would_break_the_mesh_is_undone_with_a_reason():
     assert len(result.features) == 2
     assert any(ft.status.startswith("undone: ") for ft in result.features)
     assert check_printable(result.vertices, result.faces, as_float32=True).ok
+
+
+def test_countersink_cone_and_cylinder_sharing_a_rim_are_both_refined():
+    """A countersunk hole: the cone meets the cylinder along a circle, so their shared rim
+    is split onto both surfaces."""
+    drill = (Manifold.cylinder(10.0, 2.0, 2.0, 12).translate([0, 0, -2])
+             + Manifold.cylinder(2.01, 2.0, 4.01, 12).translate([0, 0, 4]))
+    v, f = _mesh(Manifold.cube([20, 20, 6]).translate([-10, -10, 0]) - drill)
+    result = refine_surfaces(v, f, epsilon=EPS, mode="holes")
+    assert sorted(ft.surface.kind for ft in result.features) == ["cone", "cylinder"]
+    assert all(ft.status == "refined" and ft.max_error_after <= TOL for ft in result.features)
+    # against the design: r = 2 below z = 4, then r = 2 + (z - 4) (a 90° countersink)
+    tri = result.vertices[result.faces]
+    pts = np.einsum("sk,mkd->msd", DENSE[::7], tri)
+    rho = np.hypot(pts[..., 0], pts[..., 1])
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    wall = (np.abs(normal[:, 2]) < 0.99 * np.linalg.norm(normal, axis=1)) & (
+        np.hypot(tri[..., 0], tri[..., 1]) < 4.2).all(1)
+    above = pts[..., 2] > 4.0
+    design = 2.0 + np.where(above, pts[..., 2] - 4.0, 0.0)
+    # distance to the cone: the radial gap times cos 45°
+    err = (np.abs(rho - design) * np.where(above, np.sqrt(0.5), 1.0))[wall]
+    assert err.max() <= TOL
+    assert check_printable(result.vertices, result.faces, as_float32=True).ok
