@@ -76,3 +76,18 @@ def test_config_key_defaults_to_holes_and_is_checked():
     assert parse_config({"repair": {"surface": "all"}}).repair.surface == "all"
     with pytest.raises(ValueError, match="surface"):
         parse_config({"repair": {"surface": "most"}})
+
+
+def test_daemon_repair_task_applies_the_configured_surface_mode(plate_stl, tmp_path, capsys):
+    """The daemon's repair child runs ``_task_repair`` with the spec its pipeline builds
+    from ``[repair] surface``; the refined STL is what it then slices."""
+    from daemon.worker import _task_repair
+
+    out = tmp_path / "repaired.stl"
+    spec = {"in": str(plate_stl), "out": str(out), "epsilon": 0.4, "surface": "holes"}
+    report = _task_repair(spec)
+    assert [f["status"] for f in report["surface"]["features"]] == ["refined"] * 4
+    assert len(load_mesh(out).faces) == report["after"]["triangles"] > 216
+    assert '"stage": "surface"' in capsys.readouterr().out  # its progress line
+    report = _task_repair({**spec, "surface": "off"})
+    assert "surface" not in report and len(load_mesh(out).faces) == 216
