@@ -17,7 +17,14 @@ def surface_stage(out: RepairOutcome, epsilon: float, mode: str) -> RepairOutcom
         raise ValueError(f"surface must be one of {', '.join(MODES)}, got {mode!r}")
     if mode == "off":
         return out
-    result = refine_surfaces(out.vertices, out.faces, epsilon=epsilon, mode=mode)
+    try:
+        result = refine_surfaces(out.vertices, out.faces, epsilon=epsilon, mode=mode)
+    except MemoryError:
+        raise
+    except Exception as exc:  # noqa: BLE001 -- an optional refinement never fails the repair
+        section = {"mode": mode, "features": [], "triangles_added": 0,
+                   "undone": f"surface refinement failed: {type(exc).__name__}: {exc}"}
+        return dataclasses.replace(out, sections={**out.sections, "surface": section})
     section = result.to_dict()
     if not result.changed:
         return dataclasses.replace(out, sections={**out.sections, "surface": section})
