@@ -48,3 +48,21 @@ def surface_summary(section: dict | None) -> str:
     after = max(f["chordal_error_after"]["max"] for f in refined)
     return (f"{len(refined)} curved feature(s) refined: chordal error {worst:.3g} -> "
             f"{after:.3g} mm (+{section['triangles_added']} triangles)")
+
+
+def feature_lines(section: dict | None) -> list[str]:
+    """One indented text line per recognised feature (the job's text report)."""
+    if not section:
+        return []
+    out = []
+    for f in section.get("features", []):
+        size = (f"r {f['radius']:.4g} mm" if "radius" in f else
+                f"R {f['major_radius']:.4g} / r {f['minor_radius']:.4g} mm" if "major_radius" in f
+                else f"half-angle {f['half_angle_deg']:.4g}°")
+        before, after = f["chordal_error_before"], f["chordal_error_after"]
+        out.append(f"  {f['kind']} {size}: chordal error max {before['max']:.3g} -> "
+                   f"{after['max']:.3g} mm, avg {before['avg']:.3g} -> {after['avg']:.3g} mm, "
+                   f"{f['faces_before']} -> {f['faces_after']} triangles ({f['status']})")
+    if section.get("undone"):
+        out.append(f"  surface refinement undone: {section['undone']}")
+    return out

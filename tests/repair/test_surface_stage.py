@@ -19,6 +19,7 @@ from daemon.config import parse_config  # noqa: E402
 from repair.check import check_printable  # noqa: E402
 from repair.io import load_mesh, write_stl  # noqa: E402
 from repair.pipeline import RepairError, repair_mesh  # noqa: E402
+from repair.surface.stage import feature_lines  # noqa: E402
 
 
 def cli(*args: str) -> subprocess.CompletedProcess:
@@ -43,6 +44,9 @@ def test_cli_repair_refines_the_holes_by_default(plate_stl, tmp_path):
     assert [f["status"] for f in section["features"]] == ["refined"] * 4
     assert all(f["chordal_error_after"]["max"] <= 0.01 < f["chordal_error_before"]["max"]
                for f in section["features"])
+    lines = feature_lines(section)  # the job's text report
+    assert len(lines) == 4 and all("cylinder r " in ln and "(refined)" in ln for ln in lines)
+    assert any(ln.startswith("  cylinder r 3 mm: chordal error max 0.102 -> ") for ln in lines)
     mesh = load_mesh(out)
     assert len(mesh.faces) == 216 + section["triangles_added"]
     assert check_printable(mesh.vertices, mesh.faces).ok
