@@ -1,9 +1,9 @@
 """Find the analytic features of a mesh (FIA) and refine them (VTA), with a report.
 
 Tolerance: the chordal error target is ``min(0.01 mm, ε/40)`` (ε = the nozzle diameter):
-0.01 mm for a 0.4 mm nozzle, a tenth of the finest layer a printer lays. A region is a
-feature when every vertex is within a quarter of that of the fitted surface (an exporter
-puts the vertices on the design surface; a freeform scan's do not fit).
+0.01 mm for a 0.4 mm nozzle. A region is a feature when every vertex lies within
+min(tolerance/4, 10⁻⁴ of the region's size) of the fitted surface: an exporter puts the
+vertices on the design surface, a freeform scan's do not fit (not even a small patch's).
 
 The output keeps the mesh closed and printable: after VTA the exact check runs on the
 float32 mesh (as written to STL); a feature whose refinement fails it is undone and the
@@ -70,6 +70,9 @@ class Feature:
 
 @dataclass(frozen=True)
 class SurfaceResult:
+    """The mesh after the stage (the input arrays themselves when nothing was refined), each
+    recognised feature's record, the tolerance (mm) and mode used."""
+
     vertices: np.ndarray
     faces: np.ndarray
     features: tuple[Feature, ...]
