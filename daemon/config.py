@@ -164,6 +164,11 @@ class RepairConfig:
     clean: str = setting("auto", 'scan cleanup (spikes, specks, ragged holes) before the '
                          'repair: "auto" when the model looks like a scan, "scan" always, '
                          '"none" never', CHOICE, choices=("auto", "scan", "none"))
+    surface: str = setting("holes", 'refine curved features of an STL to the design surface '
+                           '(chordal error within min(0.01 mm, nozzle/40)) before slicing: '
+                           '"holes" cylinders and cones (holes, bosses, countersinks), "all" '
+                           'also spheres and tori, "off" never', CHOICE,
+                           choices=("off", "holes", "all"))
 
 
 #: The sections in the order of the example config; ``[profile]`` is an open table.

@@ -346,7 +346,7 @@ class Processor:
             "report": str(work / "repair.report.json"), "epsilon": epsilon,
             "max_bytes": int(self.cfg.limits.max_file_mb * 1024 * 1024),
             "max_triangles": self.cfg.limits.max_triangles,
-            "clean": self.cfg.repair.clean,
+            "clean": self.cfg.repair.clean, "surface": self.cfg.repair.surface,
         }, cancel, "repair failed")
         if not ok:
             return None

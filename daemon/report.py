@@ -69,6 +69,9 @@ def report_text(job: Job, history: list[dict[str, Any]]) -> str:
                      f", max deviation {_number(repair.get('deviation'))} mm, volume "
                      f"{_number(repair.get('volume'))} mm3, printable: "
                      f"{'yes' if ok else ('no' if ok is False else '?')}")
+        from repair.surface.stage import feature_lines
+
+        lines += feature_lines(repair.get("surface"))
     elif job.kind == "gcode":
         lines.append("Repair/slicing: skipped (G-code file), checked against the build volume "
                      "and the command policy")

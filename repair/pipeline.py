@@ -91,6 +91,7 @@ def repair_mesh(
     *,
     progress: Progress = None,
     clean: str = "auto",
+    surface: str = "off",
 ) -> RepairResult:
     """Repair a triangle soup into a printable solid, as exactly as possible.
 
@@ -107,6 +108,10 @@ def repair_mesh(
 
     ``clean``: ``"scan"`` cleans the input as a scanned mesh first (:mod:`repair.scan`),
     ``"auto"`` does when it looks like one, ``"none"`` never; the report says which.
+
+    ``surface``: ``"holes"`` refines cylindrical and conical features to the design surface
+    (chordal error within ``min(0.01, epsilon / 40)`` mm), ``"all"`` also spheres and tori,
+    ``"off"`` never (:mod:`repair.surface`); the report's ``surface`` section says what.
     """
     eps = _checked_epsilon(epsilon)
     if clean not in CLEAN_MODES:
@@ -122,8 +127,21 @@ def repair_mesh(
         cleaned = clean_checked(rounded.vertices, rounded.faces, rounded.verdict)
         clock.lap("clean", 0.2)
         out = _solidify(rounded, cleaned, eps, clock, clean)
+    if surface != "off":
+        out = _surface(out, eps, surface, clock)
     before = input_report(rounded.verdict, len(rounded.vertices))
     return RepairResult(out.vertices, out.faces, repair_report(before, out, eps, clock))
+
+
+def _surface(out: RepairOutcome, eps: float, surface: str, clock: StageClock) -> RepairOutcome:
+    from repair.surface.stage import surface_stage
+
+    try:
+        out = surface_stage(out, eps, surface)
+    except ValueError as exc:
+        raise RepairError(str(exc)) from None
+    clock.lap("surface", 0.95)
+    return out
 
 
 def _checked_epsilon(epsilon: float) -> float:
@@ -297,6 +315,7 @@ def repair_file(
     max_triangles: int | None = None,
     progress: Progress = None,
     clean: str = "auto",
+    surface: str = "off",
 ) -> dict[str, Any]:
     """Load a mesh file (STL/OBJ/PLY/3MF), repair it, write a binary STL at ``out_path``
     and, if asked, the report as JSON at ``report_path``. Returns the report.
@@ -311,7 +330,8 @@ def repair_file(
     t_load = time.perf_counter() - t0
     if progress is not None:
         progress("load", 0.05)
-    result = repair_mesh(mesh.vertices, mesh.faces, epsilon, progress=progress, clean=clean)
+    result = repair_mesh(mesh.vertices, mesh.faces, epsilon, progress=progress, clean=clean,
+                         surface=surface)
     t1 = time.perf_counter()
     write_stl(out_path, result.vertices, result.faces)
     report = dict(result.report)

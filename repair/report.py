@@ -166,7 +166,12 @@ def repair_report(
 def summary(r: dict[str, Any]) -> str:
     """One line saying what the repair found and did."""
     a, b = r["after"], r["before"]
+    from repair.surface.stage import surface_summary
+
+    curved = surface_summary(r.get("surface"))
     if r["path"] == "unchanged":
+        if curved:
+            return f"already printable: {b['triangles']} -> {a['triangles']} triangles, {curved}"
         return f"already printable: {b['triangles']} triangles kept unchanged"
     fixes = []
     for key, label in (
@@ -203,6 +208,8 @@ def summary(r: dict[str, Any]) -> str:
         )
     if b["misoriented_edges"] or b["volume"] < 0:
         fixes.append("orientation fixed")
+    if curved:
+        fixes.append(curved)
     what = ", ".join(fixes) if fixes else "re-oriented and closed"
     return (
         f"{b['triangles']} -> {a['triangles']} triangles in {a['components']} part(s), "

@@ -30,6 +30,10 @@ def register(subparsers) -> None:
     p.add_argument("--clean", choices=("auto", "scan", "none"), default="auto",
                    help="scan cleanup (spikes, specks, ragged holes): auto when the model "
                    "looks like a scan (default), scan always, none never")  # fmt: skip
+    p.add_argument("--surface", choices=("off", "holes", "all"), default="holes",
+                   help="refine curved features to the design surface, chordal error within "
+                   "min(0.01, EPSILON/40) mm: holes = cylinders and cones (default), all = "
+                   "also spheres and tori, off = never")  # fmt: skip
     p.add_argument("--report", metavar="R.json", help="write the repair report as JSON")
     p.add_argument("--json", action="store_true", help="print the report as JSON on stdout")
     p.set_defaults(func=run)
@@ -72,7 +76,7 @@ def run(args) -> int:
     try:
         report = repair_file(args.input, args.output, epsilon=args.epsilon,
                              report_path=args.report, progress=line,
-                             clean=args.clean)  # fmt: skip
+                             clean=args.clean, surface=args.surface)  # fmt: skip
     except (MeshReadError, RepairError) as exc:
         if line:
             line.done()
