@@ -25,11 +25,12 @@ STEP_SUFFIXES = (".step", ".stp")
 
 #: Largest chordal deflection (mm) of the tessellation; a finer nozzle lowers it (nozzle/40).
 MAX_CHORDAL_DEFLECTION = 0.01
-NOZZLE_FRACTION = 1.0 / 40.0
+NOZZLE_DIVISOR = 40.0
 
-#: Angular deflection (radians, about 11.5 degrees) between neighbouring facets: at least
-#: 32 segments around any circle, however small, so a 1 mm pin is round too.
-ANGULAR_DEFLECTION = 0.2
+#: Angular deflection (radians, about 29 degrees; Open CASCADE's own default) between
+#: neighbouring facets. At printer scale the chordal deflection is the one that binds; this
+#: one only keeps a tiny pin at a dozen facets or more (2 pi / 0.5).
+ANGULAR_DEFLECTION = 0.5
 
 INSTALL_HINT = "pip install 'preflight[cad]'"
 MISSING_KERNEL = (
@@ -46,7 +47,7 @@ def chordal_deflection(nozzle: float | None = None) -> float:
     (mm): ``min(0.01, nozzle / 40)``; 0.01 mm when the nozzle is not known."""
     if nozzle is None or not nozzle > 0:
         return MAX_CHORDAL_DEFLECTION
-    return min(MAX_CHORDAL_DEFLECTION, float(nozzle) * NOZZLE_FRACTION)
+    return min(MAX_CHORDAL_DEFLECTION, float(nozzle) / NOZZLE_DIVISOR)
 
 
 def read_step(
