@@ -7,14 +7,21 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-import textwrap
-from importlib.util import find_spec
 from pathlib import Path
 
 import numpy as np
 import pytest
 from plate_model import BOSS_CENTRE, BOSS_HEIGHT, BOSS_RADIUS, HOLES, PLATE_SIZE, bounding_box
-from plate_step import write_plate_step
+from step_helpers import (
+    F32,
+    HAVE_OCP,
+    NO_OCP,
+    ROOT,
+    facet_sagitta,
+    needs_ocp,
+    without_cad_extra_env,
+    write_plate_step,
+)
 
 from repair.check import check_printable
 from repair.io import MeshReadError, load_mesh
@@ -23,42 +30,11 @@ from repair.io.step import ANGULAR_DEFLECTION, INSTALL_HINT, chordal_deflection
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import hole_gauge  # noqa: E402
 
-HAVE_OCP = find_spec("OCP") is not None
-needs_ocp = pytest.mark.skipif(
-    not HAVE_OCP, reason=f"the optional cad extra (cadquery-ocp) is not installed: {INSTALL_HINT}"
-)
-ROOT = Path(__file__).resolve().parents[2]
-#: float32 rounding of coordinates up to 60 mm (the tessellation passes through binary STL)
-F32 = 8e-6
-
-#: A sitecustomize that hides OCP from the interpreter it runs in, as if the extra were absent.
-HIDE_OCP = textwrap.dedent('''
-    import sys
-
-    class _NoCadExtra:
-        def find_spec(self, name, path=None, target=None):
-            if name == "OCP" or name.startswith("OCP."):
-                raise ModuleNotFoundError(f"No module named {name!r}", name=name)
-            return None
-
-    sys.meta_path.insert(0, _NoCadExtra())
-''')
-
-
-def without_ocp_env(tmp: Path) -> dict[str, str]:
-    """Environment for a subprocess in which ``import OCP`` fails."""
-    site = tmp / "no_cad_extra"
-    site.mkdir(exist_ok=True)
-    (site / "sitecustomize.py").write_text(HIDE_OCP)
-    import os
-
-    return dict(os.environ, PYTHONPATH=os.pathsep.join([str(site), str(ROOT)]))
-
 
 @pytest.fixture(scope="module")
 def plate_step(tmp_path_factory) -> Path:
     if not HAVE_OCP:
-        pytest.skip(f"the optional cad extra (cadquery-ocp) is not installed: {INSTALL_HINT}")
+        pytest.skip(NO_OCP)
     return write_plate_step(tmp_path_factory.mktemp("step") / "plate.step")
 
 
@@ -74,22 +50,6 @@ def design_distance(v: np.ndarray) -> np.ndarray:
               np.abs(v[:, 2]), np.abs(v[:, 2] - sz), np.abs(v[:, 2] - sz - BOSS_HEIGHT)]
     round_ = [np.abs(np.hypot(v[:, 0] - x, v[:, 1] - y) - r) for x, y, r in cylinders()]
     return np.min(planes + round_, axis=0)
-
-
-def facet_sagitta(v: np.ndarray, f: np.ndarray, x: float, y: float, r: float):
-    """(sagitta of each side facet of the cylinder (x, y, r), the distinct angles of its
-    corners): a side facet has all corners on the cylinder, at two heights (a cap's facets lie
-    at one). The sagitta is r minus the exact smallest distance from the axis to the facet
-    (the cylinder is vertical, so that is a 2D point-to-triangle distance)."""
-    on = np.abs(np.hypot(v[:, 0] - x, v[:, 1] - y) - r) < 1e-4
-    facets = f[on[f].all(axis=1) & (np.ptp(v[f][:, :, 2], axis=1) > 1e-6)]
-    tri = v[facets][:, :, :2] - np.array([x, y])  # (m, 3, 2), axis at the origin
-    a, b = tri, np.roll(tri, -1, axis=1)
-    ab = b - a
-    t = np.clip(-(a * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-300), 0.0, 1.0)
-    nearest = np.hypot(*(a + t[..., None] * ab).transpose(2, 0, 1)).min(axis=1)
-    angles = np.unique(np.round(np.arctan2(v[on, 1] - y, v[on, 0] - x), 6))
-    return r - nearest, len(angles)
 
 
 @needs_ocp
@@ -186,7 +146,7 @@ def test_without_the_cad_extra_a_step_is_refused_with_the_install_command(tmp_pa
     step = tmp_path / "part.step"
     # a STEP header is enough: the file is refused before Open CASCADE would parse it
     step.write_text("ISO-10303-21;\nHEADER;\nENDSEC;\nDATA;\nENDSEC;\nEND-ISO-10303-21;\n")
-    env = without_ocp_env(tmp_path)
+    env = without_cad_extra_env(tmp_path)
     probe = ("from repair.io import MeshReadError, load_mesh\n"
              "import sys\n"
              "try:\n    load_mesh(sys.argv[1])\n"
