@@ -37,6 +37,9 @@ MISSING_KERNEL = (
     "STEP files need the optional CAD kernel (Open CASCADE), which is not installed; "
     f"install it with: {INSTALL_HINT}"
 )
+#: The wheel links the system's OpenGL and X11 client libraries (not bundled by manylinux);
+#: a headless system may lack them.
+SYSTEM_LIBRARIES = "apt-get install libgl1 libx11-6"
 
 #: Every STEP (ISO 10303-21) file starts with this line.
 STEP_MAGIC = b"ISO-10303-21"
@@ -71,8 +74,12 @@ def read_step(
         from OCP.StlAPI import StlAPI_Writer
         from OCP.TopAbs import TopAbs_FACE
         from OCP.TopExp import TopExp_Explorer
-    except ImportError:
+    except ModuleNotFoundError as exc:
+        if exc.name is None or exc.name.split(".")[0] != "OCP":
+            raise MeshReadError(f"{name}: {_unloadable(exc)}") from None
         raise MeshReadError(f"{name}: {MISSING_KERNEL}") from None
+    except ImportError as exc:
+        raise MeshReadError(f"{name}: {_unloadable(exc)}") from None
     _quiet_kernel()
     reader = STEPControl_Reader()
     if reader.ReadFile(str(path)) != IFSelect_RetDone:
@@ -94,6 +101,11 @@ def read_step(
             raise MeshReadError(f"{name}: a face of the STEP model could not be tessellated")
         soup = read_stl(stl.read_bytes(), name, max_triangles)
     return finish(soup.vertices, soup.faces, "step", name)
+
+
+def _unloadable(exc: ImportError) -> str:
+    return (f"the CAD kernel (Open CASCADE) is installed but cannot load ({exc}); "
+            f"its system libraries: {SYSTEM_LIBRARIES}")
 
 
 def _check_header(path: Path, name: str) -> None:

@@ -8,7 +8,6 @@ import os
 import sys
 import textwrap
 from collections.abc import Sequence
-from importlib.util import find_spec
 from pathlib import Path
 
 import numpy as np
@@ -21,32 +20,47 @@ from plate_model import BOSS_CENTRE, BOSS_HEIGHT, BOSS_RADIUS, HOLES, PLATE_SIZE
 from repair.io.step import INSTALL_HINT  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
-HAVE_OCP = find_spec("OCP") is not None
+
+
+def _ocp_loads() -> bool:
+    try:
+        from OCP.STEPControl import STEPControl_Reader  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+HAVE_OCP = _ocp_loads()
 NO_OCP = f"the optional cad extra (cadquery-ocp) is not installed: {INSTALL_HINT}"
 needs_ocp = pytest.mark.skipif(not HAVE_OCP, reason=NO_OCP)
 #: float32 rounding of coordinates up to 60 mm (the tessellation passes through binary STL)
 F32 = 8e-6
 
 #: A sitecustomize that hides OCP from the interpreter it runs in (and the processes that
-#: interpreter starts with its environment), as if the extra were not installed.
+#: interpreter starts with its environment): as if the extra were not installed ("absent"),
+#: or as the dynamic loader fails when a system library is missing ("unloadable").
 HIDE_OCP = textwrap.dedent('''
     import sys
 
     class _NoCadExtra:
         def find_spec(self, name, path=None, target=None):
             if name == "OCP" or name.startswith("OCP."):
-                raise ModuleNotFoundError(f"No module named {name!r}", name=name)
+                if MODE == "absent":
+                    raise ModuleNotFoundError(f"No module named {name!r}", name=name)
+                raise ImportError("libGL.so.1: cannot open shared object file: No such file "
+                                  "or directory")
             return None
 
     sys.meta_path.insert(0, _NoCadExtra())
 ''')
 
 
-def without_cad_extra_env(tmp: Path) -> dict[str, str]:
-    """Environment for a subprocess (and its children) in which ``import OCP`` fails."""
-    site = tmp / "no_cad_extra"
+def without_cad_extra_env(tmp: Path, mode: str = "absent") -> dict[str, str]:
+    """Environment for a subprocess (and its children) in which ``import OCP`` fails:
+    ``mode`` "absent" (not installed) or "unloadable" (a system library is missing)."""
+    site = tmp / f"no_cad_extra_{mode}"
     site.mkdir(exist_ok=True)
-    (site / "sitecustomize.py").write_text(HIDE_OCP)
+    (site / "sitecustomize.py").write_text(f"MODE = {mode!r}\n" + HIDE_OCP)
     path = [str(site), str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])]
     return dict(os.environ, PYTHONPATH=os.pathsep.join(path))
 

@@ -25,7 +25,12 @@ from step_helpers import (
 
 from repair.check import check_printable
 from repair.io import MeshReadError, load_mesh
-from repair.io.step import ANGULAR_DEFLECTION, INSTALL_HINT, chordal_deflection
+from repair.io.step import (
+    ANGULAR_DEFLECTION,
+    INSTALL_HINT,
+    SYSTEM_LIBRARIES,
+    chordal_deflection,
+)
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import hole_gauge  # noqa: E402
@@ -147,22 +152,37 @@ def test_without_the_cad_extra_a_step_is_refused_with_the_install_command(tmp_pa
     # a STEP header is enough: the file is refused before Open CASCADE would parse it
     step.write_text("ISO-10303-21;\nHEADER;\nENDSEC;\nDATA;\nENDSEC;\nEND-ISO-10303-21;\n")
     env = without_cad_extra_env(tmp_path)
-    probe = ("from repair.io import MeshReadError, load_mesh\n"
-             "import sys\n"
-             "try:\n    load_mesh(sys.argv[1])\n"
-             "except MeshReadError as exc:\n    print(exc)\n")
-    run = subprocess.run([sys.executable, "-c", probe, str(step)], capture_output=True,
-                         text=True, env=env, cwd=tmp_path)
-    assert run.returncode == 0, run.stderr
-    line = run.stdout.strip()
+    line = refusal_in_subprocess(step, env)
     assert line.startswith("part.step: STEP files need the optional CAD kernel"), line
-    assert INSTALL_HINT in line and "\n" not in line
+    assert INSTALL_HINT in line
     out = tmp_path / "out.stl"
     cli = subprocess.run([sys.executable, "-m", "daemon", "repair", str(step), "-o", str(out)],
                          capture_output=True, text=True, env=env, cwd=tmp_path)
     assert cli.returncode == 1
     assert INSTALL_HINT in cli.stderr and len(cli.stderr.strip().splitlines()) == 1, cli.stderr
     assert not out.exists()
+
+
+def test_an_installed_kernel_that_cannot_load_names_the_system_libraries(tmp_path):
+    step = tmp_path / "part.stp"
+    step.write_text("ISO-10303-21;\nHEADER;\nENDSEC;\nDATA;\nENDSEC;\nEND-ISO-10303-21;\n")
+    line = refusal_in_subprocess(step, without_cad_extra_env(tmp_path, "unloadable"))
+    assert line.startswith("part.stp: the CAD kernel (Open CASCADE) is installed but cannot "
+                           "load (libGL.so.1: cannot open shared object file"), line
+    assert line.endswith(SYSTEM_LIBRARIES)
+
+
+def refusal_in_subprocess(path: Path, env: dict[str, str]) -> str:
+    """The MeshReadError line of ``load_mesh(path)`` in a fresh interpreter with ``env``."""
+    probe = ("from repair.io import MeshReadError, load_mesh\n"
+             "import sys\n"
+             "try:\n    load_mesh(sys.argv[1])\n"
+             "except MeshReadError as exc:\n    print(exc)\n")
+    run = subprocess.run([sys.executable, "-c", probe, str(path)], capture_output=True,
+                         text=True, env=env, cwd=path.parent)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.count("\n") == 1, run.stdout
+    return run.stdout.strip()
 
 
 def test_a_file_named_step_that_is_not_step_is_refused(tmp_path):
