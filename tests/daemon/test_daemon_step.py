@@ -1,6 +1,7 @@
 """STEP end to end: the real daemon takes a STEP from its spool folder and from the HTTP
 upload, tessellates it at the printer's tolerance, repairs, slices and prints it on the
-virtual printer; without the ``cad`` extra, the job fails with the install command."""
+virtual printer, and shows the tessellation in the status page's 3D view; without the ``cad``
+extra, the job fails with the install command."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
 from daemon_helpers import DaemonProc, drop, write_config
 from test_daemon_e2e import read_log, settled
 
@@ -30,6 +32,7 @@ BRACKET = {"size": (16.0, 12.0, 2.0), "holes": [(5.0, 6.0, 2.0)], "boss": (11.5,
 
 @needs_ocp
 def test_a_step_from_the_spool_and_from_an_upload_is_printed(tmp_path, web_daemon):
+    from test_web_page import get, parse_mesh
     from test_web_safety import upload
 
     d, port, key = web_daemon()
@@ -49,6 +52,12 @@ def test_a_step_from_the_spool_and_from_an_upload_is_printed(tmp_path, web_daemo
         sagitta, _ = facet_sagitta(repaired.vertices, repaired.faces, *BRACKET["holes"][0])
         assert len(sagitta) >= 64
         assert sagitta.max() <= chordal_deflection(report["epsilon"]) + F32
+        # the status page's 3D view of the input is that tessellation
+        tris, _, _ = parse_mesh(get(port, f"/api/preflight/jobs/{job.id}/mesh/input", key).body)
+        assert np.allclose(tris, repaired.vertices[repaired.faces], atol=1e-6)
+    # ... and Open CASCADE was loaded only in the repair children, never in the daemon
+    maps = Path(f"/proc/{d.proc.pid}/maps").read_text()
+    assert "cadquery_ocp" not in maps and "OCP.cpython" not in maps
 
 
 def test_without_the_cad_extra_a_step_fails_with_the_install_command(tmp_path):
