@@ -210,3 +210,21 @@ def test_a_broken_step_file_is_refused_in_one_line(plate_step, tmp_path):
                      "ENDSEC;\nDATA;\nENDSEC;\nEND-ISO-10303-21;\n")
     with pytest.raises(MeshReadError, match="^empty.step: the STEP file holds no"):
         load_mesh(empty)
+
+
+@needs_ocp
+def test_slice_cli_takes_a_step_file(tmp_path):
+    step = write_plate_step(tmp_path / "washer.step", size=(10.0, 10.0, 1.2),
+                            holes=[(5.0, 5.0, 2.0)], boss=None)
+    out = tmp_path / "washer.gcode"
+    run = subprocess.run([sys.executable, "-m", "daemon", "slice", str(step), "-o", str(out),
+                          "--nozzle", "0.25"], capture_output=True, text=True, cwd=ROOT)
+    assert run.returncode == 0, run.stderr
+    from slicer.profile import Profile
+
+    profile = Profile.for_printer(nozzle_diameter=0.25)  # what the CLI slices with
+    mesh = load_mesh(step, deflection=chordal_deflection(0.25))
+    centre = hole_gauge.bed_xy([(5.0, 5.0)], mesh.vertices, profile.build_volume)
+    width = hole_gauge.bead_width(profile.line_width, profile.layer_height)
+    (hole,) = hole_gauge.hole_diameters(out.read_text(), centre, 0.6, width)
+    assert abs(hole - 4.0) <= 0.05, hole
