@@ -59,7 +59,8 @@ def read_step(
     """Read a STEP file into a closed, welded :class:`Mesh` in millimetres.
 
     ``deflection`` is the chordal deflection in mm (default :func:`chordal_deflection`).
-    The file's own length unit (inch, metre, ...) is converted to mm. Raises
+    The file's own length unit (inch, metre, ...) is converted to mm by Open CASCADE, which
+    does not say what it was, so ``unit_scale`` stays 1.0. Raises
     :class:`MeshReadError` (one line) when Open CASCADE is missing, the file is not STEP,
     holds no surface, or cannot be tessellated.
     """
