@@ -23,7 +23,7 @@ from pathlib import Path
 
 from printer.gcode import clean_lines, lex
 
-MESH_SUFFIXES = frozenset({".stl", ".obj", ".ply", ".3mf"})
+MESH_SUFFIXES = frozenset({".stl", ".obj", ".ply", ".3mf", ".step", ".stp"})
 GCODE_SUFFIXES = frozenset({".gcode", ".gco", ".g"})
 ACCEPTED_SUFFIXES = MESH_SUFFIXES | GCODE_SUFFIXES
 PARTIAL_SUFFIXES = (".part", ".tmp", ".crdownload", ".partial", ".swp", "~")

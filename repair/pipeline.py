@@ -317,16 +317,18 @@ def repair_file(
     clean: str = "auto",
     surface: str = "off",
 ) -> dict[str, Any]:
-    """Load a mesh file (STL/OBJ/PLY/3MF), repair it, write a binary STL at ``out_path``
+    """Load a mesh file (STL/OBJ/PLY/3MF/STEP), repair it, write a binary STL at ``out_path``
     and, if asked, the report as JSON at ``report_path``. Returns the report.
 
     Raises :class:`repair.io.MeshReadError` for unreadable input and :class:`RepairError`
     when nothing printable can be made of it.
     """
     from repair.io import load_mesh, write_stl
+    from repair.io.step import chordal_deflection
 
     t0 = time.perf_counter()
-    mesh = load_mesh(in_path, max_bytes=max_bytes, max_triangles=max_triangles)
+    mesh = load_mesh(in_path, max_bytes=max_bytes, max_triangles=max_triangles,
+                     deflection=chordal_deflection(epsilon))  # a STEP's tessellation
     t_load = time.perf_counter() - t0
     if progress is not None:
         progress("load", 0.05)

@@ -18,9 +18,10 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "repair",
         help="make a mesh printable, as exactly as possible",
-        description="Repair a mesh (STL, OBJ, PLY, 3MF) into a closed, edge-manifold, "
-        "self-intersection-free solid. Solid parts are kept exactly; zero-thickness sheets "
-        "are thickened and wires inflated by EPSILON (the nozzle diameter).",
+        description="Repair a mesh (STL, OBJ, PLY, 3MF; STEP with the cad extra) into a "
+        "closed, edge-manifold, self-intersection-free solid. Solid parts are kept exactly; "
+        "zero-thickness sheets are thickened and wires inflated by EPSILON (the nozzle "
+        "diameter). A STEP is tessellated within min(0.01, EPSILON/40) mm of its surfaces.",
     )
     p.add_argument("input", metavar="IN", help="mesh file to repair")
     p.add_argument("-o", "--output", metavar="OUT.stl", required=True,

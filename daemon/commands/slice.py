@@ -70,15 +70,16 @@ def build_profile(args: argparse.Namespace):
     return profile.with_overrides(over)
 
 
-def _load(path: str):
+def _load(path: str, nozzle: float):
     try:
         from repair.io import load_mesh
+        from repair.io.step import chordal_deflection
     except ImportError:  # repair area not present: fall back to trimesh
         import trimesh
 
         m = trimesh.load(path, force="mesh")
         return m.vertices, m.faces
-    mesh = load_mesh(path)
+    mesh = load_mesh(path, deflection=chordal_deflection(nozzle))  # a STEP's tessellation
     return mesh.vertices, mesh.faces
 
 
@@ -119,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
         if args.slicer == "embedded":
             from slicer.engine import slice_mesh, write_gcode
 
-            vertices, faces = _load(str(src))
+            vertices, faces = _load(str(src), profile.nozzle_diameter)
             result = slice_mesh(vertices, faces, profile, progress=progress)
             write_gcode(args.output, result.gcode)
             summary = dict(result.summary)

@@ -116,8 +116,16 @@ def _label_meshes(cfg: Any, job: Job, inp: str, rep: str | None) -> dict[str, by
 
     from repair.changes import KEPT, face_changes
     from repair.io import MeshReadError, load_mesh
+    from repair.io.step import STEP_SUFFIXES
 
     limit = min(MAX_PREVIEW_TRIANGLES, cfg.limits.max_triangles)
+    if Path(inp).suffix.lower() in STEP_SUFFIXES:
+        # a STEP is exact surfaces, not a mesh: tessellating it here would load Open CASCADE
+        # (~300 MB) into the daemon. Its input view is its tessellation, as repaired.
+        if rep is None:
+            raise Refused(404, f"job {job.id}'s input is a STEP file: its 3D view is shown "
+                               "once it is tessellated and repaired")
+        inp = rep
     try:
         m_in = load_mesh(inp, max_triangles=limit)
         m_out = load_mesh(rep, max_triangles=limit) if rep else None

@@ -1,14 +1,16 @@
-"""Mesh files in and out: STL (binary and ASCII), OBJ, PLY and 3MF in; binary STL out.
+"""Mesh files in and out: STL (binary and ASCII), OBJ, PLY, 3MF and STEP in; binary STL out.
 
 Every reader returns a :class:`Mesh` in millimetres, or raises :class:`MeshReadError`
 with a one-line human-readable message. Readers weld nothing except what the format
-implies: STL is a triangle soup, so exactly coincident corners are merged (bit-for-bit
-equal coordinates, no tolerance); OBJ, PLY and 3MF index shared vertices already and are
-kept as they are. Degenerate triangles are kept (the repair turns them into wires);
-OBJ ``l`` polylines become degenerate triangles ``(a, b, b)`` for the same reason.
+implies: STL is a triangle soup (so is Open CASCADE's tessellation of a STEP), so exactly
+coincident corners are merged (bit-for-bit equal coordinates, no tolerance); OBJ, PLY and
+3MF index shared vertices already and are kept as they are. Degenerate triangles are kept
+(the repair turns them into wires); OBJ ``l`` polylines become degenerate triangles
+``(a, b, b)`` for the same reason.
 
-One module per format (``stl``, ``obj``, ``ply``, ``threemf``), the shared pieces in
-``base``, the dispatch in ``read`` and the writers in ``write``.
+One module per format (``stl``, ``obj``, ``ply``, ``threemf``, and ``step`` with the optional
+``cad`` extra), the shared pieces in ``base``, the dispatch in ``read`` and the writers in
+``write``.
 """
 
 from repair.io.base import (

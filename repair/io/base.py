@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-SUPPORTED_SUFFIXES = (".stl", ".obj", ".ply", ".3mf")
+SUPPORTED_SUFFIXES = (".stl", ".obj", ".ply", ".3mf", ".step", ".stp")  # STEP: repair/io/step.py
 
 #: Default cap on the total decompressed size of a 3MF archive when the caller gives no
 #: ``max_bytes`` (with ``max_bytes``, the cap is ``EXPANSION_3MF * max_bytes``).
@@ -55,7 +55,7 @@ class Mesh:
 
     ``vertices``: float64 (n, 3) in mm, all finite. ``faces``: int64 (m, 3) indices into
     ``vertices`` (may contain degenerate triangles). ``source_format``: one of
-    ``"stl-binary"``, ``"stl-ascii"``, ``"obj"``, ``"ply"``, ``"3mf"``. ``unit_scale``:
+    ``"stl-binary"``, ``"stl-ascii"``, ``"obj"``, ``"ply"``, ``"3mf"``, ``"step"``. ``unit_scale``:
     the factor that was applied to the file's coordinates to get mm (1.0 except for 3MF
     files in other units).
     """

@@ -17,6 +17,7 @@ from repair.io.base import (
 )
 from repair.io.obj import read_obj
 from repair.io.ply import read_ply
+from repair.io.step import STEP_SUFFIXES, read_step
 from repair.io.stl import read_stl
 from repair.io.threemf import read_3mf
 
@@ -27,13 +28,16 @@ def load_mesh(
     max_bytes: int | None = None,
     max_triangles: int | None = None,
     max_decompressed: int | None = None,
+    deflection: float | None = None,
 ) -> Mesh:
-    """Read a mesh file (STL, OBJ, PLY, 3MF) into a :class:`Mesh` in millimetres.
+    """Read a mesh file (STL, OBJ, PLY, 3MF, STEP) into a :class:`Mesh` in millimetres.
 
     ``max_bytes`` caps the file size; ``max_triangles`` caps the triangle count (checked
     from headers before the bulk is parsed where the format allows). For 3MF, the total
     decompressed size is capped at ``max_decompressed`` (default: 20 x ``max_bytes``, or
     1 GiB without ``max_bytes``), counted while reading, so a zip bomb is refused early.
+    A STEP file (the optional ``cad`` extra) is tessellated at the chordal ``deflection``
+    in mm (default :func:`repair.io.step.chordal_deflection`).
     Raises :class:`MeshReadError` (one line) for anything that is not a readable mesh.
     """
     p = Path(path)
@@ -51,6 +55,8 @@ def load_mesh(
         raise MeshReadError(
             f"{name}: file is {human_bytes(size)}, over the {human_bytes(max_bytes)} limit"
         )
+    if suffix in STEP_SUFFIXES:
+        return read_step(p, name, deflection=deflection, max_triangles=max_triangles)
     if suffix == ".3mf":
         if max_decompressed is None:
             max_decompressed = (

@@ -234,8 +234,8 @@ def test_empty_and_missing_files(tmp_path):
 
 
 def test_unsupported_extension(tmp_path):
-    p = tmp_path / "part.step"
-    p.write_text("ISO-10303-21;")
+    p = tmp_path / "part.iges"  # STEP is read (repair/io/step.py); IGES is not
+    p.write_text("S      1\n")
     with pytest.raises(MeshReadError, match="unsupported"):
         load_mesh(p)
     # MeshReadError is a ValueError, as the contract says
