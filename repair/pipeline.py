@@ -43,9 +43,11 @@ from typing import Any
 
 import numpy as np
 
+from repair.budget import Meshed, run_within_budget
 from repair.clean import Cleaned, clean_checked
 from repair.deviation import max_deviation
 from repair.errors import RepairError
+from repair.fallback import fallback_repair
 from repair.finish import finish
 from repair.holes import MAX_BOUNDARY_FRACTION, HolesClosed, close_small_holes
 from repair.hull_and_thicken import hull_and_thicken
@@ -70,6 +72,8 @@ __all__ = ["RepairError", "RepairResult", "repair_file", "repair_mesh"]
 #: γ of Attene's crack stitching (Sec. 5.2), as a fraction of eps: boundaries of
 #: different patches closer than this are joined (:mod:`repair.stitch`).
 STITCH_GAMMA = 0.25
+#: How the exact path's refusal starts: the fallback is tried before it is given.
+NOT_PRINTABLE = "could not make the model printable: "
 #: What ``clean`` may ask for: scan cleanup when the input looks like a scan, always, never.
 CLEAN_MODES = ("auto", "scan", "none")
 
@@ -91,6 +95,7 @@ def repair_mesh(
     *,
     progress: Progress = None,
     clean: str = "auto",
+    time_budget: float | None = None,
 ) -> RepairResult:
     """Repair a triangle soup into a printable solid, as exactly as possible.
 
@@ -107,11 +112,31 @@ def repair_mesh(
 
     ``clean``: ``"scan"`` cleans the input as a scanned mesh first (:mod:`repair.scan`),
     ``"auto"`` does when it looks like one, ``"none"`` never; the report says which.
+
+    ``time_budget`` (seconds, optional): past it the exact repair stops and the fallback
+    approximation (:mod:`repair.fallback`) is used if it can print the model; the report
+    says so. The fallback is also used when the exact repair cannot make the model
+    printable.
     """
     eps = _checked_epsilon(epsilon)
     if clean not in CLEAN_MODES:
         raise RepairError(f"clean must be one of {', '.join(CLEAN_MODES)}, got {clean!r}")
     v_in, f_in = _checked_mesh(vertices, faces)
+    if time_budget is None:
+        return RepairResult(*_repair(v_in, f_in, eps, progress, clean))
+    meshed = run_within_budget(
+        lambda: _repair(v_in, f_in, eps, progress, clean), float(time_budget),
+        lambda reason: _repair(v_in, f_in, eps, progress, clean, fallback=reason),
+    )  # fmt: skip
+    return RepairResult(*meshed)
+
+
+def _repair(
+    v_in: np.ndarray, f_in: np.ndarray, eps: float, progress: Progress, clean: str,
+    fallback: str | None = None,
+) -> Meshed:
+    """:func:`repair_mesh` of a checked input; ``fallback``: why the fallback replaces
+    the exact repair (which then does not run)."""
     clock = StageClock(progress)
     rounded = round_input(v_in, f_in)
     clock.lap("check_input", 0.1)
@@ -121,9 +146,9 @@ def repair_mesh(
     else:
         cleaned = clean_checked(rounded.vertices, rounded.faces, rounded.verdict)
         clock.lap("clean", 0.2)
-        out = _solidify(rounded, cleaned, eps, clock, clean)
+        out = _solidify(rounded, cleaned, eps, clock, clean, fallback)
     before = input_report(rounded.verdict, len(rounded.vertices))
-    return RepairResult(out.vertices, out.faces, repair_report(before, out, eps, clock))
+    return out.vertices, out.faces, repair_report(before, out, eps, clock)
 
 
 def _checked_epsilon(epsilon: float) -> float:
@@ -162,7 +187,8 @@ def _unchanged(rounded: RoundedInput) -> RepairOutcome:
 
 
 def _solidify(
-    rounded: RoundedInput, cleaned: Cleaned, eps: float, clock: StageClock, clean: str
+    rounded: RoundedInput, cleaned: Cleaned, eps: float, clock: StageClock, clean: str,
+    fallback: str | None = None,
 ) -> RepairOutcome:
     """Stages 2 (holes) to 6 (deviation) of a cleaned input that is not printable."""
     if len(cleaned.faces) == 0 and len(cleaned.segments) == 0:
@@ -182,11 +208,11 @@ def _solidify(
     pairs = carry_input_pairs(rounded.vertices, rounded.faces, rounded.pairs, lidded_v, lidded_f)
     lidded = _Lidded(lidded_v, lidded_f, pairs)
     tally = RepairTally()
-    united = _union_path(rounded, cleaned, lidded, eps, tally, clock)
+    united = None if fallback else _union_path(rounded, cleaned, lidded, eps, tally, clock)
     if united is not None:
         out, hint = united
     else:
-        out, hint = _exact_path(cleaned, lidded, eps, tally, clock), None
+        out, hint = _exact_or_fallback(cleaned, lidded, eps, tally, clock, fallback), None
     junk_before = out.tally.junk_shells
     out = without_internal_junk(out)
     if out.tally.junk_shells != junk_before:
@@ -204,7 +230,7 @@ def _solidify(
     reference = np.vstack([cleaned.faces, holes.exact_faces])
     out.deviation = rounded.rounding + max_deviation(
         out.vertices, out.faces, cleaned.vertices, reference, cleaned.segments,
-        max_points=400_000 if out.path == "exact" else 0, hint=hint,
+        max_points=0 if out.path == "union" else 400_000, hint=hint,
     )  # fmt: skip
     clock.lap("deviation", 0.95)
     return out
@@ -282,9 +308,28 @@ def _exact_path(
     out_v, out_f, verdict = finish(hull_v, hull_f, eps, tally)
     clock.lap("finish", 0.8)
     if not verdict.ok:
-        raise RepairError("could not make the model printable: " + "; ".join(verdict.failures()))
+        raise RepairError(NOT_PRINTABLE + "; ".join(verdict.failures()))
     return RepairOutcome(out_v, out_f, verdict, "exact", 0.0, tally, HolesClosed(),
                          dropped_components=dropped)  # fmt: skip
+
+
+def _exact_or_fallback(
+    cleaned: Cleaned, lidded: _Lidded, eps: float, tally: RepairTally, clock: StageClock,
+    fallback: str | None,
+) -> RepairOutcome:
+    """The exact path; the fallback instead when ``fallback`` says why, or when the exact
+    path cannot make the model printable and the fallback can."""
+    if fallback is None:
+        try:
+            return _exact_path(cleaned, lidded, eps, tally, clock)
+        except RepairError as e:
+            if not str(e).startswith(NOT_PRINTABLE):
+                raise
+            fallback = str(e)
+    out = fallback_repair(lidded.vertices, lidded.faces, cleaned.segments, lidded.pairs, eps,
+                          fallback)  # fmt: skip
+    clock.lap("fallback", 0.8)
+    return out
 
 
 def repair_file(
@@ -297,6 +342,7 @@ def repair_file(
     max_triangles: int | None = None,
     progress: Progress = None,
     clean: str = "auto",
+    time_budget: float | None = None,
 ) -> dict[str, Any]:
     """Load a mesh file (STL/OBJ/PLY/3MF), repair it, write a binary STL at ``out_path``
     and, if asked, the report as JSON at ``report_path``. Returns the report.
@@ -311,7 +357,8 @@ def repair_file(
     t_load = time.perf_counter() - t0
     if progress is not None:
         progress("load", 0.05)
-    result = repair_mesh(mesh.vertices, mesh.faces, epsilon, progress=progress, clean=clean)
+    result = repair_mesh(mesh.vertices, mesh.faces, epsilon, progress=progress, clean=clean,
+                         time_budget=time_budget)  # fmt: skip
     t1 = time.perf_counter()
     write_stl(out_path, result.vertices, result.faces)
     report = dict(result.report)

@@ -68,8 +68,8 @@ class RepairTally:
 
 @dataclass
 class RepairOutcome:
-    """The written mesh and its verdict, the path that made it (``unchanged``, ``union``
-    or ``exact``), its deviation D from the input and what the stages did."""
+    """The written mesh and its verdict, the path that made it (``unchanged``, ``union``,
+    ``exact`` or ``fallback``), its deviation D from the input and what the stages did."""
 
     vertices: np.ndarray
     faces: np.ndarray
@@ -204,7 +204,12 @@ def summary(r: dict[str, Any]) -> str:
     if b["misoriented_edges"] or b["volume"] < 0:
         fixes.append("orientation fixed")
     what = ", ".join(fixes) if fixes else "re-oriented and closed"
-    return (
+    line = (
         f"{b['triangles']} -> {a['triangles']} triangles in {a['components']} part(s), "
         f"{r['volume']:.6g} mm³, D = {r['deviation']:.3g} mm: {what}"
     )
+    fb = r.get("fallback")
+    if fb:
+        line = (f"fallback: {fb['reason']}; approximation: {fb['approximation']}, "
+                f"D = {r['deviation']:.3g} mm; {line}")  # fmt: skip
+    return line

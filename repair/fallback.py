@@ -1,0 +1,152 @@
+"""The repair's fallback: a stated approximation for when the exact repair cannot finish
+within its time budget, or cannot make the model printable.
+
+The cleaned input (:mod:`repair.clean`) is split by shell. A shell that is already a
+solid -- closed, every edge used twice and in opposite directions within the shell, a
+non-zero volume, crossing no face of its own -- is kept exactly (turned outward if it
+was inside out). Everything else -- open sheets, non-manifold or self-intersecting
+shells, wires -- is replaced by its eps-Minkowski sum, approximated by a union of
+convex pieces: each triangle moved +-eps/2 along its normal (a prism), an eps-prism
+(:data:`repair.wires.SIDES` sides) along each boundary edge, crease and wire. The
+solids and the pieces are united by manifold3d's robust booleans (Attene's exact
+arrangement is what takes the time), rounded to float32 and checked exactly.
+
+Every point of a piece is within eps/2 of the input, so the deviation D of the
+approximated parts is at most eps/2 (measured and reported); exact shells keep their
+triangles where no piece touches them, D = 0 there. Cavities between overlapping
+pieces are not removed (Attene's outer hull would).
+
+Units are mm; vertices float64 (n, 3), faces int64 (m, 3). Vectorised numpy; one
+manifold3d batch union.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from repair.errors import RepairError
+from repair.finish import rounded_verdict
+from repair.holes import HolesClosed
+from repair.meshes import concat_meshes, shell_volumes, surface_area
+from repair.report import RepairOutcome, RepairTally
+from repair.rows import unique_rows
+from repair.thicken import sheet_slabs
+from repair.topology import connected_labels, edge_ids, paired_half_edges
+from repair.union import manifold_union
+from repair.wires import SIDES, cylinders
+
+__all__ = ["APPROXIMATION", "ShellSplit", "fallback_repair", "split_exact_shells"]
+
+#: What the fallback does, as the report states it.
+APPROXIMATION = (
+    "manifold3d union of the exact closed shells with an eps-thick approximation of the "
+    "eps-Minkowski sum of the other parts (slabs offset +-eps/2 along the vertex normals, "
+    f"{SIDES}-sided eps-prisms around wires), without the exact arrangement"
+)
+
+
+@dataclass(frozen=True)
+class ShellSplit:
+    """The faces (indices into the input's) of the shells kept exactly, already turned
+    outward, and of the parts that are approximated; how many shells of each."""
+
+    exact_faces: np.ndarray
+    offending: np.ndarray
+    exact_shells: int
+    offending_shells: int
+
+
+def _shell_labels(faces: np.ndarray) -> np.ndarray:
+    """Shells: faces joined by edges that exactly two faces use, so that two solids
+    sharing an edge or a sheet hanging off a solid stay apart."""
+    eid, _ = edge_ids(faces)
+    h1, h2, _ = paired_half_edges(eid)
+    return connected_labels(len(faces), h1 // 3, h2 // 3)
+
+
+def split_exact_shells(
+    vertices: np.ndarray, faces: np.ndarray, pairs: np.ndarray | None = None
+) -> ShellSplit:
+    """Which shells of ``(vertices, faces)`` are solids to keep exactly; ``pairs``: its
+    intersecting face pairs (k, 2) -- a shell crossing itself is not kept."""
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    if len(f) == 0:
+        empty = np.zeros(0, dtype=np.int64)
+        return ShellSplit(np.zeros((0, 3), dtype=np.int64), empty, 0, 0)
+    label = _shell_labels(f)
+    n = int(label.max()) + 1
+    bad = np.zeros(n, dtype=bool)
+    # Within its own shell, every edge must be used by two half-edges in opposite
+    # directions: count the uses of (shell, lo, hi) and of (shell, from, to).
+    a, b = f.reshape(-1), f[:, [1, 2, 0]].reshape(-1)
+    shell = np.repeat(label, 3)
+    _, inv, uses = unique_rows(np.stack([shell, np.minimum(a, b), np.maximum(a, b)], 1),
+                               return_inverse=True, return_counts=True)  # fmt: skip
+    _, dinv, dcount = unique_rows(np.stack([shell, a, b], 1), return_inverse=True,
+                                  return_counts=True)  # fmt: skip
+    open_or_twisted = (uses[inv] != 2) | (dcount[dinv] != 1)
+    bad[shell[open_or_twisted]] = True
+    if pairs is not None and len(pairs):
+        p = np.asarray(pairs, dtype=np.int64)
+        own = label[p[:, 0]] == label[p[:, 1]]
+        bad[label[p[own, 0]]] = True
+    volume = shell_volumes(np.asarray(vertices, dtype=np.float64), f, label, n)
+    bad |= volume == 0.0
+    keep = ~bad[label]
+    exact = f[keep].copy()
+    inside_out = volume[label[keep]] < 0
+    exact[inside_out] = exact[inside_out][:, ::-1]
+    return ShellSplit(exact, np.flatnonzero(~keep), int(np.count_nonzero(~bad)),
+                      int(np.count_nonzero(bad)))  # fmt: skip
+
+
+def minkowski_pieces(
+    vertices: np.ndarray, faces: np.ndarray, segments: np.ndarray, eps: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Closed pieces whose union approximates the eps-Minkowski sum of the faces and
+    segments: the faces' slabs and an eps-prism per segment."""
+    parts = []
+    if len(faces):
+        parts.append(sheet_slabs(vertices, faces, eps))
+    if segments is not None and len(segments):
+        parts.append(cylinders(segments, eps))
+    return concat_meshes(parts)
+
+
+def fallback_repair(
+    v: np.ndarray, f: np.ndarray, segments: np.ndarray, pairs: np.ndarray | None, eps: float,
+    reason: str,
+) -> RepairOutcome:
+    """The fallback's outcome for a cleaned input ``(v, f)`` plus its wires ``segments``
+    (``pairs``: its intersecting face pairs, if known); ``reason`` says why it ran.
+    Raises :class:`RepairError` when its float32 result is not printable; D is left for
+    the caller to measure."""
+    t0 = time.perf_counter()
+    split = split_exact_shells(v, f, pairs)
+    pv, pf = minkowski_pieces(v, f[split.offending], segments, eps)
+    fused = manifold_union([(v, split.exact_faces), (pv, pf)])
+    if fused is None:
+        raise _failed(reason, "manifold3d rejected a part")
+    out_v, out_f, verdict, _ = rounded_verdict(*fused)
+    if not verdict.ok:
+        raise _failed(reason, "; ".join(verdict.failures()))
+    tally = RepairTally(sheet_triangles=len(split.offending), wires=len(segments),
+                        sheet_area=surface_area(v, f[split.offending]))  # fmt: skip
+    out = RepairOutcome(out_v, out_f, verdict, "fallback", 0.0, tally, HolesClosed())
+    out.sections["fallback"] = {
+        "reason": reason,
+        "approximation": APPROXIMATION,
+        "exact_shells": split.exact_shells,
+        "approximated_shells": split.offending_shells,
+        "approximated_triangles": int(len(split.offending)),
+        "wires": int(len(segments)),
+        "seconds": round(time.perf_counter() - t0, 4),
+    }
+    return out
+
+
+def _failed(reason: str, why: str) -> RepairError:
+    return RepairError(f"{reason}, and the fallback failed: {why}")
