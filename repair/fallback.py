@@ -30,21 +30,21 @@ import numpy as np
 from repair.errors import RepairError
 from repair.finish import rounded_verdict
 from repair.holes import HolesClosed
+from repair.intersections import intersecting_face_pairs
 from repair.meshes import concat_meshes, shell_volumes, surface_area
 from repair.report import RepairOutcome, RepairTally
 from repair.rows import unique_rows
 from repair.thicken import sheet_slabs
-from repair.topology import connected_labels, edge_ids, paired_half_edges
+from repair.topology import connected_labels, edge_ids, paired_half_edges, vertex_components
 from repair.union import manifold_union
-from repair.wires import SIDES, cylinders
+from repair.wires import cylinders
 
 __all__ = ["APPROXIMATION", "ShellSplit", "fallback_repair", "split_exact_shells"]
 
 #: What the fallback does, as the report states it.
 APPROXIMATION = (
-    "manifold3d union of the exact closed shells with an eps-thick approximation of the "
-    "eps-Minkowski sum of the other parts (slabs offset +-eps/2 along the vertex normals, "
-    f"{SIDES}-sided eps-prisms around wires), without the exact arrangement"
+    "closed solid shells kept exact, the other parts replaced by their eps-Minkowski sum "
+    "(eps-thick slabs, eps-prisms around wires), united by manifold3d"
 )
 
 
@@ -127,6 +127,10 @@ def fallback_repair(
     t0 = time.perf_counter()
     split = split_exact_shells(v, f, pairs)
     pv, pf = minkowski_pieces(v, f[split.offending], segments, eps)
+    folded = _self_crossing_pieces(pv, pf)
+    if folded:
+        # manifold3d's union of a solid that crosses itself is not one (and is slow).
+        raise _failed(reason, f"{folded} of its thickened part(s) would cross themselves")
     fused = manifold_union([(v, split.exact_faces), (pv, pf)])
     if fused is None:
         raise _failed(reason, "manifold3d rejected a part")
@@ -146,6 +150,18 @@ def fallback_repair(
         "seconds": round(time.perf_counter() - t0, 4),
     }
     return out
+
+
+def _self_crossing_pieces(v: np.ndarray, f: np.ndarray) -> int:
+    """How many of the indexed pieces ``(v, f)`` cross themselves."""
+    if len(f) == 0:
+        return 0
+    pairs = intersecting_face_pairs(v, f)
+    if len(pairs) == 0:
+        return 0
+    piece = vertex_components(len(v), f)[f[:, 0]]
+    own = piece[pairs[:, 0]] == piece[pairs[:, 1]]
+    return len(np.unique(piece[pairs[own, 0]]))
 
 
 def _failed(reason: str, why: str) -> RepairError:

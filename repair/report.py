@@ -204,12 +204,11 @@ def summary(r: dict[str, Any]) -> str:
     if b["misoriented_edges"] or b["volume"] < 0:
         fixes.append("orientation fixed")
     what = ", ".join(fixes) if fixes else "re-oriented and closed"
-    line = (
-        f"{b['triangles']} -> {a['triangles']} triangles in {a['components']} part(s), "
-        f"{r['volume']:.6g} mm³, D = {r['deviation']:.3g} mm: {what}"
-    )
+    counts = (f"{b['triangles']} -> {a['triangles']} triangles in {a['components']} part(s), "
+              f"{r['volume']:.6g} mm³")  # fmt: skip
+    d = f"D = {r['deviation']:.3g} mm"
     fb = r.get("fallback")
     if fb:
-        line = (f"fallback: {fb['reason']}; approximation: {fb['approximation']}, "
-                f"D = {r['deviation']:.3g} mm; {line}")  # fmt: skip
-    return line
+        return f"fallback: {fb['reason']}; approximation: {fb['approximation']}, {d}; " \
+               f"{counts}: {what}"
+    return f"{counts}, {d}: {what}"
