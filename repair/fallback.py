@@ -39,7 +39,13 @@ from repair.topology import connected_labels, edge_ids, paired_half_edges, verte
 from repair.union import manifold_union
 from repair.wires import cylinders
 
-__all__ = ["APPROXIMATION", "ShellSplit", "fallback_repair", "split_exact_shells"]
+__all__ = [
+    "APPROXIMATION",
+    "ShellSplit",
+    "fallback_repair",
+    "minkowski_pieces",
+    "split_exact_shells",
+]
 
 #: What the fallback does, as the report states it.
 APPROXIMATION = (
@@ -50,8 +56,8 @@ APPROXIMATION = (
 
 @dataclass(frozen=True)
 class ShellSplit:
-    """The faces (indices into the input's) of the shells kept exactly, already turned
-    outward, and of the parts that are approximated; how many shells of each."""
+    """The faces of the shells kept exactly (rows of the input's, turned outward), the
+    indices of the faces that are approximated, and how many shells of each."""
 
     exact_faces: np.ndarray
     offending: np.ndarray

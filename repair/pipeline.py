@@ -124,6 +124,8 @@ def repair_mesh(
     v_in, f_in = _checked_mesh(vertices, faces)
     if time_budget is None:
         return RepairResult(*_repair(v_in, f_in, eps, progress, clean))
+    if progress is not None:  # the stages report from the child; this is their start
+        progress("check_input", 0.0)
     meshed = run_within_budget(
         lambda: _repair(v_in, f_in, eps, progress, clean), float(time_budget),
         lambda reason: _repair(v_in, f_in, eps, progress, clean, fallback=reason),
