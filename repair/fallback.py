@@ -57,12 +57,15 @@ APPROXIMATION = (
 @dataclass(frozen=True)
 class ShellSplit:
     """The faces of the shells kept exactly (rows of the input's, turned outward), the
-    indices of the faces that are approximated, and how many shells of each."""
+    indices of the faces that are approximated, and how many shells of each; of the
+    latter, how many are closed solids that cross themselves (thickening their surface
+    would make them hollow: only the exact arrangement repairs them)."""
 
     exact_faces: np.ndarray
     offending: np.ndarray
     exact_shells: int
     offending_shells: int
+    crossing_solids: int
 
 
 def _shell_labels(faces: np.ndarray) -> np.ndarray:
@@ -81,7 +84,7 @@ def split_exact_shells(
     f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     if len(f) == 0:
         empty = np.zeros(0, dtype=np.int64)
-        return ShellSplit(np.zeros((0, 3), dtype=np.int64), empty, 0, 0)
+        return ShellSplit(np.zeros((0, 3), dtype=np.int64), empty, 0, 0, 0)
     label = _shell_labels(f)
     n = int(label.max()) + 1
     bad = np.zeros(n, dtype=bool)
@@ -95,18 +98,20 @@ def split_exact_shells(
                                   return_counts=True)  # fmt: skip
     open_or_twisted = (uses[inv] != 2) | (dcount[dinv] != 1)
     bad[shell[open_or_twisted]] = True
+    volume = shell_volumes(np.asarray(vertices, dtype=np.float64), f, label, n)
+    bad |= volume == 0.0
+    crossing = np.zeros(n, dtype=bool)
     if pairs is not None and len(pairs):
         p = np.asarray(pairs, dtype=np.int64)
         own = label[p[:, 0]] == label[p[:, 1]]
-        bad[label[p[own, 0]]] = True
-    volume = shell_volumes(np.asarray(vertices, dtype=np.float64), f, label, n)
-    bad |= volume == 0.0
-    keep = ~bad[label]
+        crossing[label[p[own, 0]]] = True
+    keep = ~(bad | crossing)[label]
     exact = f[keep].copy()
     inside_out = volume[label[keep]] < 0
     exact[inside_out] = exact[inside_out][:, ::-1]
-    return ShellSplit(exact, np.flatnonzero(~keep), int(np.count_nonzero(~bad)),
-                      int(np.count_nonzero(bad)))  # fmt: skip
+    return ShellSplit(exact, np.flatnonzero(~keep), int(np.count_nonzero(~(bad | crossing))),
+                      int(np.count_nonzero(bad | crossing)),
+                      int(np.count_nonzero(crossing & ~bad)))  # fmt: skip
 
 
 def minkowski_pieces(
@@ -132,6 +137,8 @@ def fallback_repair(
     the caller to measure."""
     t0 = time.perf_counter()
     split = split_exact_shells(v, f, pairs)
+    if split.crossing_solids:
+        raise _failed(reason, f"{split.crossing_solids} closed shell(s) cross themselves")
     pv, pf = minkowski_pieces(v, f[split.offending], segments, eps)
     folded = _self_crossing_pieces(pv, pf)
     if folded:

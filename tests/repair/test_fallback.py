@@ -17,6 +17,7 @@ import pytest
 from repair.budget import run_within_budget
 from repair.check import check_printable
 from repair.errors import RepairError
+from repair.fallback import split_exact_shells
 from repair.io import load_mesh, write_stl
 from repair.pipeline import repair_file, repair_mesh
 from tests.repair.broken_models import triangle_soup
@@ -159,3 +160,17 @@ def test_a_crashed_exact_repair_falls_back():
                                                                    {"summary": reason}))
     assert v[0, 0] == 2.0
     assert report["summary"] == "exact repair crashed with SIGKILL"
+
+
+def test_shell_split_keeps_solids_turned_outward_and_leaves_sheets():
+    cv, cf = box()
+    sv, sf = triangle_soup(2, seed=4)
+    v, f = concat((cv, cf[:, ::-1]), (sv, sf))  # an inside-out cube and two sheets
+    split = split_exact_shells(v, f)
+    assert (split.exact_shells, split.offending_shells, split.crossing_solids) == (1, 2, 0)
+    assert np.array_equal(split.exact_faces, cf)
+    assert np.array_equal(split.offending, [12, 13])
+    # A closed shell that crosses itself is neither kept nor thickened (it would be
+    # hollow): the fallback leaves it to the exact repair.
+    crossing = split_exact_shells(cv, cf, np.array([[0, 6]]))
+    assert (crossing.exact_shells, crossing.crossing_solids) == (0, 1)
