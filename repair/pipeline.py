@@ -27,6 +27,11 @@ Stages (each timed in the report; :func:`repair_mesh` reads as this list):
 6. ``deviation`` Attene's deviation D (:mod:`repair.deviation`), and ``report``:
    manifold-connected parts, volume, what was done (:mod:`repair.report`).
 
+``fallback`` (:mod:`repair.fallback`, :mod:`repair.budget`): past the exact repair's
+time budget, or when it cannot make the model printable, a stated approximation
+replaces stages 3-5 -- closed solid shells kept exactly, the other parts thickened by
+eps, all united by manifold3d -- if its float32 result passes the check.
+
 An input that is already printable comes out unchanged.
 
 Units are mm. Arrays in and out: vertices float64 (n, 3), faces int64 (m, 3). No global
