@@ -1,20 +1,25 @@
 """The repair's fallback: a stated approximation for when the exact repair cannot finish
 within its time budget, or cannot make the model printable.
 
-The cleaned input (:mod:`repair.clean`) is split by shell. A shell that is already a
-solid -- closed, every edge used twice and in opposite directions within the shell, a
-non-zero volume, crossing no face of its own -- is kept exactly (turned outward if it
-was inside out). Everything else -- open sheets, non-manifold or self-intersecting
-shells, wires -- is replaced by its eps-Minkowski sum, approximated by a union of
-convex pieces: each triangle moved +-eps/2 along its normal (a prism), an eps-prism
-(:data:`repair.wires.SIDES` sides) along each boundary edge, crease and wire. The
-solids and the pieces are united by manifold3d's robust booleans (Attene's exact
-arrangement is what takes the time), rounded to float32 and checked exactly.
+The cleaned input (:mod:`repair.clean`, with small holes closed) is split by shell. A
+shell that is already a solid -- closed, every edge used twice and in opposite
+directions within the shell, a non-zero volume, crossing no face of its own -- is kept
+exactly (turned outward if it was inside out). Open sheets, non-manifold shells and
+wires are replaced by an approximation of their eps-Minkowski sum: Attene's slabs
+(:func:`repair.thicken.sheet_slabs`: offset copies at +-eps/2 along the vertex normals,
+walls along the boundary, per-face prisms where a slab would fold) and eps-prisms
+(:data:`repair.wires.SIDES` sides) around wires. The solids and the slabs are united by
+manifold3d's robust booleans -- Attene's exact arrangement and outer hull, what takes
+the time, are skipped -- then finished as the exact path's result is
+(:func:`repair.finish.finish`: rounded to float32, checked exactly, mended locally).
 
-Every point of a piece is within eps/2 of the input, so the deviation D of the
-approximated parts is at most eps/2 (measured and reported); exact shells keep their
-triangles where no piece touches them, D = 0 there. Cavities between overlapping
-pieces are not removed (Attene's outer hull would).
+A closed shell that crosses itself, or a slab that would, cannot be handled so (its
+surface's slab would be hollow, and manifold3d does not resolve a solid's own
+crossings): the fallback then fails at once with that reason.
+
+Slab points lie within ``MITER_LIMIT * eps/2`` of the input, so the deviation D of the
+thickened parts is about eps/2 (measured and reported); exact shells keep their
+triangles where nothing crosses them, D = 0 there (lids of closed holes aside).
 
 Units are mm; vertices float64 (n, 3), faces int64 (m, 3). Vectorised numpy; one
 manifold3d batch union.
@@ -28,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from repair.errors import RepairError
-from repair.finish import rounded_verdict
+from repair.finish import finish
 from repair.holes import HolesClosed
 from repair.intersections import intersecting_face_pairs
 from repair.meshes import concat_meshes, shell_volumes, surface_area
@@ -147,11 +152,13 @@ def fallback_repair(
     fused = manifold_union([(v, split.exact_faces), (pv, pf)])
     if fused is None:
         raise _failed(reason, "manifold3d rejected a part")
-    out_v, out_f, verdict, _ = rounded_verdict(*fused)
-    if not verdict.ok:
-        raise _failed(reason, "; ".join(verdict.failures()))
     tally = RepairTally(sheet_triangles=len(split.offending), wires=len(segments),
                         sheet_area=surface_area(v, f[split.offending]))  # fmt: skip
+    # Rounded to float32 and checked; where rounding made faces cross or collapse, mended
+    # locally, as the exact path's result is.
+    out_v, out_f, verdict = finish(*fused, eps, tally)
+    if not verdict.ok:
+        raise _failed(reason, "; ".join(verdict.failures()))
     out = RepairOutcome(out_v, out_f, verdict, "fallback", 0.0, tally, HolesClosed())
     out.sections["fallback"] = {
         "reason": reason,
