@@ -20,7 +20,7 @@ from repair.errors import RepairError
 from repair.fallback import split_exact_shells
 from repair.io import load_mesh, write_stl
 from repair.pipeline import repair_file, repair_mesh
-from tests.repair.broken_models import triangle_soup
+from tests.repair.broken_models import overlapping_shells, triangle_soup
 from tests.repair.mesh_helpers import box, concat
 from tests.repair.sheet_measures import covered_fraction
 
@@ -177,3 +177,19 @@ def test_shell_split_keeps_solids_turned_outward_and_leaves_sheets():
     # hollow): the fallback leaves it to the exact repair.
     crossing = split_exact_shells(cv, cf, np.array([[0, 6]]))
     assert (crossing.exact_shells, crossing.crossing_solids) == (0, 1)
+
+
+def test_overlapping_shells_with_holes_fall_back_to_their_exact_union(tmp_path):
+    # The most common breakage, small: closed shells crossing one another, with
+    # single triangles missing. Lids close the holes; the shells are then kept exactly
+    # and united by manifold3d, without the exact arrangement.
+    model = overlapping_shells(6000, 8, seed=2, shells=3)
+    result = repair_mesh(model.vertices, model.faces, EPS, time_budget=NO_TIME)
+    r = result.report
+    assert r["path"] == "fallback"
+    assert (r["fallback"]["exact_shells"], r["fallback"]["approximated_triangles"]) == (3, 0)
+    assert r["holes_closed"]["count"] == model.holes
+    assert _written_check(result.vertices, result.faces, tmp_path).ok
+    # Only the lids (each a missing triangle) stray from the input: D stays far below eps.
+    assert r["deviation"] < 0.25 * EPS
+    assert covered_fraction(model.vertices, model.faces, result.vertices, result.faces) >= 0.99
