@@ -129,24 +129,38 @@ def repair_mesh(
     v_in, f_in = _checked_mesh(vertices, faces)
     if time_budget is None:
         return RepairResult(*_repair(v_in, f_in, eps, progress, clean))
-    if progress is not None:  # the stages report from the child; this is their start
-        progress("check_input", 0.0)
+    # The check runs here, once for both paths: a printable input needs no budget (and
+    # no child), and a fallback does not check the input again.
+    checked = _checked_input(v_in, f_in, progress)
+    if checked[1].verdict.ok and clean != "scan":
+        return RepairResult(*_repair(v_in, f_in, eps, progress, clean, checked=checked))
     meshed = run_within_budget(
-        lambda: _repair(v_in, f_in, eps, progress, clean), float(time_budget),
-        lambda reason: _repair(v_in, f_in, eps, progress, clean, fallback=reason),
+        lambda: _repair(v_in, f_in, eps, progress, clean, checked=checked),
+        float(time_budget),
+        lambda reason: _repair(v_in, f_in, eps, progress, clean, reason, checked),
     )  # fmt: skip
     return RepairResult(*meshed)
 
 
-def _repair(
-    v_in: np.ndarray, f_in: np.ndarray, eps: float, progress: Progress, clean: str,
-    fallback: str | None = None,
-) -> Meshed:
-    """:func:`repair_mesh` of a checked input; ``fallback``: why the fallback replaces
-    the exact repair (which then does not run)."""
+def _checked_input(
+    v_in: np.ndarray, f_in: np.ndarray, progress: Progress
+) -> tuple[StageClock, RoundedInput]:
+    """Stage 1 (``check_input``) on a new stage clock."""
     clock = StageClock(progress)
     rounded = round_input(v_in, f_in)
     clock.lap("check_input", 0.1)
+    return clock, rounded
+
+
+def _repair(
+    v_in: np.ndarray, f_in: np.ndarray, eps: float, progress: Progress, clean: str,
+    fallback: str | None = None, checked: tuple[StageClock, RoundedInput] | None = None,
+) -> Meshed:
+    """:func:`repair_mesh` of a checked input; ``fallback``: why the fallback replaces
+    the exact repair (which then does not run); ``checked``: stage 1, if it ran."""
+    clock, rounded = checked or _checked_input(v_in, f_in, progress)
+    if checked and fallback:
+        clock.lap("exact_repair", 0.2)  # the time the exact repair was given
     if rounded.verdict.ok and clean != "scan":
         out = without_internal_junk(_unchanged(rounded))
         clock.lap("finish", 0.9)
