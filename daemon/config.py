@@ -169,6 +169,12 @@ class RepairConfig:
                            '"holes" cylinders and cones (holes, bosses, countersinks), "all" '
                            'also spheres and tori, "off" never', CHOICE,
                            choices=("off", "holes", "all"))
+    # 120 s: the slowest corpus models repair exactly in about 35 s here, about two minutes
+    # on a Raspberry Pi 4, so the budget cuts short only what would run for minutes.
+    time_budget: float = setting(120.0, "s; past this the exact repair gives way to the "
+                                 "fallback approximation (the report says so and gives its "
+                                 "D); at most half of [limits] repair_timeout; 0: no budget",
+                                 FLOAT, low=0, high=1e6)
 
 
 #: The sections in the order of the example config; ``[profile]`` is an open table.

@@ -60,6 +60,14 @@ def flavour_from(info: dict[str, Any]) -> str:
 
 
 
+def repair_budget(cfg: Config) -> float | None:
+    """The exact repair's time budget (s) for a job, or None: ``[repair] time_budget``,
+    but at most half of ``[limits] repair_timeout``, so that the fallback has the other
+    half (a job whose fallback cannot finish either fails with the timeout's reason)."""
+    budget = cfg.repair.time_budget
+    return min(budget, 0.5 * cfg.limits.repair_timeout) if budget > 0 else None
+
+
 def slice_overrides(cfg: Config) -> dict[str, Any]:
     """The profile overrides a job is sliced with: ``[profile]`` over the daemon's own
     defaults (it turns a model only when that avoids support entirely: orient if-needed)."""
@@ -347,6 +355,7 @@ class Processor:
             "max_bytes": int(self.cfg.limits.max_file_mb * 1024 * 1024),
             "max_triangles": self.cfg.limits.max_triangles,
             "clean": self.cfg.repair.clean, "surface": self.cfg.repair.surface,
+            "time_budget": repair_budget(self.cfg),
         }, cancel, "repair failed")
         if not ok:
             return None

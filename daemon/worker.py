@@ -219,7 +219,8 @@ def _task_repair(spec: dict[str, Any]) -> Any:
     return repair_file(spec["in"], spec["out"], epsilon=float(spec["epsilon"]),
                        report_path=spec.get("report"), max_bytes=spec.get("max_bytes"),
                        max_triangles=spec.get("max_triangles"), progress=_emit,
-                       clean=spec.get("clean", "auto"), surface=spec.get("surface", "off"))
+                       clean=spec.get("clean", "auto"), surface=spec.get("surface", "off"),
+                       time_budget=spec.get("time_budget"))
 
 
 def _task_slice(spec: dict[str, Any]) -> Any:

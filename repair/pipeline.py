@@ -27,6 +27,11 @@ Stages (each timed in the report; :func:`repair_mesh` reads as this list):
 6. ``deviation`` Attene's deviation D (:mod:`repair.deviation`), and ``report``:
    manifold-connected parts, volume, what was done (:mod:`repair.report`).
 
+``fallback`` (:mod:`repair.fallback`, :mod:`repair.budget`): past the exact repair's
+time budget, or when it cannot make the model printable, a stated approximation
+replaces stages 3-5 -- closed solid shells kept exactly, the other parts thickened by
+eps, all united by manifold3d -- if its float32 result passes the check.
+
 An input that is already printable comes out unchanged.
 
 Units are mm. Arrays in and out: vertices float64 (n, 3), faces int64 (m, 3). No global
@@ -43,9 +48,11 @@ from typing import Any
 
 import numpy as np
 
+from repair.budget import Meshed, run_within_budget
 from repair.clean import Cleaned, clean_checked
 from repair.deviation import max_deviation
 from repair.errors import RepairError
+from repair.fallback import fallback_repair
 from repair.finish import finish
 from repair.holes import MAX_BOUNDARY_FRACTION, HolesClosed, close_small_holes
 from repair.hull_and_thicken import hull_and_thicken
@@ -70,6 +77,8 @@ __all__ = ["RepairError", "RepairResult", "repair_file", "repair_mesh"]
 #: γ of Attene's crack stitching (Sec. 5.2), as a fraction of eps: boundaries of
 #: different patches closer than this are joined (:mod:`repair.stitch`).
 STITCH_GAMMA = 0.25
+#: How the exact path's refusal starts: the fallback is tried before it is given.
+NOT_PRINTABLE = "could not make the model printable: "
 #: What ``clean`` may ask for: scan cleanup when the input looks like a scan, always, never.
 CLEAN_MODES = ("auto", "scan", "none")
 
@@ -92,6 +101,7 @@ def repair_mesh(
     progress: Progress = None,
     clean: str = "auto",
     surface: str = "off",
+    time_budget: float | None = None,
 ) -> RepairResult:
     """Repair a triangle soup into a printable solid, as exactly as possible.
 
@@ -112,25 +122,63 @@ def repair_mesh(
     ``surface``: ``"holes"`` refines cylindrical and conical features to the design surface
     (chordal error within ``min(0.01, epsilon / 40)`` mm), ``"all"`` also spheres and tori,
     ``"off"`` never (:mod:`repair.surface`); the report's ``surface`` section says what.
+
+    ``time_budget`` (seconds, optional): past it the exact repair stops and the fallback
+    approximation (:mod:`repair.fallback`) is used if it can print the model; the report
+    says so. The fallback is also used when the exact repair cannot make the model
+    printable.
     """
     eps = _checked_epsilon(epsilon)
     if clean not in CLEAN_MODES:
         raise RepairError(f"clean must be one of {', '.join(CLEAN_MODES)}, got {clean!r}")
     v_in, f_in = _checked_mesh(vertices, faces)
+    if time_budget is None:
+        return RepairResult(*_repair(v_in, f_in, eps, progress, clean, surface=surface))
+    # The check runs here, once for both paths: a printable input needs no budget (and
+    # no child), and a fallback does not check the input again.
+    checked = _checked_input(v_in, f_in, progress)
+    if checked[1].verdict.ok and clean != "scan":
+        return RepairResult(*_repair(v_in, f_in, eps, progress, clean, checked=checked,
+                                     surface=surface))
+    meshed = run_within_budget(
+        lambda: _repair(v_in, f_in, eps, progress, clean, checked=checked, surface=surface),
+        float(time_budget),
+        lambda reason: _repair(v_in, f_in, eps, progress, clean, reason, checked, surface),
+    )  # fmt: skip
+    return RepairResult(*meshed)
+
+
+def _checked_input(
+    v_in: np.ndarray, f_in: np.ndarray, progress: Progress
+) -> tuple[StageClock, RoundedInput]:
+    """Stage 1 (``check_input``) on a new stage clock."""
     clock = StageClock(progress)
     rounded = round_input(v_in, f_in)
     clock.lap("check_input", 0.1)
+    return clock, rounded
+
+
+def _repair(
+    v_in: np.ndarray, f_in: np.ndarray, eps: float, progress: Progress, clean: str,
+    fallback: str | None = None, checked: tuple[StageClock, RoundedInput] | None = None,
+    surface: str = "off",
+) -> Meshed:
+    """:func:`repair_mesh` of a checked input; ``fallback``: why the fallback replaces
+    the exact repair (which then does not run); ``checked``: stage 1, if it ran."""
+    clock, rounded = checked or _checked_input(v_in, f_in, progress)
+    if checked and fallback:
+        clock.lap("exact_repair", 0.2)  # the time the exact repair was given
     if rounded.verdict.ok and clean != "scan":
         out = without_internal_junk(_unchanged(rounded))
         clock.lap("finish", 0.9)
     else:
         cleaned = clean_checked(rounded.vertices, rounded.faces, rounded.verdict)
         clock.lap("clean", 0.2)
-        out = _solidify(rounded, cleaned, eps, clock, clean)
+        out = _solidify(rounded, cleaned, eps, clock, clean, fallback)
     if surface != "off":
         out = _surface(out, eps, surface, clock)
     before = input_report(rounded.verdict, len(rounded.vertices))
-    return RepairResult(out.vertices, out.faces, repair_report(before, out, eps, clock))
+    return out.vertices, out.faces, repair_report(before, out, eps, clock)
 
 
 def _surface(out: RepairOutcome, eps: float, surface: str, clock: StageClock) -> RepairOutcome:
@@ -180,7 +228,8 @@ def _unchanged(rounded: RoundedInput) -> RepairOutcome:
 
 
 def _solidify(
-    rounded: RoundedInput, cleaned: Cleaned, eps: float, clock: StageClock, clean: str
+    rounded: RoundedInput, cleaned: Cleaned, eps: float, clock: StageClock, clean: str,
+    fallback: str | None = None,
 ) -> RepairOutcome:
     """Stages 2 (holes) to 6 (deviation) of a cleaned input that is not printable."""
     if len(cleaned.faces) == 0 and len(cleaned.segments) == 0:
@@ -200,11 +249,11 @@ def _solidify(
     pairs = carry_input_pairs(rounded.vertices, rounded.faces, rounded.pairs, lidded_v, lidded_f)
     lidded = _Lidded(lidded_v, lidded_f, pairs)
     tally = RepairTally()
-    united = _union_path(rounded, cleaned, lidded, eps, tally, clock)
+    united = None if fallback else _union_path(rounded, cleaned, lidded, eps, tally, clock)
     if united is not None:
         out, hint = united
     else:
-        out, hint = _exact_path(cleaned, lidded, eps, tally, clock), None
+        out, hint = _exact_or_fallback(cleaned, lidded, eps, tally, clock, fallback), None
     junk_before = out.tally.junk_shells
     out = without_internal_junk(out)
     if out.tally.junk_shells != junk_before:
@@ -222,7 +271,7 @@ def _solidify(
     reference = np.vstack([cleaned.faces, holes.exact_faces])
     out.deviation = rounded.rounding + max_deviation(
         out.vertices, out.faces, cleaned.vertices, reference, cleaned.segments,
-        max_points=400_000 if out.path == "exact" else 0, hint=hint,
+        max_points=0 if out.path == "union" else 400_000, hint=hint,
     )  # fmt: skip
     clock.lap("deviation", 0.95)
     return out
@@ -300,9 +349,28 @@ def _exact_path(
     out_v, out_f, verdict = finish(hull_v, hull_f, eps, tally)
     clock.lap("finish", 0.8)
     if not verdict.ok:
-        raise RepairError("could not make the model printable: " + "; ".join(verdict.failures()))
+        raise RepairError(NOT_PRINTABLE + "; ".join(verdict.failures()))
     return RepairOutcome(out_v, out_f, verdict, "exact", 0.0, tally, HolesClosed(),
                          dropped_components=dropped)  # fmt: skip
+
+
+def _exact_or_fallback(
+    cleaned: Cleaned, lidded: _Lidded, eps: float, tally: RepairTally, clock: StageClock,
+    fallback: str | None,
+) -> RepairOutcome:
+    """The exact path; the fallback instead when ``fallback`` says why, or when the exact
+    path cannot make the model printable and the fallback can."""
+    if fallback is None:
+        try:
+            return _exact_path(cleaned, lidded, eps, tally, clock)
+        except RepairError as e:
+            if not str(e).startswith(NOT_PRINTABLE):
+                raise
+            fallback = str(e)
+    out = fallback_repair(lidded.vertices, lidded.faces, cleaned.segments, lidded.pairs, eps,
+                          fallback)  # fmt: skip
+    clock.lap("fallback", 0.8)
+    return out
 
 
 def repair_file(
@@ -316,6 +384,7 @@ def repair_file(
     progress: Progress = None,
     clean: str = "auto",
     surface: str = "off",
+    time_budget: float | None = None,
 ) -> dict[str, Any]:
     """Load a mesh file (STL/OBJ/PLY/3MF/STEP), repair it, write a binary STL at ``out_path``
     and, if asked, the report as JSON at ``report_path``. Returns the report.
@@ -333,7 +402,7 @@ def repair_file(
     if progress is not None:
         progress("load", 0.05)
     result = repair_mesh(mesh.vertices, mesh.faces, epsilon, progress=progress, clean=clean,
-                         surface=surface)
+                         surface=surface, time_budget=time_budget)  # fmt: skip
     t1 = time.perf_counter()
     write_stl(out_path, result.vertices, result.faces)
     report = dict(result.report)

@@ -68,8 +68,8 @@ class RepairTally:
 
 @dataclass
 class RepairOutcome:
-    """The written mesh and its verdict, the path that made it (``unchanged``, ``union``
-    or ``exact``), its deviation D from the input and what the stages did."""
+    """The written mesh and its verdict, the path that made it (``unchanged``, ``union``,
+    ``exact`` or ``fallback``), its deviation D from the input and what the stages did."""
 
     vertices: np.ndarray
     faces: np.ndarray
@@ -211,7 +211,11 @@ def summary(r: dict[str, Any]) -> str:
     if curved:
         fixes.append(curved)
     what = ", ".join(fixes) if fixes else "re-oriented and closed"
-    return (
-        f"{b['triangles']} -> {a['triangles']} triangles in {a['components']} part(s), "
-        f"{r['volume']:.6g} mm³, D = {r['deviation']:.3g} mm: {what}"
-    )
+    counts = (f"{b['triangles']} -> {a['triangles']} triangles in {a['components']} part(s), "
+              f"{r['volume']:.6g} mm³")  # fmt: skip
+    d = f"D = {r['deviation']:.3g} mm"
+    fb = r.get("fallback")
+    if fb:
+        return f"fallback: {fb['reason']}; approximation: {fb['approximation']}, {d}; " \
+               f"{counts}: {what}"
+    return f"{counts}, {d}: {what}"

@@ -35,6 +35,10 @@ def register(subparsers) -> None:
                    help="refine curved features to the design surface, chordal error within "
                    "min(0.01, EPSILON/40) mm: holes = cylinders and cones (default), all = "
                    "also spheres and tori, off = never")  # fmt: skip
+    p.add_argument("--time-budget", type=float, metavar="S", default=None,
+                   help="seconds the exact repair may take before the fallback approximation "
+                   "replaces it (reported with its deviation D); 0: no budget (default: "
+                   "[repair] time_budget's default)")  # fmt: skip
     p.add_argument("--report", metavar="R.json", help="write the repair report as JSON")
     p.add_argument("--json", action="store_true", help="print the report as JSON on stdout")
     p.set_defaults(func=run)
@@ -59,10 +63,22 @@ class _ProgressLine:
             sys.stderr.flush()
 
 
+def _time_budget(given: float | None) -> float:
+    """The exact repair's budget in seconds: as given, else the config schema's default."""
+    if given is not None:
+        return given
+    from daemon.config import RepairConfig
+
+    return RepairConfig().time_budget
+
+
 def run(args) -> int:
     """Run the repair; 0 on a printable result, 1 with a one-line reason otherwise."""
     if not (args.epsilon > 0):
         return fail(f"--epsilon must be a positive number of mm, got {args.epsilon}")
+    budget = _time_budget(args.time_budget)
+    if budget is not None and not (budget >= 0):
+        return fail(f"--time-budget must be 0 or a positive number of seconds, got {budget}")
     if not os.path.isfile(args.input):
         return fail(f"{args.input}: no such file")
     try:
@@ -77,7 +93,8 @@ def run(args) -> int:
     try:
         report = repair_file(args.input, args.output, epsilon=args.epsilon,
                              report_path=args.report, progress=line,
-                             clean=args.clean, surface=args.surface)  # fmt: skip
+                             clean=args.clean, surface=args.surface,
+                             time_budget=budget or None)  # fmt: skip
     except (MeshReadError, RepairError) as exc:
         if line:
             line.done()

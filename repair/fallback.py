@@ -1,0 +1,188 @@
+"""The repair's fallback: a stated approximation for when the exact repair cannot finish
+within its time budget, or cannot make the model printable.
+
+The cleaned input (:mod:`repair.clean`, with small holes closed) is split by shell. A
+shell that is already a solid -- closed, every edge used twice and in opposite
+directions within the shell, a non-zero volume, crossing no face of its own -- is kept
+exactly (turned outward if it was inside out). Open sheets, non-manifold shells and
+wires are replaced by an approximation of their eps-Minkowski sum: Attene's slabs
+(:func:`repair.thicken.sheet_slabs`: offset copies at +-eps/2 along the vertex normals,
+walls along the boundary, per-face prisms where a slab would fold) and eps-prisms
+(:data:`repair.wires.SIDES` sides) around wires. The solids and the slabs are united by
+manifold3d's robust booleans -- Attene's exact arrangement and outer hull, what takes
+the time, are skipped -- then finished as the exact path's result is
+(:func:`repair.finish.finish`: rounded to float32, checked exactly, mended locally).
+
+A closed shell that crosses itself, or a slab that would, cannot be handled so (its
+surface's slab would be hollow, and manifold3d does not resolve a solid's own
+crossings): the fallback then fails at once with that reason.
+
+Slab points lie within ``MITER_LIMIT * eps/2`` of the input, so the deviation D of the
+thickened parts is about eps/2 (measured and reported); exact shells keep their
+triangles where nothing crosses them, D = 0 there (lids of closed holes aside).
+
+Units are mm; vertices float64 (n, 3), faces int64 (m, 3). Vectorised numpy; one
+manifold3d batch union.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from repair.errors import RepairError
+from repair.finish import finish
+from repair.holes import HolesClosed
+from repair.intersections import intersecting_face_pairs
+from repair.meshes import concat_meshes, shell_volumes, surface_area
+from repair.report import RepairOutcome, RepairTally
+from repair.rows import unique_rows
+from repair.thicken import sheet_slabs
+from repair.topology import connected_labels, edge_ids, paired_half_edges, vertex_components
+from repair.union import manifold_union
+from repair.wires import cylinders
+
+__all__ = [
+    "APPROXIMATION",
+    "ShellSplit",
+    "fallback_repair",
+    "minkowski_pieces",
+    "split_exact_shells",
+]
+
+#: What the fallback does, as the report states it.
+APPROXIMATION = (
+    "closed solid shells kept exact, the other parts replaced by their eps-Minkowski sum "
+    "(eps-thick slabs, eps-prisms around wires), united by manifold3d"
+)
+
+
+@dataclass(frozen=True)
+class ShellSplit:
+    """The faces of the shells kept exactly (rows of the input's, turned outward), the
+    indices of the faces that are approximated, and how many shells of each; of the
+    latter, how many are closed solids that cross themselves (thickening their surface
+    would make them hollow: only the exact arrangement repairs them)."""
+
+    exact_faces: np.ndarray
+    offending: np.ndarray
+    exact_shells: int
+    offending_shells: int
+    crossing_solids: int
+
+
+def _shell_labels(faces: np.ndarray) -> np.ndarray:
+    """Shells: faces joined by edges that exactly two faces use, so that two solids
+    sharing an edge or a sheet hanging off a solid stay apart."""
+    eid, _ = edge_ids(faces)
+    h1, h2, _ = paired_half_edges(eid)
+    return connected_labels(len(faces), h1 // 3, h2 // 3)
+
+
+def split_exact_shells(
+    vertices: np.ndarray, faces: np.ndarray, pairs: np.ndarray | None = None
+) -> ShellSplit:
+    """Which shells of ``(vertices, faces)`` are solids to keep exactly; ``pairs``: its
+    intersecting face pairs (k, 2) -- a shell crossing itself is not kept."""
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    if len(f) == 0:
+        empty = np.zeros(0, dtype=np.int64)
+        return ShellSplit(np.zeros((0, 3), dtype=np.int64), empty, 0, 0, 0)
+    label = _shell_labels(f)
+    n = int(label.max()) + 1
+    bad = np.zeros(n, dtype=bool)
+    # Within its own shell, every edge must be used by two half-edges in opposite
+    # directions: count the uses of (shell, lo, hi) and of (shell, from, to).
+    a, b = f.reshape(-1), f[:, [1, 2, 0]].reshape(-1)
+    shell = np.repeat(label, 3)
+    _, inv, uses = unique_rows(np.stack([shell, np.minimum(a, b), np.maximum(a, b)], 1),
+                               return_inverse=True, return_counts=True)  # fmt: skip
+    _, dinv, dcount = unique_rows(np.stack([shell, a, b], 1), return_inverse=True,
+                                  return_counts=True)  # fmt: skip
+    open_or_twisted = (uses[inv] != 2) | (dcount[dinv] != 1)
+    bad[shell[open_or_twisted]] = True
+    volume = shell_volumes(np.asarray(vertices, dtype=np.float64), f, label, n)
+    bad |= volume == 0.0
+    crossing = np.zeros(n, dtype=bool)
+    if pairs is not None and len(pairs):
+        p = np.asarray(pairs, dtype=np.int64)
+        own = label[p[:, 0]] == label[p[:, 1]]
+        crossing[label[p[own, 0]]] = True
+    keep = ~(bad | crossing)[label]
+    exact = f[keep].copy()
+    inside_out = volume[label[keep]] < 0
+    exact[inside_out] = exact[inside_out][:, ::-1]
+    return ShellSplit(exact, np.flatnonzero(~keep), int(np.count_nonzero(~(bad | crossing))),
+                      int(np.count_nonzero(bad | crossing)),
+                      int(np.count_nonzero(crossing & ~bad)))  # fmt: skip
+
+
+def minkowski_pieces(
+    vertices: np.ndarray, faces: np.ndarray, segments: np.ndarray, eps: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Closed pieces whose union approximates the eps-Minkowski sum of the faces and
+    segments: the faces' slabs and an eps-prism per segment."""
+    parts = []
+    if len(faces):
+        parts.append(sheet_slabs(vertices, faces, eps))
+    if segments is not None and len(segments):
+        parts.append(cylinders(segments, eps))
+    return concat_meshes(parts)
+
+
+def fallback_repair(
+    v: np.ndarray, f: np.ndarray, segments: np.ndarray, pairs: np.ndarray | None, eps: float,
+    reason: str,
+) -> RepairOutcome:
+    """The fallback's outcome for a cleaned input ``(v, f)`` plus its wires ``segments``
+    (``pairs``: its intersecting face pairs, if known); ``reason`` says why it ran.
+    Raises :class:`RepairError` when its float32 result is not printable; D is left for
+    the caller to measure."""
+    t0 = time.perf_counter()
+    split = split_exact_shells(v, f, pairs)
+    if split.crossing_solids:
+        raise _failed(reason, f"{split.crossing_solids} closed shell(s) cross themselves")
+    pv, pf = minkowski_pieces(v, f[split.offending], segments, eps)
+    folded = _self_crossing_pieces(pv, pf)
+    if folded:
+        # manifold3d's union of a solid that crosses itself is not one (and is slow).
+        raise _failed(reason, f"{folded} of its thickened part(s) would cross themselves")
+    fused = manifold_union([(v, split.exact_faces), (pv, pf)])
+    if fused is None:
+        raise _failed(reason, "manifold3d rejected a part")
+    tally = RepairTally(sheet_triangles=len(split.offending), wires=len(segments),
+                        sheet_area=surface_area(v, f[split.offending]))  # fmt: skip
+    # Rounded to float32 and checked; where rounding made faces cross or collapse, mended
+    # locally, as the exact path's result is.
+    out_v, out_f, verdict = finish(*fused, eps, tally)
+    if not verdict.ok:
+        raise _failed(reason, "; ".join(verdict.failures()))
+    out = RepairOutcome(out_v, out_f, verdict, "fallback", 0.0, tally, HolesClosed())
+    out.sections["fallback"] = {
+        "reason": reason,
+        "approximation": APPROXIMATION,
+        "exact_shells": split.exact_shells,
+        "approximated_shells": split.offending_shells,
+        "approximated_triangles": int(len(split.offending)),
+        "wires": int(len(segments)),
+        "seconds": round(time.perf_counter() - t0, 4),
+    }
+    return out
+
+
+def _self_crossing_pieces(v: np.ndarray, f: np.ndarray) -> int:
+    """How many of the indexed pieces ``(v, f)`` cross themselves."""
+    if len(f) == 0:
+        return 0
+    pairs = intersecting_face_pairs(v, f)
+    if len(pairs) == 0:
+        return 0
+    piece = vertex_components(len(v), f)[f[:, 0]]
+    own = piece[pairs[:, 0]] == piece[pairs[:, 1]]
+    return len(np.unique(piece[pairs[own, 0]]))
+
+
+def _failed(reason: str, why: str) -> RepairError:
+    return RepairError(f"{reason}, and the fallback failed: {why}")

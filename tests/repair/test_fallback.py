@@ -1,0 +1,195 @@
+"""The time-budget fallback (issue 18): past its budget the exact repair gives way to a
+stated approximation that keeps the exact shells exact, and the report says so."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from repair.budget import run_within_budget
+from repair.check import check_printable
+from repair.errors import RepairError
+from repair.fallback import split_exact_shells
+from repair.io import load_mesh, write_stl
+from repair.pipeline import repair_file, repair_mesh
+from tests.repair.broken_models import overlapping_shells, triangle_soup
+from tests.repair.mesh_helpers import box, concat
+from tests.repair.sheet_measures import covered_fraction
+
+CORPUS = Path("/work/shared/corpus")
+#: Too short for any repair: the fallback always runs.
+NO_TIME = 1e-6
+EPS = 0.4
+
+
+def _soup_and_cube() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Twelve crossing sheet triangles beside (not touching) an exact closed 10 mm cube;
+    the cube's corners as a (12, 3, 3) array of its triangles."""
+    sv, sf = triangle_soup(12, seed=3)
+    cv, cf = box((60.0, 0.0, 0.0), (70.0, 10.0, 10.0))
+    v, f = concat((sv, sf), (cv, cf))
+    return v, f, cv[cf]
+
+
+def _sorted_triangles(tris: np.ndarray) -> set[bytes]:
+    """Each triangle's three corners as a byte key, whatever their order."""
+    t = np.asarray(tris, dtype=np.float32)
+    order = np.lexsort(t.transpose(2, 0, 1)[::-1], axis=1)
+    return {row.tobytes() for row in np.take_along_axis(t, order[:, :, None], axis=1)}
+
+
+def _written_check(v: np.ndarray, f: np.ndarray, tmp_path: Path):
+    path = tmp_path / "written.stl"
+    write_stl(path, v, f)
+    mesh = load_mesh(path)
+    return check_printable(mesh.vertices, mesh.faces, as_float32=True)
+
+
+def test_past_the_budget_the_fallback_keeps_the_cube_exact(tmp_path):
+    v, f, cube = _soup_and_cube()
+    result = repair_mesh(v, f, EPS, time_budget=NO_TIME)
+    r = result.report
+    assert r["path"] == "fallback"
+    assert r["fallback"]["reason"] == f"exact repair exceeded {NO_TIME:g} s"
+    assert r["fallback"]["exact_shells"] == 1
+    assert r["fallback"]["approximated_triangles"] == 12
+    assert r["time_budget"]["exceeded"]
+    assert r["summary"].startswith(f"fallback: exact repair exceeded {NO_TIME:g} s; "
+                                   "approximation: ")
+    assert f"D = {r['deviation']:.3g} mm" in r["summary"]
+    assert _written_check(result.vertices, result.faces, tmp_path).ok
+    # The cube is in the output triangle for triangle, on its very corners.
+    out = _sorted_triangles(result.vertices[result.faces])
+    assert _sorted_triangles(cube) <= out
+    # The sheets moved by about eps/2 (the slabs' miter limit bounds it by 0.55 eps).
+    assert 0.45 * EPS <= r["deviation"] <= 0.55 * EPS + 1e-6
+    # No sheet area is lost: the soup lies inside its thickened output.
+    assert covered_fraction(v[:36], f[:12], result.vertices, result.faces) >= 0.99
+
+
+def test_a_repair_within_its_budget_is_unchanged(tmp_path):
+    v, f = triangle_soup(6, seed=1)
+    plain = repair_mesh(v, f, EPS)
+    budgeted = repair_mesh(v, f, EPS, time_budget=600.0)
+    assert budgeted.report["path"] == plain.report["path"] == "exact"
+    assert "time_budget" not in budgeted.report and "fallback" not in budgeted.report
+    a, b = tmp_path / "a.stl", tmp_path / "b.stl"
+    write_stl(a, plain.vertices, plain.faces)
+    write_stl(b, budgeted.vertices, budgeted.faces)
+    assert a.read_bytes() == b.read_bytes()
+    same = {k for k in plain.report if k not in ("stages", "seconds")}
+    assert {k: plain.report[k] for k in same} == {k: budgeted.report[k] for k in same}
+
+
+@pytest.mark.skipif(not (CORPUS / "mikedh_soup.stl").exists(), reason="corpus not present")
+def test_corpus_soup_falls_back_to_a_printable_file(tmp_path):
+    out = tmp_path / "soup.stl"
+    report = repair_file(CORPUS / "mikedh_soup.stl", out, epsilon=EPS, time_budget=NO_TIME)
+    assert report["path"] == "fallback"
+    assert report["fallback"]["approximated_triangles"] == report["before"]["triangles"]
+    mesh = load_mesh(out)
+    assert check_printable(mesh.vertices, mesh.faces, as_float32=True).ok
+    assert 0 < report["deviation"] <= 0.55 * EPS + 1e-6
+    src = load_mesh(CORPUS / "mikedh_soup.stl")
+    assert covered_fraction(src.vertices, src.faces, mesh.vertices, mesh.faces) >= 0.99
+
+
+def test_cli_time_budget(tmp_path):
+    v, f, _ = _soup_and_cube()
+    src, out = tmp_path / "in.stl", tmp_path / "out.stl"
+    write_stl(src, v, f)
+    done = subprocess.run(
+        [sys.executable, "-m", "daemon", "repair", str(src), "-o", str(out),
+         "--time-budget", str(NO_TIME), "--json"],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    report = json.loads(done.stdout)
+    assert report["path"] == "fallback"
+    mesh = load_mesh(out)
+    assert check_printable(mesh.vertices, mesh.faces, as_float32=True).ok
+    bad = subprocess.run(
+        [sys.executable, "-m", "daemon", "repair", str(src), "-o", str(out),
+         "--time-budget", "-1"],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert bad.returncode != 0 and "--time-budget" in bad.stderr
+
+
+# --- the budget itself, on plain callables in a real forked child ----------------------
+
+def _meshed(tag: float):
+    return np.full((1, 3), tag), np.zeros((1, 3), dtype=np.int64), {"summary": f"got {tag}"}
+
+
+def _slow_exact():
+    time.sleep(1.0)
+    return _meshed(1.0)
+
+
+def _no_fallback(reason: str):
+    raise RepairError(f"{reason}, and the fallback failed: test")
+
+
+def test_a_failed_fallback_lets_the_exact_repair_finish():
+    v, _, report = run_within_budget(_slow_exact, 0.05, _no_fallback)
+    assert v[0, 0] == 1.0
+    assert report["time_budget"]["fallback_failed"].startswith("exact repair exceeded 0.05 s")
+    assert report["summary"].endswith("got 1.0")
+
+
+def test_errors_of_the_exact_repair_come_back_as_they_were():
+    def refuse():
+        raise RepairError("nothing printable: test")
+
+    with pytest.raises(RepairError, match="nothing printable: test"):
+        run_within_budget(refuse, 60.0, lambda reason: _meshed(2.0))
+
+
+def _crash():
+    os.kill(os.getpid(), signal.SIGKILL)  # as a native crash or the OOM killer would
+
+
+def test_a_crashed_exact_repair_falls_back():
+    v, _, report = run_within_budget(_crash, 60.0, lambda reason: (*_meshed(2.0)[:2],
+                                                                   {"summary": reason}))
+    assert v[0, 0] == 2.0
+    assert report["summary"] == "exact repair crashed with SIGKILL"
+
+
+def test_shell_split_keeps_solids_turned_outward_and_leaves_sheets():
+    cv, cf = box()
+    sv, sf = triangle_soup(2, seed=4)
+    v, f = concat((cv, cf[:, ::-1]), (sv, sf))  # an inside-out cube and two sheets
+    split = split_exact_shells(v, f)
+    assert (split.exact_shells, split.offending_shells, split.crossing_solids) == (1, 2, 0)
+    assert np.array_equal(split.exact_faces, cf)
+    assert np.array_equal(split.offending, [12, 13])
+    # A closed shell that crosses itself is neither kept nor thickened (it would be
+    # hollow): the fallback leaves it to the exact repair.
+    crossing = split_exact_shells(cv, cf, np.array([[0, 6]]))
+    assert (crossing.exact_shells, crossing.crossing_solids) == (0, 1)
+
+
+def test_overlapping_shells_with_holes_fall_back_to_their_exact_union(tmp_path):
+    # The issue's most common breakage, small: closed shells crossing one another, with
+    # single triangles missing. Lids close the holes; the shells are then kept exactly
+    # and united by manifold3d, without the exact arrangement.
+    model = overlapping_shells(6000, 8, seed=2, shells=3)
+    result = repair_mesh(model.vertices, model.faces, EPS, time_budget=NO_TIME)
+    r = result.report
+    assert r["path"] == "fallback"
+    assert (r["fallback"]["exact_shells"], r["fallback"]["approximated_triangles"]) == (3, 0)
+    assert r["holes_closed"]["count"] == model.holes
+    assert _written_check(result.vertices, result.faces, tmp_path).ok
+    # Only the lids (each a missing triangle) stray from the input: D stays far below eps.
+    assert r["deviation"] < 0.25 * EPS
+    assert covered_fraction(model.vertices, model.faces, result.vertices, result.faces) >= 0.99
