@@ -166,11 +166,34 @@ class RepairConfig:
                          '"none" never', CHOICE, choices=("auto", "scan", "none"))
 
 
+@dataclass(frozen=True)
+class FarmConfig:
+    broker: str | None = setting(None, 'the farm\'s Redis, "redis://host:6379/0"; not set: '
+                                 "no farm (this daemon is an island)", STR, optional=True,
+                                 example="redis://farm-hub:6379/0")
+    name: str = setting("preflight", "the farm's name: nodes with the same broker and name "
+                        "share one queue", STR)
+    node: str | None = setting(None, "this node's name in the farm; not set: the host name",
+                               STR, optional=True, example="pi-rack-3")
+    compute: bool = setting(True, "run repair and slicing for the whole farm here", BOOL)
+    compute_workers: int = setting(1, "with compute: farm tasks run at once", INT, low=1,
+                                   high=64)
+    artefacts: Path | None = setting(None, "a directory every node mounts (NFS/SMB): inputs "
+                                     "and G-code live here, never in the broker", PATH,
+                                     optional=True, example="/srv/preflight-farm")
+    claim_timeout: float = setting(60.0, "s a claimed job not yet printing may go without its "
+                                   "node's heartbeat before the farm gives it to another "
+                                   "printer", FLOAT, low=3, high=3600)
+    task_timeout: float = setting(900.0, "s before a repair+slice task whose worker vanished "
+                                  "is handed to another compute node", FLOAT, low=5,
+                                  high=86400)
+
+
 #: The sections in the order of the example config; ``[profile]`` is an open table.
 SECTIONS: dict[str, type] = {"spool": SpoolConfig, "printer": PrinterConfig,
                              "daemon": DaemonConfig, "limits": LimitsConfig,
                              "safety": SafetyConfig, "web": WebConfig,
-                             "repair": RepairConfig}
+                             "repair": RepairConfig, "farm": FarmConfig}
 PROFILE = "profile"
 
 
@@ -183,6 +206,7 @@ class Config:
     safety: SafetyConfig = field(default_factory=SafetyConfig)
     web: WebConfig = field(default_factory=WebConfig)
     repair: RepairConfig = field(default_factory=RepairConfig)
+    farm: FarmConfig = field(default_factory=FarmConfig)
     profile: dict[str, Any] = field(default_factory=dict)  # slicer Profile overrides
     source: str = "built-in defaults"
 

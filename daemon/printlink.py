@@ -47,6 +47,9 @@ class PrinterLink(threading.Thread):
         self.host = None
         self.connections = 0
         self.wake = threading.Event()
+        #: Farm mode: ``gate(job) -> bool``, asked just before a job goes to printing;
+        #: False: not now (the job is left as the gate decided).
+        self.gate = None
 
     # -- shared state ---------------------------------------------------------------------
     def status(self) -> dict[str, Any]:
@@ -259,6 +262,9 @@ class PrinterLink(threading.Thread):
             return
         lines = self._checked_lines(job, info)
         if lines is None:
+            return
+        if self.gate is not None and not self.gate(job):
+            self.wake.wait(0.5)
             return
         cancel = threading.Event()
         with self._lock:

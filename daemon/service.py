@@ -62,11 +62,25 @@ class Daemon:
         self._claim = threading.Lock()
         self._active: dict[int, threading.Event] = {}
         self.started = time.time()
+        self.farm = None
+        if cfg.farm.broker:
+            self.farm = self._join_farm()
         self.web = None
         if cfg.web.listen:
             from daemon.web.server import WebServer
 
             self.web = WebServer(self)
+
+    def _join_farm(self):
+        """Farm mode: the node's part in the farm, and the gate of its printers."""
+        from daemon.farm import check_farm_config
+        from daemon.farm.node import FarmNode
+
+        check_farm_config(self.cfg)
+        farm = FarmNode(self)
+        for link in farm.links():
+            link.gate = farm.may_print
+        return farm
 
     # -- start-up recovery ----------------------------------------------------------------
     def recover(self) -> None:
@@ -220,6 +234,7 @@ class Daemon:
             "jobs": self.journal.counts(),
             "waiting_files": self.watcher.pending(),
             "web": self.web.status() if self.web else None,
+            "farm": self.farm.status() if self.farm else None,
         }
 
     @staticmethod
@@ -264,7 +279,9 @@ class Daemon:
         if self.web:
             self.web.start()
         workers = []
-        for i in range(self.cfg.daemon.workers):
+        if self.farm is not None:  # repair and slicing are the farm's compute tasks
+            self.farm.start()
+        for i in range(0 if self.farm else self.cfg.daemon.workers):
             processor = Processor(self.cfg, self.journal, self.spool, self.printer.last_info,
                                   stop=self.stop, claim_lock=self._claim, active=self._active)
             thread = threading.Thread(target=processor.run_forever, name=f"worker-{i}",
@@ -285,6 +302,8 @@ class Daemon:
         for thread in workers:
             thread.join(timeout=30)
         self.printer.join(timeout=60)
+        if self.farm is not None:
+            self.farm.join(timeout=30)
         FORK_SERVER.shutdown()
         status = self.status()
         status["running"] = False
@@ -300,7 +319,8 @@ class Daemon:
             try:
                 for path in self.watcher.due():
                     try:
-                        self.spool.intake(path)
+                        if self.farm is None or not self.farm.intake(path):
+                            self.spool.intake(path)
                     except Exception:
                         log.exception("intake of %s", path)
                 self.handle_requests()

@@ -99,6 +99,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     try:
         cfg = _load(args)
         check_profile(cfg)
+        if cfg.farm.broker:
+            from daemon.farm import check_farm_config
+
+            check_farm_config(cfg)
     except ConfigError as e:
         return fail(str(e), 2)
     setup_logging(cfg.daemon.log_level)
