@@ -38,8 +38,11 @@ CREATE TABLE IF NOT EXISTS farm_jobs (
 
 
 class FarmLedger:
-    def __init__(self, journal: Journal) -> None:
+    def __init__(self, journal: Journal, *, create: bool = True) -> None:
+        """``create=False``: a reader (the CLI, tests) of a journal the daemon writes."""
         self.journal = journal
+        if not create:
+            return
         with journal._tx() as db:
             for statement in filter(str.strip, SCHEMA.split(";")):
                 db.execute(statement)

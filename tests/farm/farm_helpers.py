@@ -105,3 +105,31 @@ def add_printers(config: dict, tables: list[dict]) -> None:
     table = dict(tables[0])
     table.pop("name")
     config["printer"] = table
+
+
+# --- what happened -------------------------------------------------------------------------
+
+def print_blocks(log: Path) -> list[tuple[str, ...]]:
+    """The prints a virtual printer's log shows: the commands after each ``M110 N0`` (the
+    line-number reset a stream starts with), up to the next one."""
+    if not log.exists():
+        return []
+    blocks: list[tuple[str, ...]] = []
+    current: list[str] | None = None
+    for line in log.read_text().splitlines():
+        if line == "M110 N0":
+            if current:
+                blocks.append(tuple(current))
+            current = []
+        elif current is not None:
+            current.append(line)
+    if current:
+        blocks.append(tuple(current))
+    return blocks
+
+
+def local_farm_jobs(daemon) -> list[dict]:
+    """The farm jobs a node's printers claimed: fid, printer, the local job's state..."""
+    from daemon.farm.ledger import FarmLedger
+
+    return FarmLedger(daemon.journal, create=False).claims()
