@@ -38,8 +38,9 @@ class ConfigError(ValueError):
 # Every key is a dataclass field declared with setting(): its default, a one-line doc, and
 # how its value is checked. Parsing, validation and the example config come from these.
 
-BOOL, INT, FLOAT, STR, PATH, CHOICE, GCODES, LISTEN, GLOBS = (
-    "bool", "int", "float", "str", "path", "choice", "G-code words", "host:port", "globs")
+BOOL, INT, FLOAT, STR, PATH, CHOICE, GCODES, LISTEN, GLOBS, SIZE = (
+    "bool", "int", "float", "str", "path", "choice", "G-code words", "host:port", "globs",
+    "x, y, z (mm)")
 
 
 @dataclass(frozen=True)
@@ -77,6 +78,8 @@ class SpoolConfig:
 
 @dataclass(frozen=True)
 class PrinterConfig:
+    name: str = setting("printer", "the printer's name in status, reports and the journal "
+                        "(required and unique in [[printers]] tables)", STR)
     port: str = setting("auto", '"auto" (find it: see scan), a serial device (best under '
                         '/dev/serial/by-id/), or "virtual" (a simulator)', STR)
     baud: int = setting(115200, "serial speed (port = \"auto\" finds its own)", INT, low=300,
@@ -112,6 +115,8 @@ class PrinterConfig:
     virtual_log: Path | None = setting(None, 'port = "virtual" only: append every executed '
                                        "command here", PATH, optional=True,
                                        example="/var/log/preflight/virtual.gcode")
+    virtual_build_volume: tuple[float, float, float] = setting(
+        (250.0, 210.0, 220.0), "the virtual printer's bed and height (x, y, z), mm", SIZE)
 
 
 @dataclass(frozen=True)
@@ -209,6 +214,16 @@ class Config:
     farm: FarmConfig = field(default_factory=FarmConfig)
     profile: dict[str, Any] = field(default_factory=dict)  # slicer Profile overrides
     source: str = "built-in defaults"
+    #: Every printer: the ``[[printers]]`` tables, else the one ``[printer]``
+    #: (``printer`` is always the first of them).
+    printers: tuple[PrinterConfig, ...] = ()
+    #: Whether the file has a [printer] or [[printers]] table (a farm node without one,
+    #: with [farm] compute, is a compute-only node).
+    printer_tables: bool = True
+
+    @property
+    def all_printers(self) -> tuple[PrinterConfig, ...]:
+        return self.printers or (self.printer,)
 
     @property
     def journal_path(self) -> Path:
@@ -293,6 +308,13 @@ def check_value(section: str, name: str, value: Any, rule: Rule, *, base: Path |
                                                   for x in value):
             raise ConfigError(f'{where}: expected a list of paths or globs like "/dev/ttyACM*"')
         return tuple(os.path.expanduser(x.strip()) for x in value)
+    if rule.kind == SIZE:
+        if (not isinstance(value, list) or len(value) != 3
+                or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and 0 < x < 1e5
+                           for x in value)):
+            raise ConfigError(f"{where}: expected three sizes in mm like [250, 210, 220], got "
+                              f"{_shown(value)}")
+        return tuple(float(x) for x in value)
     if rule.kind == LISTEN:
         if not isinstance(value, str) or (value and split_listen(value) is None):
             raise ConfigError(f'{where}: expected "host:port" or "" (off), got {_shown(value)}')
@@ -331,8 +353,11 @@ def parse_config(data: dict[str, Any], *, base: Path | None = None,
     Relative paths are taken relative to ``base`` (the config file's folder).
     Unknown sections or keys are errors, so that a typo never passes silently.
     """
-    known = [*SECTIONS, PROFILE]
+    known = [*SECTIONS, PROFILE, PRINTERS]
+    printers = _printer_tables(data, base)
     for name, table in data.items():
+        if name == PRINTERS:
+            continue
         if name not in known:
             raise ConfigError(f"[{_name(name)}]: unknown section "
                               f"(known: {', '.join(sorted(known))})")
@@ -340,7 +365,39 @@ def parse_config(data: dict[str, Any], *, base: Path | None = None,
             raise ConfigError(f"[{name}]: expected a table")
     sections = {name: _section(name, data.get(name, {}), section, base)
                 for name, section in SECTIONS.items()}
-    return Config(**sections, profile=dict(data.get(PROFILE, {})), source=source)
+    if printers:
+        sections["printer"] = printers[0]
+    return Config(**sections, profile=dict(data.get(PROFILE, {})), source=source,
+                  printers=printers, printer_tables=bool(printers) or "printer" in data)
+
+
+PRINTERS = "printers"
+
+
+def _printer_tables(data: dict[str, Any], base: Path | None) -> tuple[PrinterConfig, ...]:
+    """The ``[[printers]]`` tables, checked: each has the keys of ``[printer]`` and a
+    unique ``name``; ``[printer]`` and ``[[printers]]`` together are an error."""
+    tables = data.get(PRINTERS)
+    if tables is None:
+        return ()
+    if not isinstance(tables, list) or not tables or not all(isinstance(t, dict)
+                                                             for t in tables):
+        raise ConfigError("[[printers]]: expected one or more [[printers]] tables")
+    if "printer" in data:
+        raise ConfigError("[printer] and [[printers]] are both set: use [[printers]] tables "
+                          "only (one per printer, each with a name), or the one [printer]")
+    printers: list[PrinterConfig] = []
+    for number, table in enumerate(tables, 1):
+        if "name" not in table:
+            raise ConfigError(f"[[printers]] table {number}: name is required (e.g. "
+                              f'name = "left")')
+        where = f"printers {_name(str(table['name']))}"
+        printer = _section(where, table, PrinterConfig, base)
+        if any(p.name == printer.name for p in printers):
+            raise ConfigError(f"[[printers]] table {number}: the name {printer.name!r} is "
+                              "used by another printer; names must be unique")
+        printers.append(printer)
+    return tuple(printers)
 
 
 # --- the example config ---------------------------------------------------------------------
@@ -357,6 +414,24 @@ EXAMPLE_PROFILE = """\
 # infill_percent = 15
 # support = "auto"    # auto (where needed) | buildplate | everywhere | off
 # brim = "auto"       # auto (tall parts on a small footprint) | on | off; brim_width = 5.0
+"""
+
+EXAMPLE_PRINTERS = """\
+# Several printers: instead of [printer], one [[printers]] table per printer, each with
+# the keys of [printer] and a unique name. They print in parallel, each job on one
+# printer: a job goes to the first free printer whose build volume fits the model (else
+# to the fitting nozzle class with the least queued work), and is repaired and sliced
+# for that printer's nozzle. Pin a model to a nozzle with a sidecar <name>.toml holding
+# the line nozzle=0.6 (drop it first, or with the model), or by dropping the model into
+# the spool subfolder nozzle-0.6/ (create that folder yourself). Two printers with
+# port "auto" never take the same port. For example:
+#[[printers]]
+#name = "left"
+#port = "/dev/serial/by-id/usb-Prusa_Research_Original_Prusa_MK3S-if00"
+#[[printers]]
+#name = "right"
+#port = "auto"
+#nozzle_diameter = 0.6
 """
 
 COMMENT_COLUMN = 34
@@ -394,6 +469,8 @@ def example_config() -> str:
         lines = [f"[{name}]"] + [_example_line(key, default, rule)
                                  for key, default, rule in rules(section)]
         parts.append("\n".join(lines) + "\n")
+        if name == "printer":
+            parts.append(EXAMPLE_PRINTERS)
     parts.append(EXAMPLE_PROFILE)
     return "\n".join(parts)
 

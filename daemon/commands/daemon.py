@@ -140,7 +140,7 @@ def _journal(args: argparse.Namespace):
 
 
 def cmd_status(args: argparse.Namespace) -> int:
-    from daemon.printlink import format_temperatures
+    from daemon.printlog import format_temperatures
     from daemon.service import Daemon, daemon_alive
 
     cfg, journal = _journal(args)
@@ -174,6 +174,12 @@ def cmd_status(args: argparse.Namespace) -> int:
                  else ""))
     elif printer.get("message"):
         print(f"printer: {printer.get('port')} - {printer.get('state')}: {printer['message']}")
+    printers = status.get("printers") or []
+    if len(printers) > 1:
+        from daemon.printers import describe_printer
+
+        for entry in printers:
+            print(describe_printer(entry))
     temperatures = format_temperatures(printer.get("temperatures"))
     if temperatures:
         print(f"temperatures: {temperatures}")

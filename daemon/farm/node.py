@@ -27,6 +27,7 @@ from daemon.farm.ledger import FarmLedger
 from daemon.farm.queue import FarmQueue
 from daemon.farm.routing import measure, pin_of, printer_fits
 from daemon.journal import Job
+from daemon.pins import find_sidecar
 from daemon.pipeline import epsilon_from, flavour_from, slice_overrides
 from daemon.safety import (
     ACCEPTED_SUFFIXES,
@@ -77,15 +78,11 @@ class FarmNode:
 
     # -- printers -------------------------------------------------------------------------
     def links(self) -> list[Any]:
-        pool = getattr(self.daemon, "printers", None)
-        if pool is not None and hasattr(pool, "links"):
-            return list(pool.links)
-        return [] if self.daemon.printer is None else [self.daemon.printer]
+        return list(self.daemon.printers.links)
 
     @staticmethod
     def link_name(link: Any) -> str:
-        printer = getattr(link, "printer", None)
-        return getattr(printer, "name", None) or "printer"
+        return link.name
 
     def _busy_printers(self) -> set[str]:
         """Printers holding a farm job not yet ended here (or one being prepared)."""
@@ -97,8 +94,9 @@ class FarmNode:
     def intake(self, path: Path) -> bool:
         """Take a spool file for the farm; False leaves it to the local spool (which
         refuses it with the reason: not a model, too big, unsafe...)."""
+        root = self.cfg.spool.path
         try:
-            entry = check_spool_entry(self.cfg.spool.path, path)
+            entry = check_spool_entry(root if path.parent == root else path.parent, path)
         except FileNotFoundError:
             return True
         except UnsafeEntry:
@@ -118,8 +116,15 @@ class FarmNode:
                   "extents": measure(path, self.cfg) if kind == "mesh" else None,
                   "taken_at": time.time()}
         fid = uuid.uuid4().hex
+        sidecar = find_sidecar(path)
+
+        def take() -> None:
+            os.unlink(path)
+            if sidecar is not None:  # it travelled as the pin
+                sidecar.unlink(missing_ok=True)
+
         try:
-            self.ledger.add_outbox(fid, fields, while_recording=lambda: os.unlink(path))
+            self.ledger.add_outbox(fid, fields, while_recording=take)
         except FileNotFoundError:
             return True
         log.info("farm: took %s as farm job %s%s", path.name, fid,
@@ -300,9 +305,11 @@ class FarmNode:
         for each in self.links():
             getattr(each, "wake", threading.Event()).set()
 
-    def _assign(self, printer: str) -> dict[str, Any]:
-        """The journal fields that give a ready job to one printer of this node."""
-        return {"printer": printer} if len(self.links()) > 1 else {}
+    @staticmethod
+    def _assign(printer: str) -> dict[str, Any]:
+        """The journal fields that give a ready job to one printer of this node (its
+        claim in the journal: no other printer of the node takes it)."""
+        return {"printer": printer}
 
     def _compute(self, fid: str, job: dict[str, str], info: dict[str, Any],
                  epsilon: float) -> dict[str, Any] | None:

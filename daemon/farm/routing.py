@@ -25,10 +25,8 @@ def pin_of(spool: Path, path: Path) -> float | None:
     """The nozzle (mm) a dropped file is pinned to: its sidecar ``<name>.toml``
     (``nozzle = 0.6``), or the spool subfolder ``nozzle-0.6/`` it was dropped into.
     Raises ValueError (the reason) for a sidecar that cannot be used."""
-    try:
-        from daemon import pins
-    except ImportError:  # a daemon without pinning (one printer per node)
-        return None
+    from daemon import pins
+
     sidecar = pins.find_sidecar(path)
     if sidecar is not None:
         return pins.read_sidecar(sidecar)

@@ -95,16 +95,9 @@ def farm_config(folder: Path, *, node: str, broker: str, artefacts: Path,
 
 
 def add_printers(config: dict, tables: list[dict]) -> None:
-    """One printer: the ``[printer]`` table; none: a port that never answers (a node
-    without a printer)."""
-    if not tables:
-        config["printer"] = {"port": "/nonexistent/preflight-no-printer",
-                             "reconnect_min_seconds": 60.0, "reconnect_max_seconds": 60.0}
-        return
-    assert len(tables) == 1, "several printers per node need [[printers]]"
-    table = dict(tables[0])
-    table.pop("name")
-    config["printer"] = table
+    """``[[printers]]`` tables; none: a compute-only node."""
+    if tables:
+        config["printers"] = tables
 
 
 # --- what happened -------------------------------------------------------------------------
