@@ -21,7 +21,7 @@ from typing import Any
 import redis
 
 from daemon.farm import node_name
-from daemon.farm.artefacts import ArtefactStore
+from daemon.farm.artefacts import ArtefactStore, prepared_key
 from daemon.farm.compute import ComputeWorker
 from daemon.farm.ledger import FarmLedger
 from daemon.farm.queue import FarmQueue
@@ -323,11 +323,16 @@ class FarmNode:
                 "build_volume": list(volume) if volume else None,
                 "flavour": flavour_from(info),
                 "filament_diameter": info.get("filament_diameter"), "for": fid}
+        printer = {k: spec[k] for k in ("build_volume", "flavour", "filament_diameter")}
+        key = prepared_key(spec["input"], epsilon, spec["profile"], printer)
         pending = None
         while not self.stop.is_set():
             with self._lock:
                 if fid in self._lost:
                     return None
+            done = self.store.get_prepared(key)  # done here or before, whatever the broker
+            if done is not None:
+                return done
             try:
                 if pending is None:
                     pending = self.celery.send_task(PREPARE, args=[spec])
