@@ -33,7 +33,6 @@ def _printing(node) -> list:
 def test_killed_printing_node_interrupts_its_print_and_others_print_the_rest(
         tmp_path, redis_server):
     art = tmp_path / "artefacts"
-    # node a prints slowly (a heat-up takes seconds), so it is caught mid-print
     # node a prints slowly (a heat-up takes seconds), so it is caught mid-print; it
     # computes nothing, so its 0.6 printer holds a claim it cannot start (no compute
     # node runs before b)
@@ -59,11 +58,11 @@ def test_killed_printing_node_interrupts_its_print_and_others_print_the_rest(
         a.wait_for(lambda: a.journal.jobs() and len(queue.all_jobs()) == len(names),
                    what="every job published")
         a.kill9()
-        b.start()  # the rest of the farm: only now can anyone else print
         killed_mid_print = {j for j, job in queue.all_jobs().items()
                             if job["state"] == "printing"}
         claimed = {j for j, job in queue.all_jobs().items() if job["state"] == "claimed"}
         assert len(killed_mid_print) == 1 and len(claimed) == 1
+        b.start()  # the rest of the farm: only now can anyone else print
         b.wait_for(lambda: sum(j["state"] == "done" for j in queue.all_jobs().values())
                    == len(names) - 1, what="node b printed the other jobs", timeout=300)
         assert queue.all_jobs()[next(iter(killed_mid_print))]["state"] == "printing"
