@@ -295,9 +295,9 @@ class Daemon:
         if self.web:
             self.web.start()
         workers = []
-        if self.farm is not None:  # repair and slicing are the farm's compute tasks
+        if self.farm is not None:  # spool files go to the farm; uploads stay local
             self.farm.start()
-        for i in range(0 if self.farm else self.cfg.daemon.workers):
+        for i in range(self.cfg.daemon.workers):
             processor = Processor(self.cfg, self.journal, self.spool, self.printer.last_info,
                                   stop=self.stop, claim_lock=self._claim, active=self._active,
                                   router=self.printers)
