@@ -44,6 +44,8 @@ ROUND_SECONDS = 0.5
 HEARTBEAT_SECONDS = 2.0
 #: A broker call that failed is tried again after this long.
 RETRY_SECONDS = 1.0
+#: A spool file the artefact store could not take is tried again this often (s).
+RETRY_INTAKE = 5.0
 LOST_CLAIM = ("the farm gave this job to another printer: this node lost its claim "
               "(it was down or cut off from the broker for longer than [farm] claim_timeout) "
               "before the print started; nothing was sent to the printer")
@@ -72,6 +74,7 @@ class FarmNode:
         self._held: dict[str, str] = {}        # farm id -> printer, claimed, not printing
         self._preparing: dict[str, str] = {}   # printer -> farm id being prepared for it
         self._lost: set[str] = set()
+        self._retry: set[Path] = set()         # spool files the artefact store refused
         self._next: dict[str, float] = {}
         self.thread = threading.Thread(target=self.run, name="farm", daemon=True)
         self.celery = None
@@ -110,8 +113,19 @@ class FarmNode:
         except ValueError:
             return False  # a bad sidecar: the local spool fails the job with the reason
         kind = "gcode" if suffix in GCODE_SUFFIXES else "mesh"
+        try:
+            input_key = self.store.put_input(path)
+        except OSError as e:  # the artefact server is away: the file waits in the spool
+            with self._lock:
+                if path not in self._retry:
+                    log.warning("farm: cannot store %s in %s (%s); trying again every %g s",
+                                path.name, self.store.root, e.strerror or e, RETRY_INTAKE)
+                self._retry.add(path)
+            return True
+        with self._lock:
+            self._retry.discard(path)
         fields = {"name": sanitise_name(path.name), "source_name": path.name, "kind": kind,
-                  "input": self.store.put_input(path), "origin": self.node,
+                  "input": input_key, "origin": self.node,
                   "pin": "" if pin is None else f"{pin:g}",
                   "extents": measure(path, self.cfg) if kind == "mesh" else None,
                   "taken_at": time.time()}
@@ -161,6 +175,11 @@ class FarmNode:
 
     def run(self) -> None:
         while not self.stop.is_set():
+            if self._retry and self._due("retry-intake", RETRY_INTAKE):
+                with self._lock:
+                    retry = list(self._retry)
+                for path in retry:
+                    self.intake(path)
             if self.compute is not None:
                 try:
                     self.compute.check()

@@ -11,6 +11,7 @@ Keys (``pf:<farm>:`` prefix):
 - ``job:<id>``: HASH, the job: name, kind, input (artefact key), suffix, origin node,
   pin (nozzle class, "" = any), extents (JSON mm), state (queued, claimed, printing,
   done, failed, cancelled, interrupted), node and printer holding it, reason, epsilon;
+  kept for ``KEEP_ENDED_SECONDS`` once ended;
 - ``claim:<id>``: STRING ``node/printer``, with a TTL while claimed (the lease), made
   persistent when printing starts;
 - ``claimed``: SET of job ids claimed but not printing (what the reaper looks at);
@@ -27,6 +28,8 @@ from typing import Any
 import redis
 
 FINAL_STATES = ("done", "failed", "cancelled", "interrupted")
+#: An ended job's record stays in the broker this long (each node's journal keeps its own).
+KEEP_ENDED_SECONDS = 7 * 86400
 
 _PUBLISH = """
 if redis.call('EXISTS', KEYS[1]) == 1 then return 0 end
@@ -59,6 +62,7 @@ return 1
 # 1: go ahead; 0: the claim is someone else's (or lost); a requeued interrupted print
 # of this very printer goes ahead too (an explicit requeue by the user).
 _START = """
+if redis.call('EXISTS', KEYS[1]) == 0 then return 1 end  -- ended long ago: a local requeue
 local state = redis.call('HGET', KEYS[1], 'state')
 local mine = redis.call('HGET', KEYS[1], 'node') == ARGV[3] and
              redis.call('HGET', KEYS[1], 'printer') == ARGV[4]
@@ -75,7 +79,7 @@ redis.call('HINCRBY', KEYS[1], 'prints', 1)
 return 1
 """
 
-# KEYS: job, claim, claimed; ARGV: id, node, printer, state, reason, epsilon, now
+# KEYS: job, claim, claimed; ARGV: id, node, printer, state, reason, epsilon, now, keep s
 _FINISH = """
 if redis.call('HGET', KEYS[1], 'node') ~= ARGV[2] or
    redis.call('HGET', KEYS[1], 'printer') ~= ARGV[3] then return 0 end
@@ -86,6 +90,7 @@ redis.call('SREM', KEYS[3], ARGV[1])
 redis.call('HSET', KEYS[1], 'state', ARGV[4], 'reason', ARGV[5], 'epsilon', ARGV[6],
            'ended_at', ARGV[7])
 redis.call('HINCRBY', KEYS[1], 'ends', 1)
+redis.call('EXPIRE', KEYS[1], ARGV[8])
 return 1
 """
 
@@ -182,7 +187,8 @@ class FarmQueue:
         job, claim = self._job_keys(fid)
         return bool(self._finish(keys=[job, claim, self.key("claimed")],
                                  args=[fid, node, printer, state, reason or "",
-                                       "" if epsilon is None else f"{epsilon:g}", time.time()]))
+                                       "" if epsilon is None else f"{epsilon:g}", time.time(),
+                                       KEEP_ENDED_SECONDS]))
 
     def give_back(self, fid: str, node: str = "", printer: str = "") -> bool:
         """Put a claimed job back at the head of the queue: by its holder (``node``,

@@ -46,7 +46,7 @@ def configure(cfg: Config) -> Celery:
         task_acks_late=True, task_reject_on_worker_lost=True,
         worker_prefetch_multiplier=1, task_default_queue=compute_queue(cfg),
         task_serializer="json", result_serializer="json", accept_content=["json"],
-        result_expires=7 * 86400, broker_connection_retry_on_startup=True,
+        result_expires=86400, broker_connection_retry_on_startup=True,
         broker_connection_max_retries=None, worker_hijack_root_logger=False,
         broker_transport_options={
             "visibility_timeout": timeout,
