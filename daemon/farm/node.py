@@ -163,8 +163,6 @@ class FarmNode:
 
     def join(self, timeout: float) -> None:
         self.thread.join(timeout)
-        if self.compute is not None:
-            self.compute.close()
 
     def _due(self, what: str, every: float) -> bool:
         now = time.monotonic()
@@ -200,6 +198,10 @@ class FarmNode:
             except Exception:
                 log.exception("farm")
             self.stop.wait(ROUND_SECONDS)
+        if self.compute is not None:
+            # from this thread: the worker's parent-death signal follows the thread that
+            # started it, so it must be stopped (gently) before the thread ends
+            self.compute.close()
 
     def _round(self) -> None:
         for fid, fields in self.ledger.unpublished():
