@@ -79,6 +79,8 @@ def _run_batch(tmp, redis_server, count: int) -> None:
         status = a.cli("farm", "status")
         assert status.returncode == 0, status.stderr
         assert f"{count} done" in status.stdout and "node c: up (compute" in status.stdout
+        assert "printer a06: nozzle 0.6 mm, connected, idle" in status.stdout
+        assert "0 waiting for a printer, 0 claimed" in status.stdout
     finally:
         for node in nodes:
             node.stop()
