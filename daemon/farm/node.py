@@ -75,6 +75,7 @@ class FarmNode:
         self._preparing: dict[str, str] = {}   # printer -> farm id being prepared for it
         self._lost: set[str] = set()
         self._retry: set[Path] = set()         # spool files the artefact store refused
+        self._sizes: dict[str, list[float] | None] = {}  # farm id -> measured, unpublished
         self._next: dict[str, float] = {}
         self.thread = threading.Thread(target=self.run, name="farm", daemon=True)
         self.celery = None
@@ -127,7 +128,7 @@ class FarmNode:
         fields = {"name": sanitise_name(path.name), "source_name": path.name, "kind": kind,
                   "input": input_key, "origin": self.node,
                   "pin": "" if pin is None else f"{pin:g}",
-                  "extents": measure(path, self.cfg) if kind == "mesh" else None,
+                  "extents": None,  # measured before publishing, off the main loop
                   "taken_at": time.time()}
         fid = uuid.uuid4().hex
         sidecar = find_sidecar(path)
@@ -205,7 +206,10 @@ class FarmNode:
 
     def _round(self) -> None:
         for fid, fields in self.ledger.unpublished():
+            if fields["kind"] == "mesh" and fields.get("extents") is None:
+                fields["extents"] = self._extents(fid, fields["input"])
             self.queue.publish(fid, fields)
+            self._sizes.pop(fid, None)
             self.ledger.mark_published(fid)
             log.info("farm: published %s (%s)", fid, fields.get("name"))
         self._report_outcomes()
@@ -219,6 +223,14 @@ class FarmNode:
         self._dispatch()
         if self._due("heartbeat", HEARTBEAT_SECONDS):
             self.queue.heartbeat(self.node, self.status(), ttl=5 * HEARTBEAT_SECONDS)
+
+    def _extents(self, fid: str, input_key: str) -> list[float] | None:
+        """The model's size, measured once (publishing may be retried through an outage)."""
+        if fid not in self._sizes:
+            work = farm_work_dir(self.cfg) / f"measure-{fid}"
+            self._sizes[fid] = measure(self.store.input_path(input_key), work, self.cfg)
+            shutil.rmtree(work, ignore_errors=True)
+        return self._sizes[fid]
 
     def _renew(self, ttl: float) -> None:
         with self._lock:

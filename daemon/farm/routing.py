@@ -1,8 +1,8 @@
 """Routing by capability: a job's pin (nozzle class) and size, and whether a printer
 can take it.
 
-The size is the axis-aligned bounding box of the *input* mesh, measured once at
-intake (thickening grows it by at most ε; the slicer checks the placed part again).
+The size is the axis-aligned bounding box of the *input* mesh, measured once before
+it is published (thickening grows it by at most ε; the slicer checks the placed part again).
 A printer takes a job when its nozzle is the pinned one (if pinned) and its build
 volume holds the box (an unknown build volume holds anything).
 """
@@ -18,9 +18,6 @@ from daemon.config import Config
 
 log = logging.getLogger("preflight.farm")
 
-NOZZLE_TOLERANCE = 1e-6
-
-
 def pin_of(spool: Path, path: Path) -> float | None:
     """The nozzle (mm) a dropped file is pinned to: its sidecar ``<name>.toml``
     (``nozzle = 0.6``), or the spool subfolder ``nozzle-0.6/`` it was dropped into.
@@ -35,29 +32,33 @@ def pin_of(spool: Path, path: Path) -> float | None:
     return None
 
 
-def measure(path: Path, cfg: Config) -> list[float] | None:
-    """The model's size (mm, x y z), or None when it cannot be read (the repair will
-    fail it with the reason)."""
-    from repair.io import load_mesh
+def measure(input_path: Path, work: Path, cfg: Config) -> list[float] | None:
+    """The model's size (mm, x y z), measured in a child process like the daemon's own
+    routing does (never a stranger's mesh parsed in the daemon); None when it cannot be
+    read (routed as fitting anywhere: the repair fails it with the reason)."""
+    from daemon.worker import WorkerCancelled, WorkerFailed, run_task
 
     try:
-        mesh = load_mesh(path, max_bytes=int(cfg.limits.max_file_mb * 1024 * 1024),
-                         max_triangles=cfg.limits.max_triangles)
-    except Exception as e:  # MeshReadError, MemoryError...: routed as "fits anywhere"
-        log.info("farm: cannot measure %s (%s)", path.name, e)
+        out = run_task("measure", {
+            "in": str(input_path), "job_name": input_path.name,
+            "max_bytes": int(cfg.limits.max_file_mb * 1024 * 1024),
+            "max_triangles": cfg.limits.max_triangles,
+        }, work_dir=work, timeout=cfg.limits.repair_timeout,
+            memory_mb=cfg.limits.repair_memory_mb)
+    except (WorkerFailed, WorkerCancelled) as e:
+        log.info("farm: cannot measure %s (%s)", input_path.name, e)
         return None
-    if len(mesh.vertices) == 0:
-        return None
-    extent = mesh.vertices.max(axis=0) - mesh.vertices.min(axis=0)
-    return [round(float(x), 4) for x in extent]
+    size = (out or {}).get("size")
+    return [round(float(x), 4) for x in size] if size else None
 
 
 def printer_fits(job: dict[str, Any], info: dict[str, Any]) -> bool:
     """Whether the printer ``info`` describes may take the farm ``job`` (its Redis hash)."""
+    from daemon.printers import same_nozzle
+
     pin = job.get("pin") or ""
     nozzle = info.get("nozzle_diameter")
-    if pin and (not isinstance(nozzle, (int, float))
-                or abs(float(pin) - float(nozzle)) > NOZZLE_TOLERANCE):
+    if pin and not (isinstance(nozzle, (int, float)) and same_nozzle(float(pin), nozzle)):
         return False
     extents = job.get("extents")
     if isinstance(extents, str):

@@ -69,7 +69,7 @@ def farm_config(folder: Path, *, node: str, broker: str, artefacts: Path,
                 claim_timeout: float = 60.0, task_timeout: float = 900.0,
                 speedup: float = 5000.0) -> Path:
     """A farm node's config in ``folder``: ``printers`` is a list of
-    ``{"name", "nozzle"}`` (virtual printers, each logging to ``folder/<name>.log``),
+    ``{"name", "nozzle"[, "volume"]}`` (virtual printers, each logging to ``folder/<name>.log``),
     None for a compute-only node."""
     folder.mkdir(parents=True, exist_ok=True)
     config: dict = {
@@ -86,7 +86,8 @@ def farm_config(folder: Path, *, node: str, broker: str, artefacts: Path,
     tables = [{"name": p["name"], "port": "virtual", "baud": 250000,
                "nozzle_diameter": p["nozzle"], "virtual_speedup": speedup,
                "virtual_log": str(folder / f"{p['name']}.log"),
-               "reconnect_min_seconds": 0.2, "reconnect_max_seconds": 1.0}
+               "reconnect_min_seconds": 0.2, "reconnect_max_seconds": 1.0,
+               **({"virtual_build_volume": p["volume"]} if "volume" in p else {})}
               for p in printers or []]
     add_printers(config, tables)
     path = folder / "preflight.toml"

@@ -17,7 +17,8 @@ def _nodes(tmp, redis_server, *, compute_nodes=1, **kw):
                                printers=[{"name": "a04", "nozzle": 0.4},
                                          {"name": "a06", "nozzle": 0.6}], **kw))
     b = DaemonProc(farm_config(tmp / "b", node="b", broker=redis_server.url, artefacts=art,
-                               printers=[{"name": "b04", "nozzle": 0.4},
+                               printers=[{"name": "b04", "nozzle": 0.4,
+                                          "volume": [300, 300, 300]},
                                          {"name": "b06", "nozzle": 0.6}], **kw))
     c = DaemonProc(farm_config(tmp / "c", node="c", broker=redis_server.url, artefacts=art,
                                printers=None, compute=True, **kw))
@@ -26,8 +27,8 @@ def _nodes(tmp, redis_server, *, compute_nodes=1, **kw):
 
 def _drop_mix(tmp, spools, count: int) -> dict[str, float | None]:
     """``count`` jobs over ``spools``: boxes of a few sizes (repeats reuse their repair),
-    the shipped broken model, G-code files; every fifth pinned to 0.6 by a sidecar.
-    Returns name -> pinned nozzle."""
+    the shipped broken model, G-code files; two in five pinned to 0.6, by a sidecar or
+    by the spool subfolder ``nozzle-0.6/``. Returns name -> pinned nozzle."""
     src = tmp / "models"
     src.mkdir(exist_ok=True)
     broken = broken_stl(src / "broken.stl").read_bytes()
@@ -43,9 +44,11 @@ def _drop_mix(tmp, spools, count: int) -> dict[str, float | None]:
             path = src / f"box{i:03d}.stl"
             write_binary_stl(path, *box((3.0 + (i % 5), 3.0, 2.0)))
             name, data = path.name, path.read_bytes()
-        pin = 0.6 if i % 5 == 0 else None
-        if pin:
+        pin = 0.6 if i % 5 in (0, 3) else None
+        if i % 5 == 0:  # a sidecar first, then the model
             drop(spool, name.rsplit(".", 1)[0] + ".toml", b"nozzle = 0.6\n")
+        elif i % 5 == 3:  # the spool subfolder the user made for the 0.6 printers
+            spool = spool / "nozzle-0.6"
         drop(spool, name, data)
         pins[name] = pin
     return pins
@@ -56,8 +59,15 @@ def _run_batch(tmp, redis_server, count: int) -> None:
     nodes = [a, b, c]
     try:
         for node in nodes:
+            (node.cfg.spool.path / "nozzle-0.6").mkdir(parents=True)
             node.start()
-        pins = _drop_mix(tmp, [a.cfg.spool.path, b.cfg.spool.path, c.cfg.spool.path], count)
+        pins = _drop_mix(tmp, [a.cfg.spool.path, b.cfg.spool.path, c.cfg.spool.path],
+                         count - 2)
+        for i in range(2):  # only b04's bed (300 mm) holds these
+            path = tmp / "models" / f"long{i}.stl"
+            write_binary_stl(path, *box((270.0, 8.0 + i, 1.0)))
+            drop(a.cfg.spool.path, path.name, path.read_bytes())
+            pins[path.name] = None
         queue = FarmQueue(redis_server.url, "test")
         a.wait_for(lambda: all_ended(queue, count), what=f"{count} farm jobs ended",
                    timeout=900, poll=0.5)
@@ -71,6 +81,8 @@ def _run_batch(tmp, redis_server, count: int) -> None:
                 if local.kind == "mesh":
                     assert local.epsilon == pytest.approx(0.6)
                     assert report_epsilon(local) == pytest.approx(0.6)
+            if local.source_name.startswith("long"):
+                assert entry["printer"] == "b04"
             if local.kind == "mesh":
                 nozzle = 0.6 if entry["printer"].endswith("06") else 0.4
                 assert local.epsilon == pytest.approx(nozzle)
@@ -86,10 +98,6 @@ def _run_batch(tmp, redis_server, count: int) -> None:
             node.stop()
 
 
-def test_farm_batch_prints_every_job_exactly_once(tmp_path, redis_server):
-    _run_batch(tmp_path, redis_server, 24)
-
-
-@pytest.mark.slow
-def test_farm_hundred_mixed_jobs(tmp_path, redis_server):
+def test_farm_hundred_mixed_jobs_each_end_once_pinned_on_their_nozzle(tmp_path,
+                                                                     redis_server):
     _run_batch(tmp_path, redis_server, 100)
