@@ -10,9 +10,11 @@ from pathlib import Path
 import pytest
 import tomli_w
 from daemon_helpers import FAST_PROFILE, DaemonProc, box, drop, gcode_commands, write_binary_stl
+from web_helpers import request
 
 from daemon.config import ConfigError, parse_config
 from daemon.journal import Journal
+from daemon.web.auth import read_key
 
 BIG, SMALL = "big04", "small06"
 SMALL_VOLUME = [80.0, 80.0, 80.0]
@@ -31,7 +33,7 @@ def printers_config(tmp: Path, **daemon) -> Path:
                      printer(SMALL, 0.6, SMALL_VOLUME)],
         "daemon": {"state_dir": str(tmp / "state"), "log_level": "DEBUG", **daemon},
         "limits": {"repair_timeout": 120, "slice_timeout": 120},
-        "web": {"listen": ""},
+        "web": {"listen": "127.0.0.1:0"},
         "profile": FAST_PROFILE,
     }
     path = tmp / "preflight.toml"
@@ -165,6 +167,16 @@ def test_two_printers_route_pin_and_print_each_job_once_in_parallel(tmp_path, da
         line = next(x for x in out.splitlines() if x.startswith(f"printer {name}"))
         assert f"nozzle {nozzle} mm" in line and volume in line and "Marlin" in line
         assert "virtual" in line and "connected" in line
+
+    # the web API's state lists both; its single-printer fields describe the first
+    port = d.status()["web"]["port"]
+    key = read_key(d.cfg.daemon.state_dir)
+    state = request(port, "GET", "/api/preflight/state", headers={"X-Api-Key": key}).json()
+    assert [(p["name"], p["nozzle"], p["build_volume"]) for p in state["printers"]] == [
+        (BIG, 0.4, [250.0, 210.0, 220.0]), (SMALL, 0.6, SMALL_VOLUME)]
+    assert state["printer"]["name"] == BIG
+    rows = {row["source_name"]: row for row in state["history"]}
+    assert rows["fold0.stl"]["printer"] == SMALL and rows["fold0.stl"]["pinned"] is True
     assert d.stop() == 0
 
 
