@@ -202,3 +202,60 @@ def test_printers_tables_are_checked():
         with pytest.raises(ConfigError) as err:
             parse_config(data)
         assert message in str(err.value) and "\n" not in str(err.value)
+
+
+def test_an_older_journal_gains_the_printer_columns(tmp_path):
+    import sqlite3
+
+    from daemon.journal import MIGRATIONS, SCHEMA
+
+    path = tmp_path / "journal.sqlite"
+    db = sqlite3.connect(path)
+    db.executescript(SCHEMA)  # then back to the journal of a preflight before [[printers]]
+    for column, _ in MIGRATIONS:
+        db.execute(f"ALTER TABLE jobs DROP COLUMN {column}")
+    db.execute("INSERT INTO jobs (name, source_name, kind, state, created, updated) "
+               "VALUES ('a.stl', 'a.stl', 'mesh', 'ready', 1, 1)")
+    db.commit()
+    assert "printer" not in {r[1] for r in db.execute("PRAGMA table_info(jobs)")}
+    db.close()
+    journal = Journal(path)
+    job = journal.get(1)
+    assert (job.nozzle, job.pinned, job.printer) == (None, False, None)
+    assert journal.claim_for_printer(1, "left") is True
+    assert journal.claim_for_printer(1, "right") is False  # exactly one printer gets it
+    assert journal.get(1).printer == "left"
+    assert journal.release_unstarted_claims() == 1  # the daemon died before it started
+    assert journal.claim_for_printer(1, "right") is True
+    journal.close()
+
+
+def test_two_auto_printers_never_take_the_same_port(tmp_path, daemon):
+    from test_daemon_discovery import plug_in
+
+    by_id = tmp_path / "by-id"
+    by_id.mkdir()
+    links = [by_id / "usb-Virtual_A-if00", by_id / "usb-Virtual_B-if00"]
+    procs = [plug_in(link, tmp_path / f"{link.name}.log", 250000) for link in links]
+    try:
+        auto = {"port": "auto", "scan": [str(by_id / "*")], "probe_seconds": 2.0,
+                "reconnect_min_seconds": 0.2, "reconnect_max_seconds": 1.0}
+        config = {"spool": {"path": str(tmp_path / "spool")},
+                  "printers": [{"name": "a", **auto}, {"name": "b", **auto}],
+                  "daemon": {"state_dir": str(tmp_path / "state")}, "web": {"listen": ""}}
+        (tmp_path / "preflight.toml").write_text(tomli_w.dumps(config))
+        d = daemon(tmp_path / "preflight.toml").start()
+        printers = d.wait_for(lambda: (ps := d.status().get("printers")) and all(
+            p.get("state") == "connected" for p in ps) and ps, what="both printers found")
+        assert sorted(p["port"] for p in printers) == sorted(map(str, links))
+        lines = [line for p in printers for line in p.get("discovery") or []]
+        assert any("used by printer" in line and "of this daemon" in line for line in lines)
+        # each remembers its own choice
+        for p in printers:
+            remembered = d.cfg.daemon.state_dir / "printers" / p["name"] / "printer_port.json"
+            assert json.loads(remembered.read_text())["port"] == p["port"]
+        assert d.stop() == 0
+    finally:
+        for proc in procs:
+            proc.terminate()
+            proc.wait()
