@@ -259,3 +259,53 @@ def test_two_auto_printers_never_take_the_same_port(tmp_path, daemon):
         for proc in procs:
             proc.terminate()
             proc.wait()
+
+
+def test_routing_by_size_pin_and_queued_work(tmp_path):
+    """The pool's choices from what each printer reported at its last connection (the
+    journal remembers it), before any printer is connected again."""
+    import threading
+
+    from daemon.pipeline import Spool
+    from daemon.printers import NoPrinterFits, PrinterPool
+
+    cfg = parse_config({"spool": {"path": str(tmp_path / "spool")},
+                        "daemon": {"state_dir": str(tmp_path / "state")},
+                        "printers": [{"name": "a", "port": "virtual"},
+                                     {"name": "b", "port": "virtual"},
+                                     {"name": "c", "port": "virtual", "nozzle_diameter": 0.8}]})
+    journal = Journal(cfg.journal_path)
+    pool = PrinterPool(cfg, journal, Spool(cfg, journal), threading.Event())
+    journal.set_meta("printer_info:a", {"nozzle_diameter": 0.4, "build_volume": [200, 200, 200]})
+    journal.set_meta("printer_info:b", {"nozzle_diameter": 0.6, "build_volume": [100, 100, 100]})
+    classes = pool.classes()
+    assert [(c.nozzle, c.build_volume, c.printers, c.known) for c in classes] == [
+        (0.4, (200, 200, 200), ("a",), True), (0.6, (100, 100, 100), ("b",), True),
+        (0.8, None, ("c",), False)]  # c never connected: its config's nozzle, any size
+
+    def add(name: str, nozzle: float | None = None):
+        job_id = journal.add_job(name=name, source_name=name, kind="mesh", work_dir="",
+                                 input_path="", nozzle=nozzle)
+        return journal.get(job_id)
+
+    # no printer is idle (none connected): the least queued work per printer
+    first = add("1.stl")
+    assert pool.route(first, (10, 10, 10))["nozzle_diameter"] == 0.4
+    journal.update(first.id, nozzle=0.4)
+    assert pool.route(add("2.stl"), (10, 10, 10))["nozzle_diameter"] == 0.6
+    assert pool.route(add("3.stl"), (150, 10, 10))["nozzle_diameter"] == 0.4  # too big for b
+    # unknown classes are used only when no known one fits: c's bed is not known
+    assert pool.route(add("4.stl"), (300, 10, 10))["nozzle_source"] == "config"
+    assert pool.route(add("5.stl", nozzle=0.6), (10, 10, 10))["nozzle_diameter"] == 0.6
+    with pytest.raises(NoPrinterFits, match=r"150.0 x 10.0 x 10.0 mm; it fits no printer "
+                                            r"with a 0.6 mm nozzle \(b: 0.6 mm nozzle, 100 x"):
+        pool.route(add("6.stl", nozzle=0.6), (150, 10, 10))
+    with pytest.raises(NoPrinterFits, match="pinned to a 1 mm nozzle, but no printer has one"):
+        pool.route(add("7.stl", nozzle=1.0), (10, 10, 10))
+    # a ready job sliced for b's class: only b may print it; G-code unpinned: anyone
+    sliced = journal.get(add("8.stl", nozzle=0.6).id)
+    journal.update(sliced.id, printer_info={"nozzle_diameter": 0.6,
+                                            "build_volume": [100, 100, 100]})
+    sliced = journal.get(sliced.id)
+    assert [pool.may_print(link, sliced) for link in pool.links] == [False, True, False]
+    journal.close()
