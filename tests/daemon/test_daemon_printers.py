@@ -168,6 +168,10 @@ def test_two_printers_route_pin_and_print_each_job_once_in_parallel(tmp_path, da
         assert f"nozzle {nozzle} mm" in line and volume in line and "Marlin" in line
         assert "virtual" in line and "connected" in line
 
+    listing = d.cli("jobs", "list").stdout
+    assert "fold0.stl on small06 (pinned to a 0.6 mm nozzle)" in listing
+    assert "long.stl on big04" in listing
+
     # the web API's state lists both; its single-printer fields describe the first
     port = d.status()["web"]["port"]
     key = read_key(d.cfg.daemon.state_dir)
