@@ -199,6 +199,9 @@ def test_printers_tables_are_checked():
         ({"printers": [{"name": "a", "baud": "fast"}]}, "[printers a] baud: expected a number"),
         ({"printers": [{"name": "a", "colour": 1}]}, "[printers a] colour: unknown key"),
         ({"printers": []}, "expected one or more [[printers]] tables"),
+        ({"printers": [{"name": "a", "port": "/dev/ttyACM0"}, {"name": "b", "port":
+                                                                "/dev/ttyACM0"}]},
+         "port '/dev/ttyACM0' is given to another printer too"),
         ({"printers": [{"name": "a", "virtual_build_volume": [1, 2]}]},
          "virtual_build_volume: expected three sizes"),
     ]
