@@ -5,6 +5,7 @@ printing, parallel prints; and the ``[[printers]]`` config."""
 from __future__ import annotations
 
 import json
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -316,3 +317,37 @@ def test_routing_by_size_pin_and_queued_work(tmp_path):
     sliced = journal.get(sliced.id)
     assert [pool.may_print(link, sliced) for link in pool.links] == [False, True, False]
     journal.close()
+
+
+def test_pause_resume_and_cancel_reach_the_printer_that_prints(tmp_path, daemon):
+    """Requests go to whichever printer holds the job: here the second one, which a
+    pinned G-code file goes to while the first printer takes an unpinned one."""
+    from daemon_helpers import tiny_gcode
+
+    cfg_path = printers_config(tmp_path)
+    config = tomllib.loads(cfg_path.read_text())
+    config["printers"][1]["virtual_speedup"] = 10.0  # slow enough to pause and cancel
+    cfg_path.write_text(tomli_w.dumps(config))
+    d = daemon(cfg_path)
+    (d.cfg.spool.path / "nozzle-0.6").mkdir()
+    d.start()
+    d.wait_for(lambda: all(p.get("state") == "connected"
+                           for p in d.status().get("printers", [])), what="both printers")
+    drop(d.cfg.spool.path / "nozzle-0.6", "long.gcode", tiny_gcode(moves=800).encode())
+    job = d.wait_for(lambda: next((j for j in d.jobs() if j.state == "printing"), None),
+                     what="printing")
+    assert job.printer == SMALL
+    assert d.cli("jobs", "pause", str(job.id)).returncode == 0
+    d.wait_for(lambda: str(d.journal.get(job.id).state) == "paused", what="paused")
+    drop(d.cfg.spool.path, "other.gcode", tiny_gcode(moves=30).encode())  # the first prints
+    other = d.wait_for(lambda: next((j for j in d.jobs() if j.source_name == "other.gcode"
+                                     and settled(j)), None), what="other printed")
+    assert (str(other.state), other.printer) == ("done", BIG)
+    assert d.cli("jobs", "resume", str(job.id)).returncode == 0
+    d.wait_for(lambda: str(d.journal.get(job.id).state) == "printing", what="resumed")
+    assert d.cli("jobs", "cancel", str(job.id)).returncode == 0
+    d.wait_for(lambda: settled(d.journal.get(job.id)), what="cancelled")
+    assert str(d.journal.get(job.id).state) == "cancelled"
+    executed = (tmp_path / f"{SMALL}.gcode").read_text().splitlines()
+    assert "M84" in executed[-10:]  # the cancel's cool-down and motors off, on that printer
+    assert d.stop() == 0
