@@ -396,6 +396,10 @@ def _printer_tables(data: dict[str, Any], base: Path | None) -> tuple[PrinterCon
         if any(p.name == printer.name for p in printers):
             raise ConfigError(f"[[printers]] table {number}: the name {printer.name!r} is "
                               "used by another printer; names must be unique")
+        if printer.port not in ("auto", "virtual") and any(p.port == printer.port
+                                                           for p in printers):
+            raise ConfigError(f"[[printers]] table {number}: port {printer.port!r} is given "
+                              "to another printer too; each printer needs its own port")
         printers.append(printer)
     return tuple(printers)
 

@@ -339,9 +339,11 @@ class Journal:
             return cur.rowcount == 1
 
     def release_printer(self, job_id: int, printer: str) -> None:
-        """Undo :meth:`claim_for_printer` (the print did not start): any printer may take it."""
+        """Undo :meth:`claim_for_printer` of a job still ready (its print did not start):
+        any printer may take it."""
         with self._tx() as db:
-            db.execute("UPDATE jobs SET printer=NULL WHERE id=? AND printer=?", (job_id, printer))
+            db.execute("UPDATE jobs SET printer=NULL WHERE id=? AND printer=? AND state=?",
+                       (job_id, printer, str(JobState.READY)))
 
     def release_unstarted_claims(self) -> int:
         """At start-up: ready jobs a printer claimed but never started (the daemon died

@@ -66,6 +66,7 @@ def slice_overrides(cfg: Config) -> dict[str, Any]:
     defaults (it turns a model only when that avoids support entirely: orient if-needed)."""
     return {"orient": "if-needed", **cfg.profile}
 
+
 def _take(model: Path, dest: Path, sidecar: Path | None, work: Path) -> None:
     """Move a dropped model (and its sidecar, if any) into its work folder."""
     os.rename(model, dest)

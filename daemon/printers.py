@@ -230,10 +230,17 @@ class PrinterPool:
         return min(classes, key=lambda c: queued(c) / len(c.printers))
 
     def may_print(self, link: PrinterLink, job: Job) -> bool:
-        """Whether ``link``'s printer may take ``job``: its class's, or any printer for
-        a job routed to no class (G-code not pinned; a job from an older journal)."""
+        """Whether ``link``'s printer may take ``job``: its class's; any printer for a
+        job routed to no class (G-code not pinned; a job from an older journal), or a
+        mesh job of a class no printer has any more (a nozzle was changed: the printer
+        taking it finds it stale and has it processed again, routed anew)."""
         if len(self.links) == 1 or job.nozzle is None:
             return True
+        return self._of_class(link, job) or (job.kind == "mesh" and not any(
+            self._of_class(other, job) for other in self.links))
+
+    @staticmethod
+    def _of_class(link: PrinterLink, job: Job) -> bool:
         info = link.last_info() or {}
         nozzle = info.get("nozzle_diameter") or link.printer.nozzle_diameter
         if not same_nozzle(float(nozzle), job.nozzle):

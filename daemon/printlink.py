@@ -148,6 +148,7 @@ class PrinterLink(PortOpener, threading.Thread):
                 self._finish_broken(job.id, f"internal error while printing: "
                                             f"{type(e).__name__}: {e}", sent=None)
                 self._disconnect()
+                self.journal.release_printer(job.id, self.name)  # if it never started
 
     def _unplugged(self) -> bool:
         """An idle printer whose port went away (USB unplugged): drop the connection, so

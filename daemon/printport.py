@@ -13,16 +13,18 @@ log = logging.getLogger("preflight.printer")
 
 class _TakenPort:
     """Stands in for a host on a port another printer of this daemon uses: its connect
-    fails as a busy port does, so discovery passes it by."""
+    fails with a port error (discovery passes the port by and shows the reason)."""
 
     def __init__(self, path: str, owner: str) -> None:
         self.path = path
         self.owner = owner
 
     def connect(self) -> None:
-        from printer.errors import PortBusy
+        from printer.errors import PrinterDisconnected
 
-        raise PortBusy(f"{self.path} is used by printer {self.owner!r} of this daemon")
+        # a port error whose own words discovery shows (PortBusy's would blame another
+        # program); the port is never opened
+        raise PrinterDisconnected(f"used by printer {self.owner!r} of this daemon")
 
     def close(self) -> None:
         pass

@@ -269,6 +269,10 @@ class Daemon:
         else:
             doing = f"printer {printer.get('state')}" + (
                 f": {printer['message']}" if printer.get("message") else "")
+        printers = status.get("printers") or []
+        if len(printers) > 1:  # systemd's one line: each printer's state in a word or two
+            doing = ", ".join(f"{p.get('name')} {p.get('state')}"
+                              + (f" job {p['job']}" if p.get("job") else "") for p in printers)
         return f"{doing}; jobs: {active or 'none active'}"
 
     # -- the main loop --------------------------------------------------------------------

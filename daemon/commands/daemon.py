@@ -229,7 +229,11 @@ def _job_line(job) -> str:
         prog = f" {100 * job.progress:.0f}%"
     when = time.strftime("%m-%d %H:%M", time.localtime(job.updated))
     reason = f"  {job.reason}" if job.reason and str(job.state) != "done" else ""
-    return f"{job.id:>5}  {str(job.state) + prog:<16} {when}  {job.source_name}{reason}"
+    where = f" on {job.printer}" if job.printer not in (None, "printer") else ""
+    if job.pinned and job.nozzle:
+        where += f" (pinned to a {job.nozzle:g} mm nozzle)"
+    return (f"{job.id:>5}  {str(job.state) + prog:<16} {when}  {job.source_name}{where}"
+            f"{reason}")
 
 
 def cmd_jobs_list(args: argparse.Namespace) -> int:

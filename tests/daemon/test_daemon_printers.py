@@ -5,14 +5,17 @@ printing, parallel prints; and the ``[[printers]]`` config."""
 from __future__ import annotations
 
 import json
+import tomllib
 from pathlib import Path
 
 import pytest
 import tomli_w
 from daemon_helpers import FAST_PROFILE, DaemonProc, box, drop, gcode_commands, write_binary_stl
+from web_helpers import request
 
 from daemon.config import ConfigError, parse_config
 from daemon.journal import Journal
+from daemon.web.auth import read_key
 
 BIG, SMALL = "big04", "small06"
 SMALL_VOLUME = [80.0, 80.0, 80.0]
@@ -31,7 +34,7 @@ def printers_config(tmp: Path, **daemon) -> Path:
                      printer(SMALL, 0.6, SMALL_VOLUME)],
         "daemon": {"state_dir": str(tmp / "state"), "log_level": "DEBUG", **daemon},
         "limits": {"repair_timeout": 120, "slice_timeout": 120},
-        "web": {"listen": ""},
+        "web": {"listen": "127.0.0.1:0"},
         "profile": FAST_PROFILE,
     }
     path = tmp / "preflight.toml"
@@ -165,6 +168,20 @@ def test_two_printers_route_pin_and_print_each_job_once_in_parallel(tmp_path, da
         line = next(x for x in out.splitlines() if x.startswith(f"printer {name}"))
         assert f"nozzle {nozzle} mm" in line and volume in line and "Marlin" in line
         assert "virtual" in line and "connected" in line
+
+    listing = d.cli("jobs", "list").stdout
+    assert "fold0.stl on small06 (pinned to a 0.6 mm nozzle)" in listing
+    assert "long.stl on big04" in listing
+
+    # the web API's state lists both; its single-printer fields describe the first
+    port = d.status()["web"]["port"]
+    key = read_key(d.cfg.daemon.state_dir)
+    state = request(port, "GET", "/api/preflight/state", headers={"X-Api-Key": key}).json()
+    assert [(p["name"], p["nozzle"], p["build_volume"]) for p in state["printers"]] == [
+        (BIG, 0.4, [250.0, 210.0, 220.0]), (SMALL, 0.6, SMALL_VOLUME)]
+    assert state["printer"]["name"] == BIG
+    rows = {row["source_name"]: row for row in state["history"]}
+    assert rows["fold0.stl"]["printer"] == SMALL and rows["fold0.stl"]["pinned"] is True
     assert d.stop() == 0
 
 
@@ -183,6 +200,9 @@ def test_printers_tables_are_checked():
         ({"printers": [{"name": "a", "baud": "fast"}]}, "[printers a] baud: expected a number"),
         ({"printers": [{"name": "a", "colour": 1}]}, "[printers a] colour: unknown key"),
         ({"printers": []}, "expected one or more [[printers]] tables"),
+        ({"printers": [{"name": "a", "port": "/dev/ttyACM0"}, {"name": "b", "port":
+                                                                "/dev/ttyACM0"}]},
+         "port '/dev/ttyACM0' is given to another printer too"),
         ({"printers": [{"name": "a", "virtual_build_volume": [1, 2]}]},
          "virtual_build_volume: expected three sizes"),
     ]
@@ -190,3 +210,144 @@ def test_printers_tables_are_checked():
         with pytest.raises(ConfigError) as err:
             parse_config(data)
         assert message in str(err.value) and "\n" not in str(err.value)
+
+
+def test_an_older_journal_gains_the_printer_columns(tmp_path):
+    import sqlite3
+
+    from daemon.journal import MIGRATIONS, SCHEMA
+
+    path = tmp_path / "journal.sqlite"
+    db = sqlite3.connect(path)
+    db.executescript(SCHEMA)  # then back to the journal of a preflight before [[printers]]
+    for column, _ in MIGRATIONS:
+        db.execute(f"ALTER TABLE jobs DROP COLUMN {column}")
+    db.execute("INSERT INTO jobs (name, source_name, kind, state, created, updated) "
+               "VALUES ('a.stl', 'a.stl', 'mesh', 'ready', 1, 1)")
+    db.commit()
+    assert "printer" not in {r[1] for r in db.execute("PRAGMA table_info(jobs)")}
+    db.close()
+    journal = Journal(path)
+    job = journal.get(1)
+    assert (job.nozzle, job.pinned, job.printer) == (None, False, None)
+    assert journal.claim_for_printer(1, "left") is True
+    assert journal.claim_for_printer(1, "right") is False  # exactly one printer gets it
+    assert journal.get(1).printer == "left"
+    assert journal.release_unstarted_claims() == 1  # the daemon died before it started
+    assert journal.claim_for_printer(1, "right") is True
+    journal.close()
+
+
+def test_two_auto_printers_never_take_the_same_port(tmp_path, daemon):
+    from test_daemon_discovery import plug_in
+
+    by_id = tmp_path / "by-id"
+    by_id.mkdir()
+    links = [by_id / "usb-Virtual_A-if00", by_id / "usb-Virtual_B-if00"]
+    procs = [plug_in(link, tmp_path / f"{link.name}.log", 250000) for link in links]
+    try:
+        auto = {"port": "auto", "scan": [str(by_id / "*")], "probe_seconds": 2.0,
+                "reconnect_min_seconds": 0.2, "reconnect_max_seconds": 1.0}
+        config = {"spool": {"path": str(tmp_path / "spool")},
+                  "printers": [{"name": "a", **auto}, {"name": "b", **auto}],
+                  "daemon": {"state_dir": str(tmp_path / "state")}, "web": {"listen": ""}}
+        (tmp_path / "preflight.toml").write_text(tomli_w.dumps(config))
+        d = daemon(tmp_path / "preflight.toml").start()
+        printers = d.wait_for(lambda: (ps := d.status().get("printers")) and all(
+            p.get("state") == "connected" for p in ps) and ps, what="both printers found")
+        assert sorted(p["port"] for p in printers) == sorted(map(str, links))
+        lines = [line for p in printers for line in p.get("discovery") or []]
+        assert any("used by printer" in line and "of this daemon" in line for line in lines)
+        # each remembers its own choice
+        for p in printers:
+            remembered = d.cfg.daemon.state_dir / "printers" / p["name"] / "printer_port.json"
+            assert json.loads(remembered.read_text())["port"] == p["port"]
+        assert d.stop() == 0
+    finally:
+        for proc in procs:
+            proc.terminate()
+            proc.wait()
+
+
+def test_routing_by_size_pin_and_queued_work(tmp_path):
+    """The pool's choices from what each printer reported at its last connection (the
+    journal remembers it), before any printer is connected again."""
+    import threading
+
+    from daemon.pipeline import Spool
+    from daemon.printers import NoPrinterFits, PrinterPool
+
+    cfg = parse_config({"spool": {"path": str(tmp_path / "spool")},
+                        "daemon": {"state_dir": str(tmp_path / "state")},
+                        "printers": [{"name": "a", "port": "virtual"},
+                                     {"name": "b", "port": "virtual"},
+                                     {"name": "c", "port": "virtual", "nozzle_diameter": 0.8}]})
+    journal = Journal(cfg.journal_path)
+    pool = PrinterPool(cfg, journal, Spool(cfg, journal), threading.Event())
+    journal.set_meta("printer_info:a", {"nozzle_diameter": 0.4, "build_volume": [200, 200, 200]})
+    journal.set_meta("printer_info:b", {"nozzle_diameter": 0.6, "build_volume": [100, 100, 100]})
+    classes = pool.classes()
+    assert [(c.nozzle, c.build_volume, c.printers, c.known) for c in classes] == [
+        (0.4, (200, 200, 200), ("a",), True), (0.6, (100, 100, 100), ("b",), True),
+        (0.8, None, ("c",), False)]  # c never connected: its config's nozzle, any size
+
+    def add(name: str, nozzle: float | None = None):
+        job_id = journal.add_job(name=name, source_name=name, kind="mesh", work_dir="",
+                                 input_path="", nozzle=nozzle)
+        return journal.get(job_id)
+
+    # no printer is idle (none connected): the least queued work per printer
+    first = add("1.stl")
+    assert pool.route(first, (10, 10, 10))["nozzle_diameter"] == 0.4
+    journal.update(first.id, nozzle=0.4)
+    assert pool.route(add("2.stl"), (10, 10, 10))["nozzle_diameter"] == 0.6
+    assert pool.route(add("3.stl"), (150, 10, 10))["nozzle_diameter"] == 0.4  # too big for b
+    # unknown classes are used only when no known one fits: c's bed is not known
+    assert pool.route(add("4.stl"), (300, 10, 10))["nozzle_source"] == "config"
+    assert pool.route(add("5.stl", nozzle=0.6), (10, 10, 10))["nozzle_diameter"] == 0.6
+    with pytest.raises(NoPrinterFits, match=r"150.0 x 10.0 x 10.0 mm; it fits no printer "
+                                            r"with a 0.6 mm nozzle \(b: 0.6 mm nozzle, 100 x"):
+        pool.route(add("6.stl", nozzle=0.6), (150, 10, 10))
+    with pytest.raises(NoPrinterFits, match="pinned to a 1 mm nozzle, but no printer has one"):
+        pool.route(add("7.stl", nozzle=1.0), (10, 10, 10))
+    # a ready job sliced for b's class: only b may print it; G-code unpinned: anyone
+    sliced = journal.get(add("8.stl", nozzle=0.6).id)
+    journal.update(sliced.id, printer_info={"nozzle_diameter": 0.6,
+                                            "build_volume": [100, 100, 100]})
+    sliced = journal.get(sliced.id)
+    assert [pool.may_print(link, sliced) for link in pool.links] == [False, True, False]
+    journal.close()
+
+
+def test_pause_resume_and_cancel_reach_the_printer_that_prints(tmp_path, daemon):
+    """Requests go to whichever printer holds the job: here the second one, which a
+    pinned G-code file goes to while the first printer takes an unpinned one."""
+    from daemon_helpers import tiny_gcode
+
+    cfg_path = printers_config(tmp_path)
+    config = tomllib.loads(cfg_path.read_text())
+    config["printers"][1]["virtual_speedup"] = 10.0  # slow enough to pause and cancel
+    cfg_path.write_text(tomli_w.dumps(config))
+    d = daemon(cfg_path)
+    (d.cfg.spool.path / "nozzle-0.6").mkdir()
+    d.start()
+    d.wait_for(lambda: all(p.get("state") == "connected"
+                           for p in d.status().get("printers", [])), what="both printers")
+    drop(d.cfg.spool.path / "nozzle-0.6", "long.gcode", tiny_gcode(moves=800).encode())
+    job = d.wait_for(lambda: next((j for j in d.jobs() if j.state == "printing"), None),
+                     what="printing")
+    assert job.printer == SMALL
+    assert d.cli("jobs", "pause", str(job.id)).returncode == 0
+    d.wait_for(lambda: str(d.journal.get(job.id).state) == "paused", what="paused")
+    drop(d.cfg.spool.path, "other.gcode", tiny_gcode(moves=30).encode())  # the first prints
+    other = d.wait_for(lambda: next((j for j in d.jobs() if j.source_name == "other.gcode"
+                                     and settled(j)), None), what="other printed")
+    assert (str(other.state), other.printer) == ("done", BIG)
+    assert d.cli("jobs", "resume", str(job.id)).returncode == 0
+    d.wait_for(lambda: str(d.journal.get(job.id).state) == "printing", what="resumed")
+    assert d.cli("jobs", "cancel", str(job.id)).returncode == 0
+    d.wait_for(lambda: settled(d.journal.get(job.id)), what="cancelled")
+    assert str(d.journal.get(job.id).state) == "cancelled"
+    executed = (tmp_path / f"{SMALL}.gcode").read_text().splitlines()
+    assert "M84" in executed[-10:]  # the cancel's cool-down and motors off, on that printer
+    assert d.stop() == 0
