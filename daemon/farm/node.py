@@ -319,7 +319,7 @@ class FarmNode:
         job_id = self.journal.add_job(
             name=name, source_name=job.get("source_name") or name, kind=job["kind"],
             work_dir=str(work), input_path=str(input_path), state=state,
-            reason=result.get("reason"),
+            reason=result.get("reason"), nozzle=self._class_nozzle(job, epsilon),
             note=f"farm job {fid} from node {job.get('origin')}, claimed by printer {printer}",
             while_recording=lambda: self.ledger.record_claim_in_tx(fid, str(work), printer))
         fields: dict[str, Any] = {"epsilon": epsilon if job["kind"] == "mesh" else None,
@@ -337,6 +337,14 @@ class FarmNode:
                  job_id, epsilon)
         for each in self.links():
             getattr(each, "wake", threading.Event()).set()
+
+    @staticmethod
+    def _class_nozzle(job: dict[str, str], epsilon: float) -> float | None:
+        """The nozzle class the local job is held to: if its printer gives it back (the
+        print did not start), only a printer of that class may take it."""
+        if job.get("kind") == "mesh":
+            return epsilon
+        return float(job["pin"]) if job.get("pin") else None
 
     @staticmethod
     def _assign(printer: str) -> dict[str, Any]:
