@@ -86,6 +86,11 @@ def _run_batch(tmp, redis_server, count: int) -> None:
             if local.kind == "mesh":
                 nozzle = 0.6 if entry["printer"].endswith("06") else 0.4
                 assert local.epsilon == pytest.approx(nozzle)
+        # results reused: one repair+slice per (input, ε), however many copies
+        inputs = {e["job"]["input"] for e in jobs.values() if e["local"].kind == "mesh"}
+        prepared = list((tmp / "artefacts" / "prepared").glob("*.json"))
+        meshes = sum(e["local"].kind == "mesh" for e in jobs.values())
+        assert len(prepared) <= 2 * len(inputs) < meshes
         printers = {e["printer"] for e in jobs.values()}
         assert {"a04", "a06", "b04", "b06"} <= printers  # the work was shared
         status = a.cli("farm", "status")

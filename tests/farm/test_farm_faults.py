@@ -52,8 +52,9 @@ def test_killed_printing_node_interrupts_its_print_and_others_print_the_rest(
         names = _boxes(tmp_path, a.cfg.spool.path, 1)
         a.wait_for(lambda: queue.all_jobs(), what="the mesh job published")
         names += [f"g{i:02d}.gcode" for i in range(7)]
-        for i, name in enumerate(names[1:]):
-            drop(a.cfg.spool.path, name, tiny_gcode([f"M117 job {i}"], moves=5).encode())
+        for i, name in enumerate(names[1:]):  # each waits for its bed to heat: seconds
+            drop(a.cfg.spool.path, name, tiny_gcode([f"M117 job {i}", "M190 S60", "M140 S0"],
+                                                    moves=5).encode())
         a.wait_for(lambda: _printing(a), what="a print on node a")
         a.wait_for(lambda: a.journal.jobs() and len(queue.all_jobs()) == len(names),
                    what="every job published")
@@ -144,14 +145,24 @@ def test_broker_outage_loses_and_duplicates_nothing(tmp_path, redis_server):
         _boxes(tmp_path, a.cfg.spool.path, 8, prefix="before")
         for i in range(6):
             drop(b.cfg.spool.path, f"g{i}.gcode", tiny_gcode([f"M117 b {i}"]).encode())
-        a.wait_for(lambda: sum(j["state"] == "done" for j in queue.all_jobs().values()) >= 3,
-                   what="the batch under way")
+        a.wait_for(lambda: sum(j["state"] == "done" for j in queue.all_jobs().values()) >= 3
+                   and any(_printing(n) for n in nodes), what="the batch under way, printing")
         redis_server.stop()
+        stopped = time.time()
+        printing = [(n, j.id) for n in nodes for j in _printing(n)]
         _boxes(tmp_path, a.cfg.spool.path, 3, prefix="during")  # into the outbox
         drop(c.cfg.spool.path, "during.gcode", tiny_gcode(["M117 during"]).encode())
         time.sleep(20)
         for node in nodes:
             assert node.alive()
+        # prints under way went on to the end; none started without the broker
+        for node, job_id in printing:
+            assert str(node.journal.get(job_id).state) == "done"
+        for node in nodes:
+            for job in node.jobs():
+                starts = [t["at"] for t in node.journal.history(job.id)
+                          if t["to_state"] == "printing"]
+                assert not any(stopped + 1.0 < at for at in starts), job.name
         redis_server.start()
         a.wait_for(lambda: all_ended(queue, 18), what="every job ended", timeout=600)
         jobs = check_farm(queue, nodes, 18)
