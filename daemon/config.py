@@ -421,14 +421,11 @@ EXAMPLE_PROFILE = """\
 """
 
 EXAMPLE_PRINTERS = """\
-# Several printers: instead of [printer], one [[printers]] table per printer, each with
-# the keys of [printer] and a unique name. They print in parallel, each job on one
-# printer: a job goes to the first free printer whose build volume fits the model (else
-# to the fitting nozzle class with the least queued work), and is repaired and sliced
-# for that printer's nozzle. Pin a model to a nozzle with a sidecar <name>.toml holding
-# the line nozzle=0.6 (drop it first, or with the model), or by dropping the model into
-# the spool subfolder nozzle-0.6/ (create that folder yourself). Two printers with
-# port "auto" never take the same port. For example:
+# Several printers: instead of [printer], one [[printers]] table per printer with its
+# keys and a unique name. Each job prints on one printer whose bed fits the model, and
+# is repaired and sliced for its nozzle; pin a model with a sidecar <name>.toml holding
+# nozzle=0.6, or by dropping it into the spool subfolder nozzle-0.6/ (README: Several
+# printers). For example:
 #[[printers]]
 #name = "left"
 #port = "/dev/serial/by-id/usb-Prusa_Research_Original_Prusa_MK3S-if00"

@@ -114,6 +114,7 @@ class PrinterPool:
         self.journal = journal
         self._ports: dict[str, str] = {}     # real path of a port -> the printer using it
         self._ports_lock = threading.Lock()
+        self._route_lock = threading.Lock()  # one routing decision at a time
         self.links = [PrinterLink(cfg, journal, spool, stop, printer=pc, pool=self)
                       for pc in cfg.all_printers]
 
@@ -198,8 +199,9 @@ class PrinterPool:
                 for key, (info, names) in grouped.items()]
 
     def route(self, job: Job, size: tuple[float, float, float] | None) -> dict[str, Any]:
-        """The printer info (a class's) to repair and slice ``job`` for; NoPrinterFits
-        when no printer can take it. ``size``: the model's bounding box (mm)."""
+        """The printer info (a class's) to repair and slice ``job`` for, recorded as the
+        job's nozzle class; NoPrinterFits when no printer can take it. ``size``: the
+        model's bounding box (mm)."""
         classes = self.classes()
         if job.pinned:
             pinned = [c for c in classes if same_nozzle(c.nozzle, job.nozzle)]
@@ -215,7 +217,10 @@ class PrinterPool:
             raise NoPrinterFits(f"the model is {format_size(size)}; it fits no printer{what} ("
                                 + "; ".join(c.describe() for c in classes) + ")")
         known = [c for c in fitting if c.known] or fitting
-        return self._least_busy(known, job.id).info
+        with self._route_lock:  # the choice counts as queued work before the next one
+            chosen = self._least_busy(known, job.id)
+            self.journal.update(job.id, nozzle=chosen.nozzle)
+        return chosen.info
 
     def _least_busy(self, classes: list[PrinterClass], job_id: int) -> PrinterClass:
         work = self.journal.queued_work(exclude=job_id)

@@ -299,7 +299,7 @@ def test_routing_by_size_pin_and_queued_work(tmp_path):
     # no printer is idle (none connected): the least queued work per printer
     first = add("1.stl")
     assert pool.route(first, (10, 10, 10))["nozzle_diameter"] == 0.4
-    journal.update(first.id, nozzle=0.4)
+    assert journal.get(first.id).nozzle == 0.4  # recorded: it counts as a's queued work
     assert pool.route(add("2.stl"), (10, 10, 10))["nozzle_diameter"] == 0.6
     assert pool.route(add("3.stl"), (150, 10, 10))["nozzle_diameter"] == 0.4  # too big for b
     # unknown classes are used only when no known one fits: c's bed is not known
