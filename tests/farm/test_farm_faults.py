@@ -108,7 +108,7 @@ def test_compute_node_killed_mid_repair_is_redone_elsewhere(tmp_path, redis_serv
         _boxes(tmp_path, a.cfg.spool.path, 1, prefix="slowpoke")
         c_log = c.cfg.daemon.state_dir / "farm-compute.log"
         c.wait_for(lambda: c_log.exists() and "prepare slowpoke" in c_log.read_text(),
-                   what="node c repairing")
+                   what="node c repairing", timeout=300)
         d.start()
         time.sleep(1.0)
         assert queue.all_jobs() and all(j["state"] == "claimed"
