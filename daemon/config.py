@@ -38,8 +38,9 @@ class ConfigError(ValueError):
 # Every key is a dataclass field declared with setting(): its default, a one-line doc, and
 # how its value is checked. Parsing, validation and the example config come from these.
 
-BOOL, INT, FLOAT, STR, PATH, CHOICE, GCODES, LISTEN, GLOBS = (
-    "bool", "int", "float", "str", "path", "choice", "G-code words", "host:port", "globs")
+BOOL, INT, FLOAT, STR, PATH, CHOICE, GCODES, LISTEN, GLOBS, SIZE = (
+    "bool", "int", "float", "str", "path", "choice", "G-code words", "host:port", "globs",
+    "x, y, z (mm)")
 
 
 @dataclass(frozen=True)
@@ -77,6 +78,8 @@ class SpoolConfig:
 
 @dataclass(frozen=True)
 class PrinterConfig:
+    name: str = setting("printer", "the printer's name in status, reports and the journal "
+                        "(required and unique in [[printers]] tables)", STR)
     port: str = setting("auto", '"auto" (find it: see scan), a serial device (best under '
                         '/dev/serial/by-id/), or "virtual" (a simulator)', STR)
     baud: int = setting(115200, "serial speed (port = \"auto\" finds its own)", INT, low=300,
@@ -112,6 +115,8 @@ class PrinterConfig:
     virtual_log: Path | None = setting(None, 'port = "virtual" only: append every executed '
                                        "command here", PATH, optional=True,
                                        example="/var/log/preflight/virtual.gcode")
+    virtual_build_volume: tuple[float, float, float] = setting(
+        (250.0, 210.0, 220.0), "the virtual printer's bed and height (x, y, z), mm", SIZE)
 
 
 @dataclass(frozen=True)
@@ -177,11 +182,34 @@ class RepairConfig:
                                  FLOAT, low=0, high=1e6)
 
 
+@dataclass(frozen=True)
+class FarmConfig:
+    broker: str | None = setting(None, 'the farm\'s Redis, "redis://host:6379/0"; not set: '
+                                 "no farm (this daemon is an island)", STR, optional=True,
+                                 example="redis://farm-hub:6379/0")
+    name: str = setting("preflight", "the farm's name: nodes with the same broker and name "
+                        "share one queue", STR)
+    node: str | None = setting(None, "this node's name in the farm; not set: the host name",
+                               STR, optional=True, example="pi-rack-3")
+    compute: bool = setting(True, "run repair and slicing for the whole farm here", BOOL)
+    compute_workers: int = setting(1, "with compute: farm tasks run at once", INT, low=1,
+                                   high=64)
+    artefacts: Path | None = setting(None, "a directory every node mounts (NFS/SMB): inputs "
+                                     "and G-code live here, never in the broker", PATH,
+                                     optional=True, example="/srv/preflight-farm")
+    claim_timeout: float = setting(60.0, "s a claimed job not yet printing may go without its "
+                                   "node's heartbeat before the farm gives it to another "
+                                   "printer", FLOAT, low=3, high=3600)
+    task_timeout: float = setting(900.0, "s before a repair+slice task whose worker vanished "
+                                  "is handed to another compute node", FLOAT, low=5,
+                                  high=86400)
+
+
 #: The sections in the order of the example config; ``[profile]`` is an open table.
 SECTIONS: dict[str, type] = {"spool": SpoolConfig, "printer": PrinterConfig,
                              "daemon": DaemonConfig, "limits": LimitsConfig,
                              "safety": SafetyConfig, "web": WebConfig,
-                             "repair": RepairConfig}
+                             "repair": RepairConfig, "farm": FarmConfig}
 PROFILE = "profile"
 
 
@@ -194,8 +222,19 @@ class Config:
     safety: SafetyConfig = field(default_factory=SafetyConfig)
     web: WebConfig = field(default_factory=WebConfig)
     repair: RepairConfig = field(default_factory=RepairConfig)
+    farm: FarmConfig = field(default_factory=FarmConfig)
     profile: dict[str, Any] = field(default_factory=dict)  # slicer Profile overrides
     source: str = "built-in defaults"
+    #: Every printer: the ``[[printers]]`` tables, else the one ``[printer]``
+    #: (``printer`` is always the first of them).
+    printers: tuple[PrinterConfig, ...] = ()
+    #: Whether the file has a [printer] or [[printers]] table (a farm node without one,
+    #: with [farm] compute, is a compute-only node).
+    printer_tables: bool = True
+
+    @property
+    def all_printers(self) -> tuple[PrinterConfig, ...]:
+        return self.printers or (self.printer,)
 
     @property
     def journal_path(self) -> Path:
@@ -280,6 +319,13 @@ def check_value(section: str, name: str, value: Any, rule: Rule, *, base: Path |
                                                   for x in value):
             raise ConfigError(f'{where}: expected a list of paths or globs like "/dev/ttyACM*"')
         return tuple(os.path.expanduser(x.strip()) for x in value)
+    if rule.kind == SIZE:
+        if (not isinstance(value, list) or len(value) != 3
+                or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and 0 < x < 1e5
+                           for x in value)):
+            raise ConfigError(f"{where}: expected three sizes in mm like [250, 210, 220], got "
+                              f"{_shown(value)}")
+        return tuple(float(x) for x in value)
     if rule.kind == LISTEN:
         if not isinstance(value, str) or (value and split_listen(value) is None):
             raise ConfigError(f'{where}: expected "host:port" or "" (off), got {_shown(value)}')
@@ -318,8 +364,11 @@ def parse_config(data: dict[str, Any], *, base: Path | None = None,
     Relative paths are taken relative to ``base`` (the config file's folder).
     Unknown sections or keys are errors, so that a typo never passes silently.
     """
-    known = [*SECTIONS, PROFILE]
+    known = [*SECTIONS, PROFILE, PRINTERS]
+    printers = _printer_tables(data, base)
     for name, table in data.items():
+        if name == PRINTERS:
+            continue
         if name not in known:
             raise ConfigError(f"[{_name(name)}]: unknown section "
                               f"(known: {', '.join(sorted(known))})")
@@ -327,7 +376,43 @@ def parse_config(data: dict[str, Any], *, base: Path | None = None,
             raise ConfigError(f"[{name}]: expected a table")
     sections = {name: _section(name, data.get(name, {}), section, base)
                 for name, section in SECTIONS.items()}
-    return Config(**sections, profile=dict(data.get(PROFILE, {})), source=source)
+    if printers:
+        sections["printer"] = printers[0]
+    return Config(**sections, profile=dict(data.get(PROFILE, {})), source=source,
+                  printers=printers, printer_tables=bool(printers) or "printer" in data)
+
+
+PRINTERS = "printers"
+
+
+def _printer_tables(data: dict[str, Any], base: Path | None) -> tuple[PrinterConfig, ...]:
+    """The ``[[printers]]`` tables, checked: each has the keys of ``[printer]`` and a
+    unique ``name``; ``[printer]`` and ``[[printers]]`` together are an error."""
+    tables = data.get(PRINTERS)
+    if tables is None:
+        return ()
+    if not isinstance(tables, list) or not tables or not all(isinstance(t, dict)
+                                                             for t in tables):
+        raise ConfigError("[[printers]]: expected one or more [[printers]] tables")
+    if "printer" in data:
+        raise ConfigError("[printer] and [[printers]] are both set: use [[printers]] tables "
+                          "only (one per printer, each with a name), or the one [printer]")
+    printers: list[PrinterConfig] = []
+    for number, table in enumerate(tables, 1):
+        if "name" not in table:
+            raise ConfigError(f"[[printers]] table {number}: name is required (e.g. "
+                              f'name = "left")')
+        where = f"printers {_name(str(table['name']))}"
+        printer = _section(where, table, PrinterConfig, base)
+        if any(p.name == printer.name for p in printers):
+            raise ConfigError(f"[[printers]] table {number}: the name {printer.name!r} is "
+                              "used by another printer; names must be unique")
+        if printer.port not in ("auto", "virtual") and any(p.port == printer.port
+                                                           for p in printers):
+            raise ConfigError(f"[[printers]] table {number}: port {printer.port!r} is given "
+                              "to another printer too; each printer needs its own port")
+        printers.append(printer)
+    return tuple(printers)
 
 
 # --- the example config ---------------------------------------------------------------------
@@ -344,6 +429,21 @@ EXAMPLE_PROFILE = """\
 # infill_percent = 15
 # support = "auto"    # auto (where needed) | buildplate | everywhere | off
 # brim = "auto"       # auto (tall parts on a small footprint) | on | off; brim_width = 5.0
+"""
+
+EXAMPLE_PRINTERS = """\
+# Several printers: instead of [printer], one [[printers]] table per printer with its
+# keys and a unique name. Each job prints on one printer whose bed fits the model, and
+# is repaired and sliced for its nozzle; pin a model with a sidecar <name>.toml holding
+# nozzle=0.6, or by dropping it into the spool subfolder nozzle-0.6/ (README: Several
+# printers). For example:
+#[[printers]]
+#name = "left"
+#port = "/dev/serial/by-id/usb-Prusa_Research_Original_Prusa_MK3S-if00"
+#[[printers]]
+#name = "right"
+#port = "auto"
+#nozzle_diameter = 0.6
 """
 
 COMMENT_COLUMN = 34
@@ -381,6 +481,8 @@ def example_config() -> str:
         lines = [f"[{name}]"] + [_example_line(key, default, rule)
                                  for key, default, rule in rules(section)]
         parts.append("\n".join(lines) + "\n")
+        if name == "printer":
+            parts.append(EXAMPLE_PRINTERS)
     parts.append(EXAMPLE_PROFILE)
     return "\n".join(parts)
 

@@ -57,7 +57,10 @@ CREATE TABLE IF NOT EXISTS jobs (
     attempts INTEGER NOT NULL DEFAULT 0,
     print_requested INTEGER NOT NULL DEFAULT 0,
     progress REAL,
-    outputs TEXT
+    outputs TEXT,
+    nozzle REAL,                   -- the nozzle class (mm) it is routed to, or pinned to
+    pinned INTEGER NOT NULL DEFAULT 0,  -- 1: nozzle was pinned (sidecar, nozzle-X/ folder)
+    printer TEXT                   -- the printer that claimed it for printing
 );
 CREATE INDEX IF NOT EXISTS jobs_state ON jobs(state);
 CREATE TABLE IF NOT EXISTS transitions (
@@ -92,6 +95,10 @@ CREATE TABLE IF NOT EXISTS meta (
 #: Seconds between fsyncs for soft writes (progress, temperatures, the heartbeat).
 SOFT_SYNC_SECONDS = 10.0
 
+#: Columns added since the first journal format: (name, type), added at open if missing.
+MIGRATIONS = (("nozzle", "REAL"), ("pinned", "INTEGER NOT NULL DEFAULT 0"),
+              ("printer", "TEXT"))
+
 JSON_FIELDS = ("printer_info", "repair_report", "slice_summary", "print_result", "outputs")
 
 
@@ -121,6 +128,9 @@ class Job:
     print_requested: bool
     progress: float | None
     outputs: dict | None
+    nozzle: float | None = None
+    pinned: bool = False
+    printer: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         fields = dict(self.__dict__)
@@ -148,6 +158,14 @@ class Journal:
             self._db.execute("PRAGMA journal_mode = WAL")
             self._db.execute("PRAGMA synchronous = FULL")
             self._db.executescript(SCHEMA)
+            self._migrate()
+
+    def _migrate(self) -> None:
+        """Add the columns a journal written by an older preflight lacks."""
+        have = {r[1] for r in self._db.execute("PRAGMA table_info(jobs)")}
+        for column, kind in MIGRATIONS:
+            if column not in have:
+                self._db.execute(f"ALTER TABLE jobs ADD COLUMN {column} {kind}")
 
     def close(self) -> None:
         with self._lock:
@@ -177,12 +195,14 @@ class Journal:
             fields[name] = json.loads(fields[name]) if fields[name] else None
         fields["state"] = JobState(fields["state"])
         fields["print_requested"] = bool(fields["print_requested"])
+        fields["pinned"] = bool(fields["pinned"])
         return Job(**fields)
 
     # -- jobs -----------------------------------------------------------------------------
     def add_job(self, *, name: str, source_name: str, kind: str, work_dir: str,
                 input_path: str, state: JobState = JobState.QUEUED, reason: str | None = None,
                 print_requested: bool = False, note: str = "file taken from the spool",
+                nozzle: float | None = None,
                 while_recording: Callable[[], None] | None = None) -> int:
         """Record a new job (queued, or moved on at once to ``state`` with ``reason``).
 
@@ -194,9 +214,10 @@ class Journal:
         with self._tx() as db:
             cur = db.execute(
                 "INSERT INTO jobs (name, source_name, kind, state, created, updated, work_dir,"
-                " input_path, reason, print_requested) VALUES (?,?,?,?,?,?,?,?,?,?)",
+                " input_path, reason, print_requested, nozzle, pinned)"
+                " VALUES (?,?,?,?,?,?,?,?,?,?,?,?)",
                 (name, source_name, kind, str(JobState.QUEUED), now, now, work_dir, input_path,
-                 None, int(print_requested)))
+                 None, int(print_requested), nozzle, int(nozzle is not None)))
             job_id = int(cur.lastrowid)
             db.execute("INSERT INTO transitions VALUES (?,?,?,?,?)",
                        (job_id, None, str(JobState.QUEUED), now, note))
@@ -306,6 +327,44 @@ class Journal:
             cols.append(f"{k}=?")
             vals.append(v)
         db.execute(f"UPDATE jobs SET {', '.join(cols)} WHERE id=?", (*vals, job_id))
+
+    # -- printers -------------------------------------------------------------------------
+    def claim_for_printer(self, job_id: int, printer: str) -> bool:
+        """Atomically give a ready job to ``printer``: True for exactly one caller, the
+        first; False if another printer holds it or it is no longer ready."""
+        with self._tx() as db:
+            cur = db.execute("UPDATE jobs SET printer=?, updated=? WHERE id=? AND printer IS"
+                             " NULL AND state=?", (printer, time.time(), job_id,
+                                                   str(JobState.READY)))
+            return cur.rowcount == 1
+
+    def release_printer(self, job_id: int, printer: str) -> None:
+        """Undo :meth:`claim_for_printer` of a job still ready (its print did not start):
+        any printer may take it."""
+        with self._tx() as db:
+            db.execute("UPDATE jobs SET printer=NULL WHERE id=? AND printer=? AND state=?",
+                       (job_id, printer, str(JobState.READY)))
+
+    def release_unstarted_claims(self) -> int:
+        """At start-up: ready jobs a printer claimed but never started (the daemon died
+        in between) are free again. Returns how many."""
+        with self._tx() as db:
+            cur = db.execute("UPDATE jobs SET printer=NULL WHERE state=? AND printer IS NOT NULL",
+                             (str(JobState.READY),))
+            return cur.rowcount
+
+    def queued_work(self, exclude: int | None = None) -> dict[float | None, int]:
+        """Jobs not yet ended (queued to printing), by the nozzle class they are routed
+        to; ``exclude``: a job id not to count."""
+        from daemon.states import ACTIVE
+
+        marks = ",".join("?" * len(ACTIVE))
+        with self._lock:
+            rows = self._db.execute(
+                f"SELECT nozzle, COUNT(*) FROM jobs WHERE state IN ({marks}) AND id != ?"
+                " GROUP BY nozzle", [*(str(s) for s in ACTIVE), -1 if exclude is None
+                                     else exclude]).fetchall()
+        return {r[0]: int(r[1]) for r in rows}
 
     def history(self, job_id: int) -> list[dict[str, Any]]:
         with self._lock:

@@ -21,6 +21,7 @@ from typing import Any
 
 from daemon.config import Config
 from daemon.journal import Job, Journal
+from daemon.pins import BadSidecar, find_sidecar, folder_nozzle, is_sidecar, read_sidecar
 from daemon.report import write_reports
 from daemon.safety import (
     ACCEPTED_SUFFIXES,
@@ -73,6 +74,26 @@ def slice_overrides(cfg: Config) -> dict[str, Any]:
     defaults (it turns a model only when that avoids support entirely: orient if-needed)."""
     return {"orient": "if-needed", **cfg.profile}
 
+
+def _take(model: Path, dest: Path, sidecar: Path | None, work: Path) -> None:
+    """Move a dropped model (and its sidecar, if any) into its work folder."""
+    os.rename(model, dest)
+    if sidecar is not None:
+        _move_quietly(sidecar, work / SIDECAR_NAME)
+
+
+def _move_quietly(source: Path, dest: Path) -> None:
+    """Move a sidecar; one that vanished meanwhile is no loss (its model is taken)."""
+    try:
+        os.rename(source, dest)
+    except OSError as e:
+        log.warning("could not move %s: %s", source.name, e)
+
+
+#: A job's sidecar in its work folder.
+SIDECAR_NAME = "sidecar.toml"
+
+
 class Spool:
     """File moves between the spool, the work folders, ``done/`` and ``failed/``."""
 
@@ -93,8 +114,11 @@ class Spool:
         Returns the job id, or None if the entry vanished.
         """
         name = path.name
+        folder_pin = folder_nozzle(self.root, path.parent) if path.parent != self.root else None
+        if is_sidecar(path):
+            return None  # a sidecar: taken with its model, never a job by itself
         try:
-            entry = check_spool_entry(self.root, path)
+            entry = check_spool_entry(self.root if folder_pin is None else path.parent, path)
         except FileNotFoundError:
             return None
         except UnsafeEntry as e:
@@ -111,6 +135,14 @@ class Spool:
                                       "([limits] max_file_mb)")
         if entry.st_size == 0:
             return self._refuse(path, f"refused: {name} is empty")
+        sidecar = find_sidecar(path)
+        try:
+            nozzle = read_sidecar(sidecar) if sidecar else folder_pin
+        except BadSidecar as e:
+            assert sidecar is not None
+            job_id = self._refuse(path, f"refused: {e}")
+            _move_quietly(sidecar, safe_output_path(self.cfg.failed_dir, sidecar.name, job_id))
+            return job_id
         safe = sanitise_name(name)
         work = self.cfg.work_dir / uuid.uuid4().hex
         work.mkdir(parents=True)
@@ -121,8 +153,9 @@ class Spool:
                 name=safe, source_name=name, kind=kind, work_dir=str(work), input_path=str(dest),
                 print_requested=(self.cfg.daemon.auto_print if print_requested is None
                                  else print_requested),
-                note="taken from the spool",
-                while_recording=lambda: os.rename(path, dest))
+                note="taken from the spool" + (f", pinned to a {nozzle:g} mm nozzle"
+                                               if nozzle else ""),
+                nozzle=nozzle, while_recording=lambda: _take(path, dest, sidecar, work))
         except FileNotFoundError:
             shutil.rmtree(work, ignore_errors=True)
             return None
@@ -191,6 +224,7 @@ class Spool:
             if job.kind == "mesh":
                 moves += [("repaired", job.repaired_path, f"{stem}.repaired.stl"),
                           ("gcode", job.gcode_path, f"{stem}.gcode")]
+            moves.append(("sidecar", str(Path(job.work_dir) / SIDECAR_NAME), f"{stem}.toml"))
             for key, source, name in moves:
                 if source and Path(source).is_file():
                     dest = safe_output_path(folder, name, job.id)
@@ -235,7 +269,10 @@ class Processor:
     checks for G-code. One instance per worker thread."""
 
     def __init__(self, cfg: Config, journal: Journal, spool: Spool, printer_info, *,
-                 stop: threading.Event, claim_lock: threading.Lock, active: dict[int, Any]):
+                 stop: threading.Event, claim_lock: threading.Lock, active: dict[int, Any],
+                 router: Any = None):
+        """``router``: the :class:`~daemon.printers.PrinterPool` that says which printer
+        class (nozzle, build volume) each job is processed for; None: ``printer_info``."""
         self.cfg = cfg
         self.journal = journal
         self.spool = spool
@@ -243,6 +280,7 @@ class Processor:
         self.stop = stop
         self.claim_lock = claim_lock
         self.active = active                # job id -> cancel Event (shared)
+        self.router = router
 
     def next_job(self, have_printer: bool) -> tuple[Job, threading.Event] | None:
         """Claim the oldest queued job; without printer info only G-code (its command
@@ -259,7 +297,8 @@ class Processor:
         while not self.stop.is_set():
             try:
                 info = self.printer_info()
-                claimed = self.next_job(info is not None)
+                claimed = self.next_job(self.router.have_info() if self.router is not None
+                                        else info is not None)
             except Exception:  # e.g. the journal locked for too long: log, pause, go on
                 log.exception("worker")
                 self.stop.wait(1.0)
@@ -328,6 +367,10 @@ class Processor:
         return False, None
 
     def process(self, job: Job, info: dict[str, Any] | None, cancel: threading.Event) -> None:
+        if self.router is not None:
+            routed, info = self._route(job, info, cancel)
+            if not routed:
+                return
         if job.kind == "gcode":
             self._check_gcode(job, info)
             return
@@ -340,12 +383,46 @@ class Processor:
         if repaired is not None:
             self._slice(job, info, repaired, cancel)
 
+    def _route(self, job: Job, info: dict[str, Any] | None,
+               cancel: threading.Event) -> tuple[bool, dict[str, Any] | None]:
+        """(True, the info of the printer class the job goes to), or (False, None) once
+        the job has failed (it fits no printer), been cancelled, or the daemon stops.
+        A G-code job not pinned to a nozzle goes to any printer: (True, ``info`` with
+        one printer, else None: its build volume is checked by the printer taking it)."""
+        from daemon.printers import NoPrinterFits
+
+        size = None
+        if job.kind == "mesh" and self.router.needs_size():
+            try:
+                out = run_task("measure", {
+                    "in": job.input_path, "job_name": job.name,
+                    "max_bytes": int(self.cfg.limits.max_file_mb * 1024 * 1024),
+                    "max_triangles": self.cfg.limits.max_triangles,
+                }, work_dir=Path(job.work_dir or ""), timeout=self.cfg.limits.repair_timeout,
+                    memory_mb=self.cfg.limits.repair_memory_mb, cancel=AnyEvent(cancel, self.stop))
+            except WorkerCancelled:
+                if not self.stop.is_set():
+                    self._stopped(job.id)
+                return False, None
+            except WorkerFailed as e:
+                self._fail(job.id, f"cannot measure the model: {e}")
+                return False, None
+            size = tuple(out["size"]) if (out or {}).get("size") else None
+        elif job.kind != "mesh" and not job.pinned:
+            return True, None if self.router.needs_size() else info
+        try:
+            return True, self.router.route(job, size)
+        except NoPrinterFits as e:
+            self._fail(job.id, str(e))
+            return False, None
+
     def _repair(self, job: Job, info: dict[str, Any], cancel: threading.Event) -> Path | None:
         """Repair the job's mesh; the repaired STL's path, or None if the job ended."""
         epsilon, epsilon_source = epsilon_from(info, self.cfg)
         work = Path(job.work_dir or "")
         self.journal.transition(job.id, JobState.REPAIRING, expect=JobState.QUEUED,
                                 note=f"epsilon {epsilon:g} mm", attempts=job.attempts + 1,
+                                nozzle=epsilon,
                                 epsilon=epsilon, epsilon_source=epsilon_source,
                                 printer_info=info, progress=0.0)
         repaired = work / "repaired.stl"

@@ -17,9 +17,11 @@ import threading
 import time
 from typing import Any
 
-from daemon.config import Config
+from daemon.config import Config, PrinterConfig
 from daemon.journal import Job, Journal
 from daemon.pipeline import AnyEvent, Spool
+from daemon.printlog import TemperatureLog, result_dict
+from daemon.printport import PortOpener
 from daemon.safety import UnsafeEntry, check_gcode, strip_gcode
 from daemon.states import ON_PRINTER, JobState, TransitionError
 
@@ -29,17 +31,24 @@ HALF_PRINTED = ("a half-printed part may be on the bed: remove it, then run "
                 "`preflight jobs requeue {id}` to print it again from the start")
 
 
-class PrinterLink(threading.Thread):
+class PrinterLink(PortOpener, threading.Thread):
     """Owns the printer connection; prints ready jobs with ``print_requested`` set."""
 
-    def __init__(self, cfg: Config, journal: Journal, spool: Spool, stop: threading.Event) -> None:
-        super().__init__(name="printer", daemon=True)
+    def __init__(self, cfg: Config, journal: Journal, spool: Spool, stop: threading.Event, *,
+                 printer: PrinterConfig | None = None, pool: Any = None) -> None:
+        """``printer``: this link's printer (default ``cfg.printer``); ``pool``: the
+        :class:`~daemon.printers.PrinterPool` it belongs to (routing, port claims)."""
+        self.printer = printer or cfg.printer
+        super().__init__(name=self.printer.name, daemon=True)  # link.name: the printer's
+        self.pool = pool
+        self._info_key = ("printer_info" if self.name == "printer"
+                          else f"printer_info:{self.name}")
         self.cfg = cfg
         self.journal = journal
         self.spool = spool
         self.stop_event = stop
         self._lock = threading.Lock()
-        self._status: dict[str, Any] = {"state": "starting", "port": cfg.printer.port}
+        self._status: dict[str, Any] = {"state": "starting", "port": self.printer.port}
         self._info: dict[str, Any] | None = None
         self._cancel: dict[int, threading.Event] = {}
         self._controls: dict[int, Any] = {}  # job id -> printer.control.PrintControl
@@ -47,6 +56,9 @@ class PrinterLink(threading.Thread):
         self.host = None
         self.connections = 0
         self.wake = threading.Event()
+        #: Farm mode: ``gate(job) -> bool``, asked just before a job goes to printing;
+        #: False: not now (the job is left as the gate decided).
+        self.gate = None
 
     # -- shared state ---------------------------------------------------------------------
     def status(self) -> dict[str, Any]:
@@ -62,7 +74,12 @@ class PrinterLink(threading.Thread):
         with self._lock:
             if self._info is not None:
                 return self._info
-        return self.journal.get_meta("printer_info")
+        return self.journal.get_meta(self._info_key)
+
+    def idle(self) -> bool:
+        """Connected and not printing."""
+        with self._lock:
+            return self._status.get("state") == "connected" and not self._status.get("job")
 
     def cancel_job(self, job_id: int) -> bool:
         with self._lock:
@@ -105,7 +122,7 @@ class PrinterLink(threading.Thread):
                 log.exception("stopping the virtual printer")
 
     def _serve(self) -> None:
-        delay = self.cfg.printer.reconnect_min_seconds
+        delay = self.printer.reconnect_min_seconds
         while not self.stop_event.is_set():
             if self.host is None:
                 err = self._connect()
@@ -114,9 +131,9 @@ class PrinterLink(threading.Thread):
                                      retry_in=round(delay, 1), since=time.time())
                     log.warning("printer: %s; retrying in %.0f s", err, delay)
                     self.stop_event.wait(delay)
-                    delay = min(delay * 2, self.cfg.printer.reconnect_max_seconds)
+                    delay = min(delay * 2, self.printer.reconnect_max_seconds)
                     continue
-                delay = self.cfg.printer.reconnect_min_seconds
+                delay = self.printer.reconnect_min_seconds
             job = self._next_job()
             if job is None:
                 if self._unplugged():
@@ -131,6 +148,7 @@ class PrinterLink(threading.Thread):
                 self._finish_broken(job.id, f"internal error while printing: "
                                             f"{type(e).__name__}: {e}", sent=None)
                 self._disconnect()
+                self.journal.release_printer(job.id, self.name)  # if it never started
 
     def _unplugged(self) -> bool:
         """An idle printer whose port went away (USB unplugged): drop the connection, so
@@ -144,67 +162,6 @@ class PrinterLink(threading.Thread):
         self._set_status(state="waiting", message=f"{port} disappeared (unplugged?)", info=None)
         return True
 
-    def _port(self) -> str:
-        port = self.cfg.printer.port
-        if port != "virtual":
-            return port
-        if self.virtual is None:
-            from printer.virtual import VirtualPrinter
-
-            printer_config = self.cfg.printer
-            self.virtual = VirtualPrinter(
-                firmware=printer_config.virtual_firmware, nozzle=printer_config.nozzle_diameter,
-                baud=printer_config.baud, speedup=printer_config.virtual_speedup,
-                log_path=str(printer_config.virtual_log) if printer_config.virtual_log else None)
-            self.virtual_port = self.virtual.start()
-            log.info("virtual printer on %s", self.virtual_port)
-        return self.virtual_port
-
-    def _make_host(self, port: str, baud: int):
-        from printer.host import PrinterHost
-
-        printer_config = self.cfg.printer
-        return PrinterHost(port, baud, mode=printer_config.mode,
-                           nozzle_fallback=printer_config.nozzle_diameter,
-                           nozzle_macro=printer_config.nozzle_macro,
-                           long_command_timeout=printer_config.long_command_timeout,
-                           handshake_timeout=max(printer_config.probe_seconds, 5.0))
-
-    def _open_host(self):
-        """A connected host and its port: the configured port, the virtual printer, or
-        (``port = "auto"``) the printer a scan finds, the remembered one first."""
-        printer_config = self.cfg.printer
-        if printer_config.port != "auto":
-            port = self._port()
-            host = self._make_host(port, printer_config.baud)
-            try:
-                host.connect()
-            except BaseException:
-                host.close()
-                raise
-            return host, port
-        from printer.discovery import discover, remember, remembered_choice
-        from printer.errors import PortNotFound
-
-        state_dir = self.cfg.daemon.state_dir
-        self._set_status(state="searching", port="auto", message="looking for a printer on "
-                         + ", ".join(printer_config.scan))
-
-        def make_probe_host(path: str, baud: int):
-            host = self._make_host(path, baud)
-            host.handshake_timeout = printer_config.probe_seconds
-            return host
-
-        found = discover(printer_config.scan, remembered=remembered_choice(state_dir),
-                         make_host=make_probe_host, keep_open=True)
-        self._set_status(discovery=[c.line() for c in found.candidates])
-        if found.host is None:
-            raise PortNotFound(found.summary())
-        remember(state_dir, found.chosen)
-        log.info("printer: %s", found.summary())
-        self._set_status(port=found.chosen.path)
-        return found.host, found.chosen.path
-
     def _connect(self) -> str | None:
         """Open and handshake, query the info. Returns an error message or None."""
         from printer.errors import PrinterError
@@ -214,8 +171,8 @@ class PrinterLink(threading.Thread):
         host = None
         try:
             host, port = self._open_host()
-            info = query_info(host, klipper_socket=self.cfg.printer.klipper_api_socket,
-                              klipper_config=self.cfg.printer.klipper_config).to_dict()
+            info = query_info(host, klipper_socket=self.printer.klipper_api_socket,
+                              klipper_config=self.printer.klipper_config).to_dict()
         except Exception as e:  # PrinterError, OSError, or a bug: never kill the thread
             if not isinstance(e, (PrinterError, OSError)):
                 log.exception("connecting to the printer")
@@ -229,7 +186,7 @@ class PrinterLink(threading.Thread):
         self.connections += 1
         with self._lock:
             self._info = info
-        self.journal.set_meta("printer_info", info)
+        self.journal.set_meta(self._info_key, info)
         self._set_status(state="connected", message=None, info=info, connected_since=time.time(),
                          connections=self.connections, retry_in=None)
         log.info("printer connected on %s: %s, nozzle %s mm (%s)", port, info.get("firmware"),
@@ -245,11 +202,19 @@ class PrinterLink(threading.Thread):
             self.host = None
         with self._lock:
             self._info = None
+        if self.pool is not None:
+            self.pool.release_ports(self.name)
 
     def _next_job(self) -> Job | None:
+        """The oldest ready job for this printer, claimed for it in the journal (so no
+        other printer takes it)."""
         for job in self.journal.jobs({JobState.READY}):
-            if job.print_requested:
-                return job
+            if not job.print_requested or job.printer not in (None, self.name):
+                continue
+            if self.pool is not None and not self.pool.may_print(self, job):
+                continue
+            if job.printer == self.name or self.journal.claim_for_printer(job.id, self.name):
+                return self.journal.get(job.id)
         return None
 
     # -- printing -------------------------------------------------------------------------
@@ -260,12 +225,16 @@ class PrinterLink(threading.Thread):
         lines = self._checked_lines(job, info)
         if lines is None:
             return
+        if self.gate is not None and not self.gate(job):
+            self.wake.wait(0.5)
+            return
         cancel = threading.Event()
         with self._lock:
             self._cancel[job.id] = cancel
         try:
             self.journal.transition(job.id, JobState.PRINTING, expect=JobState.READY,
-                                    note=f"{len(lines)} lines", printer_info=info, progress=0.0)
+                                    note=f"{len(lines)} lines on printer {self.name}",
+                                    printer_info=info, progress=0.0)
         except TransitionError:
             return  # cancelled in the meantime
         self._stream(job, lines, cancel)
@@ -393,7 +362,7 @@ class PrinterLink(threading.Thread):
             self._set_status(state="connected" if self.host else "waiting", job=None,
                              progress=None, lines_done=None, lines_total=None, message=None,
                              temperatures=None)
-        print_result = outcome(total, result=_result_dict(result))
+        print_result = outcome(total, result=result_dict(result))
         self._end(job.id, JobState.DONE, None, print_result)
         log.info("job %d: printed %d lines in %.1f s", job.id, total, print_result["seconds"])
 
@@ -411,7 +380,7 @@ class PrinterLink(threading.Thread):
             why = "the printer reports another build volume than the job was sliced for"
         if why is None:
             return False
-        self.journal.transition(job.id, JobState.QUEUED, expect=JobState.READY,
+        self.journal.transition(job.id, JobState.QUEUED, expect=JobState.READY, printer=None,
                                 note=why + "; re-processing")
         log.info("job %d: %s; re-processing", job.id, why)
         return True
@@ -432,71 +401,9 @@ class PrinterLink(threading.Thread):
             return
         if sent == 0 and job.state == JobState.PRINTING:
             self.journal.transition(job_id, JobState.READY, note=f"not started: {why}",
-                                    progress=None)
+                                    progress=None, printer=None)
             log.warning("job %d: the print did not start (%s); it stays ready", job_id, why)
             return
         reason = f"print interrupted: {why}; " + HALF_PRINTED.format(id=job_id)
         self._end(job_id, JobState.INTERRUPTED, reason, print_result or {})
         log.warning("job %d: %s", job_id, reason)
-
-
-class TemperatureLog:
-    """The stream's temperature callback for one job: live readings in the printer
-    status (``preflight status``, the web page), one sample every
-    ``SAMPLE_SECONDS`` into the journal (a soft write), and a summary for the report."""
-
-    SAMPLE_SECONDS = 10.0
-
-    def __init__(self, link: PrinterLink, job_id: int) -> None:
-        self.link = link
-        self.job_id = job_id
-        self.last_sample = -float("inf")
-        self.samples = 0
-        self.peak: dict[str, float] = {}
-
-    def __call__(self, readings: dict[str, tuple[float, float | None]]) -> None:
-        live = {heater: [round(cur, 1), target] for heater, (cur, target) in readings.items()}
-        self.link._set_status(temperatures=live)
-        for heater, (current, _target) in readings.items():
-            self.peak[heater] = max(self.peak.get(heater, current), current)
-        now = time.monotonic()
-        if now - self.last_sample >= self.SAMPLE_SECONDS:
-            self.last_sample = now
-            self.samples += 1
-            try:
-                self.link.journal.add_temperatures(self.job_id, live)
-            except Exception:  # a busy journal must not stop the print
-                log.exception("recording temperatures")
-
-    def summary(self) -> dict[str, Any]:
-        return {"samples": self.samples,
-                "peak": {heater: round(value, 1) for heater, value in self.peak.items()}}
-
-
-_HEATER_NAMES = {"T": "hotend", "B": "bed", "C": "chamber"}
-
-
-def format_temperatures(temps: dict[str, Any] | None) -> str | None:
-    """``{"T": [120.3, 210.0], "B": [41.0, 60.0]}`` -> ``"hotend 120.3/210 °C, bed
-    41.0/60 °C"``; None when there is nothing to show."""
-    if not temps:
-        return None
-    parts = []
-    for heater, (current, target) in sorted(temps.items(), key=lambda kv: kv[0] != "T"):
-        name = _HEATER_NAMES.get(heater, heater)
-        parts.append(f"{name} {current:.1f}" + (f"/{target:g}" if target is not None else "")
-                     + " °C")
-    return ", ".join(parts)
-
-
-def _result_dict(result: Any) -> Any:
-    if result is None:
-        return None
-    if hasattr(result, "to_dict"):
-        return result.to_dict()
-    if hasattr(result, "__dataclass_fields__"):
-        import dataclasses
-
-        return {k: v for k, v in dataclasses.asdict(result).items()
-                if isinstance(v, (int, float, str, bool, type(None)))}
-    return str(result)

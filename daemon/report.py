@@ -48,7 +48,9 @@ def report_text(job: Job, history: list[dict[str, Any]]) -> str:
     if info:
         volume = info.get("build_volume")
         volume_text = " x ".join(f"{v:g}" for v in volume) + " mm" if volume else "unknown"
-        lines.append(f"Printer: {info.get('firmware') or 'unknown firmware'}, nozzle "
+        named = job.printer not in (None, "printer")  # "printer": the one unnamed [printer]
+        lines.append(f"Printer: {(str(job.printer) + ', ') if named else ''}"
+                     f"{info.get('firmware') or 'unknown firmware'}, nozzle "
                      f"{info.get('nozzle_diameter')} mm (from {info.get('nozzle_source')}), "
                      f"build volume {volume_text}"
                      + (f" (from {info['build_volume_source']})"

@@ -23,8 +23,10 @@ from daemon import __version__
 from daemon.config import Config
 from daemon.journal import Job, Journal
 from daemon.notify import notify, watchdog_interval
+from daemon.pins import PinnedFolders
 from daemon.pipeline import Processor, Spool
-from daemon.printlink import HALF_PRINTED, PrinterLink
+from daemon.printers import PrinterPool
+from daemon.printlink import HALF_PRINTED
 from daemon.states import FINAL, ON_PRINTER, JobState, TransitionError
 from daemon.watcher import SpoolWatcher
 from daemon.worker import FORK_SERVER, warm_up
@@ -58,15 +60,35 @@ class Daemon:
         self.watcher = SpoolWatcher(cfg.spool.path, settle_seconds=cfg.spool.settle_seconds,
                                     close_grace_seconds=cfg.spool.close_grace_seconds,
                                     poll=cfg.spool.poll)
-        self.printer = PrinterLink(cfg, self.journal, self.spool, self.stop)
+        self.pinned = PinnedFolders(cfg.spool.path, settle_seconds=cfg.spool.settle_seconds,
+                                    close_grace_seconds=cfg.spool.close_grace_seconds,
+                                    poll=cfg.spool.poll)
+        self.printers = PrinterPool(cfg, self.journal, self.spool, self.stop)
+        self.printer = self.printers.first  # the one printer, or the first of several
         self._claim = threading.Lock()
         self._active: dict[int, threading.Event] = {}
         self.started = time.time()
+        self.farm = None
+        if cfg.farm.broker:
+            self.farm = self._join_farm()
         self.web = None
         if cfg.web.listen:
             from daemon.web.server import WebServer
 
             self.web = WebServer(self)
+
+    def _join_farm(self):
+        """Farm mode: the node's part in the farm, and the gate of its printers."""
+        from daemon.farm import check_farm_config
+        from daemon.farm.node import FarmNode
+
+        check_farm_config(self.cfg)
+        if self.cfg.farm.compute and not self.cfg.printer_tables:
+            self.printers.links = []  # a compute-only node: no printer to drive
+        farm = FarmNode(self)
+        for link in farm.links():
+            link.gate = farm.may_print
+        return farm
 
     # -- start-up recovery ----------------------------------------------------------------
     def recover(self) -> None:
@@ -91,6 +113,10 @@ class Daemon:
             self.spool.archive(job_id)
             log.warning("job %d: archived its files and reports (the daemon stopped while "
                         "archiving it)", job_id)
+        released = self.journal.release_unstarted_claims()
+        if released:
+            log.info("%d ready job(s) claimed by a printer but not started: any printer may "
+                     "take them again", released)
         for name in self.spool.recover_orphans():
             log.warning("gave %s back to the spool (the daemon stopped while taking it)", name)
 
@@ -109,7 +135,7 @@ class Daemon:
                 ok, answer = False, f"internal error: {e}"
             self.journal.finish_request(req["id"], ok, answer)
             log.info("request %s job %s: %s", req["action"], req["job_id"], answer)
-        self.printer.wake.set()
+        self.printers.wake_all()
 
     def _handle(self, action: str, job_id: int) -> tuple[bool, str]:
         job = self.journal.get(job_id)
@@ -139,6 +165,7 @@ class Daemon:
             self.spool.drop_reports(job)
             self.journal.transition(job.id, JobState.READY, expect=JobState.INTERRUPTED,
                                     print_requested=True, reason=None, progress=None,
+                                    printer=None,
                                     note="requeued by the user")
             return True, f"job {job.id} will be printed again from the start"
         if job.state in (JobState.FAILED, JobState.CANCELLED):
@@ -148,6 +175,7 @@ class Daemon:
                 work_dir=work_dir, input_path=input_path, reason=None, attempts=0, progress=None,
                 repaired_path=None, gcode_path=None, repair_report=None, slice_summary=None,
                 print_result=None, outputs={}, print_requested=self.cfg.daemon.auto_print,
+                printer=None, nozzle=job.nozzle if job.pinned else None,
                 note="requeued by the user")
             return True, f"job {job.id} is queued again"
         return False, (f"job {job.id} is {job.state}; only failed, cancelled or interrupted "
@@ -173,7 +201,7 @@ class Daemon:
             cancel.set()
             return True, f"job {job.id} is being cancelled"
         if job.state in ON_PRINTER:
-            if self.printer.cancel_job(job.id):
+            if self.printers.cancel_job(job.id):
                 return True, (f"job {job.id}: stopping the print (cooldown and motors off "
                               "will be sent)")
             return False, f"job {job.id} is printing but the printer thread does not hold it"
@@ -184,22 +212,22 @@ class Daemon:
             return True, f"job {job.id} is already paused"
         if job.state != JobState.PRINTING:
             return False, f"job {job.id} is {job.state}; only a printing job can be paused"
-        if not self.printer.control_job(job.id, "pause"):
+        if not self.printers.control_job(job.id, "pause"):
             return False, f"job {job.id} is printing but the printer thread does not hold it"
         return True, (f"job {job.id}: pausing (the lines already sent finish, then the head "
                       "retracts and parks; the heaters stay on)")
 
     def _resume(self, job: Job) -> tuple[bool, str]:
-        state = self.printer.control_state(job.id)
+        state = self.printers.control_state(job.id)
         if job.state == JobState.PRINTING and state == "printing":
             return True, f"job {job.id} is printing, not paused"
         if job.state not in ON_PRINTER or state is None:
             return False, f"job {job.id} is {job.state}; only a paused job can be resumed"
-        self.printer.control_job(job.id, "resume")
+        self.printers.control_job(job.id, "resume")
         return True, f"job {job.id}: resuming (back to where it paused, then the next line)"
 
     def _stop(self, job: Job) -> tuple[bool, str]:
-        if job.state not in ON_PRINTER or not self.printer.control_job(job.id, "stop"):
+        if job.state not in ON_PRINTER or not self.printers.control_job(job.id, "stop"):
             return False, f"job {job.id} is {job.state}; nothing is printing to stop"
         return True, (f"job {job.id}: emergency stop (M112) sent; the printer must be reset "
                       "before it prints again")
@@ -217,9 +245,11 @@ class Daemon:
             "state_dir": str(self.cfg.daemon.state_dir),
             "auto_print": self.cfg.daemon.auto_print,
             "printer": self.printer.status(),
+            "printers": self.printers.status(),
             "jobs": self.journal.counts(),
-            "waiting_files": self.watcher.pending(),
+            "waiting_files": self.watcher.pending() + self.pinned.pending(),
             "web": self.web.status() if self.web else None,
+            "farm": self.farm.status() if self.farm else None,
         }
 
     @staticmethod
@@ -239,6 +269,10 @@ class Daemon:
         else:
             doing = f"printer {printer.get('state')}" + (
                 f": {printer['message']}" if printer.get("message") else "")
+        printers = status.get("printers") or []
+        if len(printers) > 1:  # systemd's one line: each printer's state in a word or two
+            doing = ", ".join(f"{p.get('name')} {p.get('state')}"
+                              + (f" job {p['job']}" if p.get("job") else "") for p in printers)
         return f"{doing}; jobs: {active or 'none active'}"
 
     # -- the main loop --------------------------------------------------------------------
@@ -260,19 +294,24 @@ class Daemon:
         self.recover()
         threading.Thread(target=self._warm_up, name="forkserver-start", daemon=True).start()
         self.watcher.start()
-        self.printer.start()
+        self.pinned.refresh()
+        self.printers.start()
         if self.web:
             self.web.start()
         workers = []
+        if self.farm is not None:  # spool files go to the farm; uploads stay local
+            self.farm.start()
         for i in range(self.cfg.daemon.workers):
             processor = Processor(self.cfg, self.journal, self.spool, self.printer.last_info,
-                                  stop=self.stop, claim_lock=self._claim, active=self._active)
+                                  stop=self.stop, claim_lock=self._claim, active=self._active,
+                                  router=self.printers)
             thread = threading.Thread(target=processor.run_forever, name=f"worker-{i}",
                                       daemon=True)
             thread.start()
             workers.append(thread)
-        log.info("preflight %s watching %s (state in %s, printer %s)", __version__,
-                 self.cfg.spool.path, self.cfg.daemon.state_dir, self.cfg.printer.port)
+        log.info("preflight %s watching %s (state in %s, printers: %s)", __version__,
+                 self.cfg.spool.path, self.cfg.daemon.state_dir,
+                 ", ".join(f"{p.name} on {p.port}" for p in self.cfg.all_printers))
         status = self.status()
         self.journal.set_meta("status", status)
         notify(f"READY=1\nSTATUS={self.status_line(status)}\nMAINPID={os.getpid()}")
@@ -280,11 +319,14 @@ class Daemon:
         notify("STOPPING=1\nSTATUS=stopping")
         log.info("stopping")
         self.watcher.stop()
+        self.pinned.stop()
         if self.web:
             self.web.stop()
         for thread in workers:
             thread.join(timeout=30)
-        self.printer.join(timeout=60)
+        self.printers.join(timeout=60)
+        if self.farm is not None:
+            self.farm.join(timeout=30)
         FORK_SERVER.shutdown()
         status = self.status()
         status["running"] = False
@@ -295,12 +337,16 @@ class Daemon:
     def _main_loop(self, workers: list[threading.Thread]) -> None:
         """Intake, CLI requests, status and the systemd watchdog until asked to stop."""
         watchdog_every = watchdog_interval()
-        last_status = last_watchdog = 0.0
+        last_status = last_watchdog = last_pins = 0.0
         while not self.stop.is_set():
             try:
-                for path in self.watcher.due():
+                if time.monotonic() - last_pins >= 2.0:  # new nozzle-X/ folders
+                    last_pins = time.monotonic()
+                    self.pinned.refresh()
+                for path in self.watcher.due() + self.pinned.due():
                     try:
-                        self.spool.intake(path)
+                        if self.farm is None or not self.farm.intake(path):
+                            self.spool.intake(path)
                     except Exception:
                         log.exception("intake of %s", path)
                 self.handle_requests()
@@ -316,7 +362,7 @@ class Daemon:
                 continue
             if watchdog_every and now - last_watchdog >= watchdog_every:
                 last_watchdog = now
-                if self.printer.is_alive() and all(t.is_alive() for t in workers):
+                if self.printers.all_alive() and all(t.is_alive() for t in workers):
                     notify("WATCHDOG=1")
             # a file that is settling is due within close_grace_seconds: look again sooner
             nap = 0.2 if not self.watcher.pending() else min(

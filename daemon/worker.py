@@ -238,7 +238,19 @@ def _task_slice(spec: dict[str, Any]) -> Any:
     return {"summary": summary, "profile": profile.to_dict()}
 
 
-TASKS = {"repair": _task_repair, "slice": _task_slice}
+def _task_measure(spec: dict[str, Any]) -> Any:
+    """The size (mm) of the model's axis-aligned bounding box, for routing it."""
+    from repair.io import load_mesh
+
+    mesh = load_mesh(spec["in"], max_bytes=spec.get("max_bytes"),
+                     max_triangles=spec.get("max_triangles"))
+    vertices = mesh.vertices
+    if not len(vertices):
+        return {"size": None}
+    return {"size": [float(x) for x in vertices.max(axis=0) - vertices.min(axis=0)]}
+
+
+TASKS = {"repair": _task_repair, "slice": _task_slice, "measure": _task_measure}
 
 
 def child_main(argv: list[str]) -> int:

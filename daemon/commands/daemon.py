@@ -99,6 +99,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     try:
         cfg = _load(args)
         check_profile(cfg)
+        if cfg.farm.broker:
+            from daemon.farm import check_farm_config
+
+            check_farm_config(cfg)
     except ConfigError as e:
         return fail(str(e), 2)
     setup_logging(cfg.daemon.log_level)
@@ -136,7 +140,7 @@ def _journal(args: argparse.Namespace):
 
 
 def cmd_status(args: argparse.Namespace) -> int:
-    from daemon.printlink import format_temperatures
+    from daemon.printlog import format_temperatures
     from daemon.service import Daemon, daemon_alive
 
     cfg, journal = _journal(args)
@@ -170,6 +174,12 @@ def cmd_status(args: argparse.Namespace) -> int:
                  else ""))
     elif printer.get("message"):
         print(f"printer: {printer.get('port')} - {printer.get('state')}: {printer['message']}")
+    printers = status.get("printers") or []
+    if len(printers) > 1:
+        from daemon.printers import describe_printer
+
+        for entry in printers:
+            print(describe_printer(entry))
     temperatures = format_temperatures(printer.get("temperatures"))
     if temperatures:
         print(f"temperatures: {temperatures}")
@@ -219,7 +229,11 @@ def _job_line(job) -> str:
         prog = f" {100 * job.progress:.0f}%"
     when = time.strftime("%m-%d %H:%M", time.localtime(job.updated))
     reason = f"  {job.reason}" if job.reason and str(job.state) != "done" else ""
-    return f"{job.id:>5}  {str(job.state) + prog:<16} {when}  {job.source_name}{reason}"
+    where = f" on {job.printer}" if job.printer not in (None, "printer") else ""
+    if job.pinned and job.nozzle:
+        where += f" (pinned to a {job.nozzle:g} mm nozzle)"
+    return (f"{job.id:>5}  {str(job.state) + prog:<16} {when}  {job.source_name}{where}"
+            f"{reason}")
 
 
 def cmd_jobs_list(args: argparse.Namespace) -> int:

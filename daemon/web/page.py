@@ -56,10 +56,10 @@ async def events(request: web.Request) -> web.StreamResponse:
         while not closing.is_set():
             # the whole snapshot only when a job or the printer changed, or to update the
             # ETA of a print (it changes with the clock)
-            printer = backend.printer.status() or {}
-            now_mark = (backend.journal.change_mark(), printer)
+            printers = backend.printers.status()
+            now_mark = (backend.journal.change_mark(), printers)
             current = last
-            if now_mark != mark or printer.get("state") == "printing":
+            if now_mark != mark or any(p.get("state") == "printing" for p in printers):
                 mark = now_mark
                 current = json.dumps(snapshot.snapshot(backend), separators=(",", ":"))
             if current != last:

@@ -22,16 +22,17 @@ PRINTER_FIELDS = ("state", "message", "job", "progress", "lines_done", "lines_to
                   "connected_since")
 
 
-def printer_view(backend: Any) -> dict[str, Any]:
-    """The printer link's status with what is known of the printer (firmware, nozzle,
-    build volume) and its temperatures: the live ones when the link reports them, else
-    those read at connection."""
-    st = backend.printer.status() or {}
-    info = st.get("info") or backend.printer.last_info() or {}
-    view = {k: st.get(k) for k in PRINTER_FIELDS}
+def printer_view(backend: Any, link: Any = None) -> dict[str, Any]:
+    """A printer link's status (``link``; default the first printer) with what is known
+    of the printer (firmware, nozzle, build volume) and its temperatures: the live ones
+    when the link reports them, else those read at connection."""
+    link = link or backend.printer
+    st = link.status() or {}
+    info = st.get("info") or link.last_info() or {}
+    view = {"name": link.name, **{k: st.get(k) for k in PRINTER_FIELDS}}
     view.update(firmware=info.get("firmware"), machine=info.get("machine_type"),
                 nozzle=info.get("nozzle_diameter"), nozzle_source=info.get("nozzle_source"),
-                build_volume=info.get("build_volume"), port=str(backend.cfg.printer.port))
+                build_volume=info.get("build_volume"), port=str(link.printer.port))
     live = st.get("temperatures")
     view["temperatures"] = temperatures(live if live else info.get("temperatures"))
     view["temperatures_live"] = bool(live)
@@ -50,7 +51,8 @@ def job_row(backend: Any, job: Job) -> dict[str, Any]:
             "repair": repair.get("summary"), "estimated_seconds": sliced.get("estimated_seconds"),
             "has_repair": bool(job.repair_report), "has_gcode": bool(_gcode_path(job)),
             # it reached the printer: something may be on the bed
-            "reached_printer": bool((job.print_result or {}).get("acked_lines"))}
+            "reached_printer": bool((job.print_result or {}).get("acked_lines")),
+            "printer": job.printer, "nozzle": job.nozzle, "pinned": job.pinned}
 
 
 def snapshot(backend: Any) -> dict[str, Any]:
@@ -61,7 +63,8 @@ def snapshot(backend: Any) -> dict[str, Any]:
     return {
         "daemon": {"version": __version__, "auto_print": backend.cfg.daemon.auto_print,
                    "spool": str(backend.cfg.spool.path)},
-        "printer": printer_view(backend),
+        "printer": printer_view(backend),  # the first printer (as before several printers)
+        "printers": [printer_view(backend, link) for link in backend.printers.links],
         "queue": [job_row(backend, j) for j in active],
         "history": [job_row(backend, j) for j in reversed(finished[-HISTORY:])],
         "counts": journal.counts(),
