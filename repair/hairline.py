@@ -86,14 +86,14 @@ def fill_hairline_gaps(
     return manifold_union([(v, f), (pv, pf)], collapse=False)
 
 
-def without_hairline_gaps(out: RepairOutcome) -> RepairOutcome:
+def without_hairline_gaps(out: RepairOutcome, eps: float) -> RepairOutcome:
     """``out`` with its hairline slits closed and blades thickened
-    (:func:`fill_hairline_gaps`), rounded to float32 and checked again
-    (:func:`repair.finish.rounded_verdict`; a fill that rounding breaks is given up, not
-    mended: mending may take the whole arrangement again), round after round while that
+    (:func:`fill_hairline_gaps`), rounded to float32, checked and mended locally
+    (:func:`repair.finish.finish`; a fill that local mending cannot make printable is
+    given up: the whole arrangement may take minutes), round after round while that
     leaves it printable; the round with fewest faces failing the two-sided winding test
     is kept. Counted in ``out.sections["hairline_gaps"]``."""
-    from repair.finish import rounded_verdict
+    from repair.finish import finish
 
     if not out.verdict.ok or len(out.faces) == 0:
         return out
@@ -109,7 +109,7 @@ def without_hairline_gaps(out: RepairOutcome) -> RepairOutcome:
         filled = fill_hairline_gaps(v, f, bad)
         if filled is None:
             break
-        v, f, verdict, _ = rounded_verdict(*filled)
+        v, f, verdict = finish(*filled, eps, out.tally, local_only=True)
         if not verdict.ok:
             break
         bad, rounds = hairline_failures(v, f), rounds + 1

@@ -190,7 +190,7 @@ def _solidify(
     else:
         out, hint = _exact_path(cleaned, lidded, eps, tally, clock), None
     faces_before = out.faces
-    out = without_hairline_gaps(without_internal_junk(out))
+    out = without_hairline_gaps(without_internal_junk(out), eps)
     if out.faces is not faces_before:
         hint = None  # faces were removed: the per-face sources no longer line up
     out.holes = holes

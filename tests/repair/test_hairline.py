@@ -51,7 +51,7 @@ def test_slotted_box_fails_the_winding_test_and_the_suspects_find_every_failure(
 def test_filling_closes_the_slot_and_moves_the_surface_by_at_most_the_reach():
     v, f = _solid(_slotted_box())
     out = RepairOutcome(v, f, check_printable(v, f), "exact", 0.0, RepairTally(), HolesClosed())
-    out = without_hairline_gaps(out)
+    out = without_hairline_gaps(out, 0.4)
     assert out.verdict.ok
     assert check_printable(out.vertices, out.faces).ok
     assert _failing(out.vertices, out.faces) == 0
