@@ -32,6 +32,10 @@ __all__ = ["fill_hairline_gaps", "hairline_suspects", "hairline_failures",
 
 #: How far the filling prisms reach either side of a failing face, in probe distances.
 FILL_REACH = 2.0
+#: Meshes with more faces are left as they are: finding the failing faces (the winding
+#: number at every suspect's probes) and mending each fill took tens of seconds on the
+#: corpus's 30k-90k-face outputs, more than the rest of their repair.
+MAX_FACES = 20_000
 #: Rounds of "find, fill, round and check" at most.
 MAX_FILL_ROUNDS = 6
 
@@ -91,11 +95,12 @@ def without_hairline_gaps(out: RepairOutcome, eps: float) -> RepairOutcome:
     (:func:`fill_hairline_gaps`), rounded to float32, checked and mended locally
     (:func:`repair.finish.finish`; a fill that local mending cannot make printable is
     given up: the whole arrangement may take minutes), round after round while that
-    leaves it printable; the round with fewest faces failing the two-sided winding test
-    is kept. Counted in ``out.sections["hairline_gaps"]``."""
+    leaves it printable and does not add failing faces; the round with the fewest faces
+    failing the two-sided winding test is kept. Meshes of more than :data:`MAX_FACES`
+    faces are returned as they are (time). Counted in ``out.sections["hairline_gaps"]``."""
     from repair.finish import finish
 
-    if not out.verdict.ok or len(out.faces) == 0:
+    if not out.verdict.ok or not 0 < len(out.faces) <= MAX_FACES:
         return out
     bad = hairline_failures(out.vertices, out.faces)
     found = best = len(bad)
@@ -112,7 +117,10 @@ def without_hairline_gaps(out: RepairOutcome, eps: float) -> RepairOutcome:
         v, f, verdict = finish(*filled, eps, out.tally, local_only=True)
         if not verdict.ok:
             break
-        bad, rounds = hairline_failures(v, f), rounds + 1
+        left, rounds = hairline_failures(v, f), rounds + 1
+        if len(left) > len(bad):
+            break  # the fill made more than it closed: give up
+        bad = left
         if len(bad) < best:
             out.vertices, out.faces, out.verdict, best = v, f, verdict, len(bad)
     if found:

@@ -193,6 +193,7 @@ def _solidify(
     out = without_hairline_gaps(without_internal_junk(out), eps)
     if out.faces is not faces_before:
         hint = None  # faces were removed: the per-face sources no longer line up
+    clock.lap("junk", 0.9)
     out.holes = holes
     if stitched.snapped or stitched.inserted:
         out.sections["stitched"] = stitched.to_dict()
