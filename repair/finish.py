@@ -145,10 +145,13 @@ def finish(
     eps: float,
     tally: RepairTally,
     before: Checked | None = None,
+    *,
+    local_only: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, Printability]:
     """Round to float32, verify, and mend until the written mesh is printable (see the
     module docstring). Returns the float32-valued ``(vertices, faces)`` and their verdict,
-    which is not ``ok`` when the rounds ran out or the damage kept growing.
+    which is not ``ok`` when the rounds ran out or the damage kept growing, or, with
+    ``local_only``, when local mending does not do (the whole arrangement is not taken).
 
     ``before = (v, f, pairs)``: a mesh whose crossing pairs are all known, on float32
     points, that ``(v, f)`` was made from (a union of shells keeps most of their faces):
@@ -198,6 +201,8 @@ def finish(
             if mended is not None:
                 v, f, before = mended
                 continue
+        if local_only:
+            break
         c = clean_soup(*concat_meshes([(v32, f32), *extra]), solid=True)
         v, f, _, _ = hull_and_thicken(c.vertices, c.faces, eps, tally, solid=True)
     assert verdict is not None

@@ -23,7 +23,8 @@ Stages (each timed in the report; :func:`repair_mesh` reads as this list):
 5. ``finish``  round to float32 avoiding crossings, verify with the exact check, mend
    where rounding broke anything (:mod:`repair.finish`); remove cavity shells thinner
    than a hair, which the winding number on both sides of their faces exposes
-   (:mod:`repair.junk`);
+   (:mod:`repair.junk`), and fill slits and blades thinner than a hair
+   (:mod:`repair.hairline`);
 6. ``deviation`` Attene's deviation D (:mod:`repair.deviation`), and ``report``:
    manifold-connected parts, volume, what was done (:mod:`repair.report`).
 
@@ -54,6 +55,7 @@ from repair.deviation import max_deviation
 from repair.errors import RepairError
 from repair.fallback import fallback_repair
 from repair.finish import finish
+from repair.hairline import without_hairline_gaps
 from repair.holes import MAX_BOUNDARY_FRACTION, HolesClosed, close_small_holes
 from repair.hull_and_thicken import hull_and_thicken
 from repair.junk import without_internal_junk
@@ -254,10 +256,11 @@ def _solidify(
         out, hint = united
     else:
         out, hint = _exact_or_fallback(cleaned, lidded, eps, tally, clock, fallback), None
-    junk_before = out.tally.junk_shells
-    out = without_internal_junk(out)
-    if out.tally.junk_shells != junk_before:
+    faces_before = out.faces
+    out = without_hairline_gaps(without_internal_junk(out), eps)
+    if out.faces is not faces_before:
         hint = None  # faces were removed: the per-face sources no longer line up
+    clock.lap("junk", 0.9)
     out.holes = holes
     if stitched.snapped or stitched.inserted:
         out.sections["stitched"] = stitched.to_dict()

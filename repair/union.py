@@ -122,12 +122,15 @@ def union_of_shells(
 
 
 def manifold_union(
-    parts: list[tuple[np.ndarray, np.ndarray]],
+    parts: list[tuple[np.ndarray, np.ndarray]], *, collapse: bool = True
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """Union of closed oriented pieces -- the solid outer hull first (welded here), then
     sheet slabs, ledge prisms and wire cylinders (each already an indexed closed solid)
     -- by manifold3d's robust booleans; None if manifold3d rejects a piece. The result
-    is verified (and resolved exactly if need be) by the caller's float32 check."""
+    is verified (and resolved exactly if need be) by the caller's float32 check.
+    ``collapse``: simplify away slivers and sub-ulp features (moves the surface by up to
+    2^-17 of the part's size); off, the faces the union did not cut stay as they were,
+    and the result keeps manifold3d's float64 coordinates for the caller to round."""
     solids = []
     try:
         for i, (v, f) in enumerate(parts):
@@ -143,9 +146,10 @@ def manifold_union(
             return None
         out = _sum_of(solids)
         # Collapse what float32 cannot hold apart anyway: slivers and sub-ulp features.
-        size = max(float(np.abs(np.asarray(p[0])).max()) for p in parts if len(p[1]))
-        out = out.simplify(size * 2.0**-17)
-        res = out.to_mesh()
+        if collapse:
+            size = max(float(np.abs(np.asarray(p[0])).max()) for p in parts if len(p[1]))
+            out = out.simplify(size * 2.0**-17)
+        res = out.to_mesh() if collapse else out.to_mesh64()
     except Exception:  # noqa: BLE001 - any failure means: take the exact path
         return None
     rv, rf = _arrays_of(res)

@@ -1,0 +1,77 @@
+"""Hairline slits (thinner than the two-sided winding probe) between walls of one shell
+are found and filled: the output passes the winding test on every face, stays printable,
+and moves by no more than the fill's reach."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from repair.check import check_printable
+from repair.deviation import max_deviation
+from repair.hairline import FILL_REACH, hairline_failures, without_hairline_gaps
+from repair.holes import HolesClosed
+from repair.junk import face_winding_sides, failing_faces, probe_distance
+from repair.pipeline import repair_mesh
+from repair.report import RepairOutcome, RepairTally
+from repair.topology import weld_exact
+
+#: Slot width: a float32 ulp or two at x = 5, under the probe distance of a 10 mm part.
+GAP = 2.0**-20
+
+
+def _solid(manifold) -> tuple[np.ndarray, np.ndarray]:
+    mesh = manifold.to_mesh()
+    v = np.asarray(mesh.vert_properties, dtype=np.float64)[:, :3]
+    return weld_exact(v, np.asarray(mesh.tri_verts, dtype=np.int64))
+
+
+def _slotted_box():
+    """A 10 mm cube with a slot GAP wide cut 8 mm deep from its side: one shell."""
+    import manifold3d as m3d
+
+    box = m3d.Manifold.cube([10, 10, 10])
+    return box - m3d.Manifold.cube([GAP, 12, 8]).translate([5, -1, 3])
+
+
+def _failing(v: np.ndarray, f: np.ndarray) -> int:
+    outside, inside = face_winding_sides(v, f)
+    return int(failing_faces(outside, inside).sum())
+
+
+def test_slotted_box_fails_the_winding_test_and_the_suspects_find_every_failure():
+    v, f = _solid(_slotted_box())
+    assert check_printable(v, f).ok
+    assert GAP < probe_distance(v)
+    outside, inside = face_winding_sides(v, f)
+    every = np.flatnonzero(failing_faces(outside, inside))
+    assert len(every) > 0
+    assert np.array_equal(np.sort(hairline_failures(v, f)), every)
+
+
+def test_filling_closes_the_slot_and_moves_the_surface_by_at_most_the_reach():
+    v, f = _solid(_slotted_box())
+    out = RepairOutcome(v, f, check_printable(v, f), "exact", 0.0, RepairTally(), HolesClosed())
+    out = without_hairline_gaps(out, 0.4)
+    assert out.verdict.ok
+    assert check_printable(out.vertices, out.faces).ok
+    assert _failing(out.vertices, out.faces) == 0
+    section = out.sections["hairline_gaps"]
+    assert section["faces_found"] > 0 and section["faces_left"] == 0
+    reach = FILL_REACH * probe_distance(v)
+    # Attene's D (output -> input): the fill lies within its reach of the walls.
+    assert max_deviation(out.vertices, out.faces, v, f, np.zeros((0, 2, 3))) <= reach * 1.01
+
+
+def test_repair_of_overlapping_shells_with_a_hairline_slot_passes_the_winding_test():
+    import manifold3d as m3d
+
+    sv, sf = _solid(_slotted_box())
+    cv, cf = _solid(m3d.Manifold.cube([4, 4, 4]).translate([8, 8, 8]))
+    v = np.vstack([sv, cv])
+    f = np.vstack([sf, cf + len(sv)])
+    result = repair_mesh(v, f, 0.4)
+    rv, rf = result.vertices, result.faces
+    assert check_printable(rv, rf).ok
+    assert _failing(rv, rf) == 0
+    assert result.report["hairline_gaps"]["faces_left"] == 0
+    assert result.report["deviation"] <= FILL_REACH * probe_distance(rv) * 1.01
