@@ -20,7 +20,6 @@ import numpy as np
 from repair.check import (
     Printability,
     check_printable,
-    check_printable_pairs,
     round_to_float32,
     verdict_given_pairs,
 )
@@ -132,11 +131,26 @@ def rounded_verdict(
         known = carried_pairs(match, len(before[1]), before[2])
     r, found = round_finding_crossings(v, f, known=known)
     v32, f32 = weld_exact(r, f)
-    if len(v32) == len(r):
-        verdict, pairs = verdict_given_pairs(v32, f32, found)
-    else:
-        verdict, pairs = check_printable_pairs(v32, f32)
+    if len(v32) != len(r):
+        found = _pairs_after_weld(f, v32, f32, found)
+    verdict, pairs = verdict_given_pairs(v32, f32, found)
     return v32, f32, verdict, pairs
+
+
+def _pairs_after_weld(
+    f: np.ndarray, v32: np.ndarray, f32: np.ndarray, found: np.ndarray
+) -> np.ndarray:
+    """All crossing pairs of the welded ``(v32, f32)``, given those ``found`` among the
+    same faces before the weld (``f``). A weld moves no point and re-indexes the faces
+    one for one: two faces none of whose corners was merged with another vertex share
+    exactly the corners they shared before, so their pair stands; only near the faces
+    on a merged vertex is the exact test run again."""
+    n = int(f.max()) + 1 if len(f) else 1
+    links = unique_ints(f32.reshape(-1) * n + f.reshape(-1))  # (welded, original) corners
+    merged = np.bincount(links // n, minlength=len(v32)) > 1
+    changed = merged[f32].any(axis=1)
+    kept = found[~changed[found].any(axis=1)]
+    return crossings_after_change(v32, f32, kept, changed)
 
 
 def finish(

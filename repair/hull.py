@@ -22,6 +22,7 @@ import numpy as np
 
 from repair.clean import cancel_opposite_faces, degenerate_mask, drop_unreferenced
 from repair.intersections import intersecting_face_pairs
+from repair.rays import RayCaster
 from repair.rows import unique_ints
 from repair.thicken import orient_patches, orient_patches_with_edge_use
 from repair.topology import (
@@ -277,8 +278,9 @@ def unbounded_cells(vertices: np.ndarray, faces: np.ndarray, cells: np.ndarray) 
     faces leaves the model without meeting another face. Up to 8 faces per region and
     6 directions per face are tried (away from the model's centre first), largest
     regions first, within :data:`MAX_CELL_RAYS` rays and :data:`MAX_CELL_RAY_TESTS`
-    ray-triangle tests in all (about a second of numpy). Float ray tests: a
-    grazing hit only makes a ray fail, never pass wrongly."""
+    ray-triangle tests in all (each ray culls by bounding spheres first,
+    :class:`repair.rays.RayCaster`). Float ray tests: a grazing hit only makes a ray
+    fail, never pass wrongly."""
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
     p = v[f]
@@ -291,6 +293,7 @@ def unbounded_cells(vertices: np.ndarray, faces: np.ndarray, cells: np.ndarray) 
     dirs = np.random.default_rng(0).normal(size=(4, 3))
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     labels, counts = np.unique(cells, return_counts=True)
+    caster = RayCaster(p)
     out: list[int] = []
     budget = min(MAX_CELL_RAYS, MAX_CELL_RAY_TESTS // max(len(f), 1))
     for lab in labels[np.argsort(-counts, kind="stable")].tolist():
@@ -310,7 +313,7 @@ def unbounded_cells(vertices: np.ndarray, faces: np.ndarray, cells: np.ndarray) 
             escaped = False
             for d in tries:
                 budget -= 1
-                if not _ray_hits_any(origin, d / np.linalg.norm(d), p, face):
+                if not caster.hits_any(origin, d / np.linalg.norm(d), face):
                     escaped = True
                     break
             if escaped:
@@ -319,25 +322,6 @@ def unbounded_cells(vertices: np.ndarray, faces: np.ndarray, cells: np.ndarray) 
             if budget <= 0:
                 return np.asarray(out, dtype=np.int64)
     return np.asarray(out, dtype=np.int64)
-
-
-def _ray_hits_any(origin: np.ndarray, direction: np.ndarray, tri: np.ndarray, skip: int) -> bool:
-    """Does the ray hit any triangle of ``tri`` (k, 3, 3) but ``skip``? Moller-Trumbore,
-    vectorised; edge and vertex hits count as hits (conservative)."""
-    e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
-    h = np.cross(direction, e2)
-    a = np.einsum("ij,ij->i", e1, h)
-    ok = np.abs(a) > 1e-300
-    inv = np.divide(1.0, a, out=np.zeros_like(a), where=ok)
-    s = origin - tri[:, 0]
-    u = inv * np.einsum("ij,ij->i", s, h)
-    q = np.cross(s, e1)
-    w = inv * (q @ direction)
-    t = inv * np.einsum("ij,ij->i", e2, q)
-    tol = 1e-9
-    hit = ok & (u >= -tol) & (w >= -tol) & (u + w <= 1 + tol) & (t > 0)
-    hit[skip] = False
-    return bool(hit.any())
 
 
 def _encloses(
