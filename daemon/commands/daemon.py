@@ -298,7 +298,7 @@ def cmd_jobs_request(args: argparse.Namespace) -> int:
 
 
 def cmd_example_config(args: argparse.Namespace) -> int:
-    from daemon.config import example_config
+    from daemon.config_example import example_config
 
     text = example_config()
     if args.output:

@@ -8,11 +8,11 @@ import tomli_w
 from daemon.config import (
     SECTIONS,
     ConfigError,
-    example_config,
     load_config,
     parse_config,
     rules,
 )
+from daemon.config_example import example_config
 
 ROOT = Path(__file__).resolve().parents[2]
 
