@@ -207,6 +207,8 @@ class FarmNode:
                 self._round()
                 if self.broker_up is False:
                     log.warning("farm: the broker is back")
+                if self.broker_up is None:
+                    self._check_persistence()
                 self.broker_up = True
             except redis.RedisError as e:
                 if self.broker_up is not False:
@@ -242,6 +244,14 @@ class FarmNode:
         self._dispatch()
         if self._due("heartbeat", HEARTBEAT_SECONDS):
             self.queue.heartbeat(self.node, self.status(), ttl=5 * HEARTBEAT_SECONDS)
+
+    def _check_persistence(self) -> None:
+        """Once, when the broker first answers: warn if it would lose the queue on a
+        restart (published jobs would vanish from it; see docs/farm.md)."""
+        if self.queue.appendonly() == "no":
+            log.warning("farm: the broker (Redis) runs with appendonly no: a restart of "
+                        "Redis loses the farm's queue and claims; set appendonly yes in "
+                        "its redis.conf")
 
     def _extents(self, fid: str, input_key: str) -> list[float] | None:
         """The model's size, measured once (publishing may be retried through an outage)."""

@@ -1,11 +1,12 @@
 """Uploads through a farm node's HTTP API (OctoPrint-style ``/api/files/local``) go to
 the farm's queue exactly as spool files do when they are to print; a real redis-server
-and real daemons."""
+and real daemons (which also check that a node warns of a broker without appendonly)."""
 
 from __future__ import annotations
 
 import json
 
+import redis
 from daemon_helpers import DaemonProc, box, tiny_gcode, write_binary_stl
 from farm_checks import all_ended, check_farm
 from farm_helpers import farm_config, free_port
@@ -47,6 +48,8 @@ def test_upload_to_a_compute_only_node_prints_once_on_another_node(tmp_path, red
     write_binary_stl(model, *box((6.0, 4.0, 3.0)))
     try:
         a.start()
+        # b joins a broker that would lose the queue on a restart: it says so, once
+        redis.Redis.from_url(redis_server.url).config_set("appendonly", "no")
         b.start()
         port_a, key_a = _web(a)
         port_b, key_b = _web(b)
@@ -84,6 +87,8 @@ def test_upload_to_a_compute_only_node_prints_once_on_another_node(tmp_path, red
         assert "compute-only node of farm 'test'" in status.stdout
         assert "printer" not in status.stdout.replace("(no printer)", "")
         assert json.loads(a.cli("status", "--json").stdout)["printer"] is None
+        warning = "runs with appendonly no"
+        assert warning not in a.log.read_text() and b.log.read_text().count(warning) == 1
     finally:
         a.stop()
         b.stop()
