@@ -48,6 +48,8 @@ def test_upload_to_a_compute_only_node_prints_once_on_another_node(tmp_path, red
     write_binary_stl(model, *box((6.0, 4.0, 3.0)))
     try:
         a.start()
+        a.wait_for(lambda: (a.status().get("farm") or {}).get("broker_up"),
+                   what="node a reached the broker")
         # b joins a broker that would lose the queue on a restart: it says so, once
         redis.Redis.from_url(redis_server.url).config_set("appendonly", "no")
         b.start()
