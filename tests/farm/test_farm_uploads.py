@@ -10,7 +10,7 @@ import redis
 from daemon_helpers import DaemonProc, box, tiny_gcode, write_binary_stl
 from farm_checks import all_ended, check_farm
 from farm_helpers import farm_config, free_port
-from web_helpers import curl_boundary, multipart, send_raw, upload_head
+from web_helpers import curl_boundary, multipart, request, send_raw, upload_head
 
 from daemon.farm.queue import FarmQueue
 from daemon.web.auth import read_key
@@ -84,6 +84,10 @@ def test_upload_to_a_compute_only_node_prints_once_on_another_node(tmp_path, red
         assert not b.journal.get(job_id).print_requested
         assert len(queue.all_jobs()) == 1  # nothing more reached the farm
 
+        state = request(port_a, "GET", "/api/preflight/state",
+                        headers={"X-Api-Key": key_a}).json()
+        assert state["printer"]["state"] == "none" and state["printers"] == []
+        assert "compute-only node of farm 'test'" in state["printer"]["message"]
         status = a.cli("status")
         assert status.returncode == 0, status.stderr
         assert "compute-only node of farm 'test'" in status.stdout

@@ -93,7 +93,7 @@ function render(state) {
 }
 
 const STATE_TEXT = { connected: "Ready", printing: "Printing", paused: "Paused", connecting: "Connecting…",
-                     waiting: "Not connected", disconnected: "Not connected" };
+                     waiting: "Not connected", disconnected: "Not connected", none: "No printer" };
 
 function renderPrinter(p) {
   $("printer-state").textContent = (STATE_TEXT[p.state] || p.state || "unknown")
