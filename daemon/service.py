@@ -244,7 +244,7 @@ class Daemon:
             "spool": str(self.cfg.spool.path),
             "state_dir": str(self.cfg.daemon.state_dir),
             "auto_print": self.cfg.daemon.auto_print,
-            "printer": self.printer.status(),
+            "printer": self.printer.status() if self.printers.links else None,
             "printers": self.printers.status(),
             "jobs": self.journal.counts(),
             "waiting_files": self.watcher.pending() + self.pinned.pending(),
@@ -256,9 +256,12 @@ class Daemon:
     def status_line(status: dict[str, Any]) -> str:
         printer = status.get("printer") or {}
         jobs = status.get("jobs") or {}
+        farm = status.get("farm") or {}
         active = ", ".join(f"{jobs[k]} {k}" for k in ("queued", "repairing", "slicing", "ready",
                                                       "printing") if jobs.get(k))
-        if printer.get("state") in ("printing", "paused"):
+        if farm.get("compute_only"):
+            doing = f"compute-only node of farm {farm.get('farm')!r} (no printer)"
+        elif printer.get("state") in ("printing", "paused"):
             doing = (f"{printer['state']} job {printer.get('job')} "
                      f"{100 * (printer.get('progress') or 0):.0f}%"
                      + (f" ({printer['message']})" if printer.get("message") else ""))

@@ -51,6 +51,10 @@ LOST_CLAIM = ("the farm gave this job to another printer: this node lost its cla
               "before the print started; nothing was sent to the printer")
 
 
+class NotForFarm(Exception):
+    """A spool file the farm does not take: the local spool refuses it with the reason."""
+
+
 def farm_work_dir(cfg: Any) -> Path:
     return cfg.spool.path / ".preflight" / "farm"
 
@@ -84,6 +88,11 @@ class FarmNode:
     def links(self) -> list[Any]:
         return list(self.daemon.printers.links)
 
+    @property
+    def compute_only(self) -> bool:
+        """A node with no printer: it takes files in and repairs and slices for the farm."""
+        return not self.links()
+
     @staticmethod
     def link_name(link: Any) -> str:
         return link.name
@@ -98,21 +107,31 @@ class FarmNode:
     def intake(self, path: Path) -> bool:
         """Take a spool file for the farm; False leaves it to the local spool (which
         refuses it with the reason: not a model, too big, unsafe...)."""
+        try:
+            self.take(path)
+        except NotForFarm:
+            return False
+        return True
+
+    def take(self, path: Path) -> str | None:
+        """Take a spool file (dropped, or uploaded through the HTTP API) into the outbox:
+        its farm job id; None if it vanished or waits for the artefact store (retried).
+        Raises :class:`NotForFarm` for a file the local spool must refuse with the reason."""
         root = self.cfg.spool.path
         try:
             entry = check_spool_entry(root if path.parent == root else path.parent, path)
         except FileNotFoundError:
-            return True
+            return None
         except UnsafeEntry:
-            return False
+            raise NotForFarm(path.name) from None
         suffix = path.suffix.lower()
         limit = self.cfg.limits.max_file_mb * 1024 * 1024
         if suffix not in ACCEPTED_SUFFIXES or entry.st_size == 0 or entry.st_size > limit:
-            return False
+            raise NotForFarm(path.name)
         try:
             pin = pin_of(self.cfg.spool.path, path)
-        except ValueError:
-            return False  # a bad sidecar: the local spool fails the job with the reason
+        except ValueError:  # a bad sidecar: the local spool fails the job with the reason
+            raise NotForFarm(path.name) from None
         kind = "gcode" if suffix in GCODE_SUFFIXES else "mesh"
         try:
             input_key = self.store.put_input(path)
@@ -122,7 +141,7 @@ class FarmNode:
                     log.warning("farm: cannot store %s in %s (%s); trying again every %g s",
                                 path.name, self.store.root, e.strerror or e, RETRY_INTAKE)
                 self._retry.add(path)
-            return True
+            return None
         with self._lock:
             self._retry.discard(path)
         fields = {"name": sanitise_name(path.name), "source_name": path.name, "kind": kind,
@@ -141,10 +160,10 @@ class FarmNode:
         try:
             self.ledger.add_outbox(fid, fields, while_recording=take)
         except FileNotFoundError:
-            return True
+            return None
         log.info("farm: took %s as farm job %s%s", path.name, fid,
                  f" (pinned to {pin:g} mm)" if pin else "")
-        return True
+        return fid
 
     # -- the loop -------------------------------------------------------------------------
     def start(self) -> None:
@@ -188,6 +207,8 @@ class FarmNode:
                 self._round()
                 if self.broker_up is False:
                     log.warning("farm: the broker is back")
+                if self.broker_up is None:
+                    self._check_persistence()
                 self.broker_up = True
             except redis.RedisError as e:
                 if self.broker_up is not False:
@@ -223,6 +244,14 @@ class FarmNode:
         self._dispatch()
         if self._due("heartbeat", HEARTBEAT_SECONDS):
             self.queue.heartbeat(self.node, self.status(), ttl=5 * HEARTBEAT_SECONDS)
+
+    def _check_persistence(self) -> None:
+        """Once, when the broker first answers: warn if it would lose the queue on a
+        restart (published jobs would vanish from it; see docs/farm.md)."""
+        if self.queue.appendonly() == "no":
+            log.warning("farm: the broker (Redis) runs with appendonly no: a restart of "
+                        "Redis loses the farm's queue and claims; set appendonly yes in "
+                        "its redis.conf")
 
     def _extents(self, fid: str, input_key: str) -> list[float] | None:
         """The model's size, measured once (publishing may be retried through an outage)."""
@@ -435,6 +464,7 @@ class FarmNode:
                 "job": claim["fid"] if claim else preparing.get(name),
                 "job_state": str(claim["state"]) if claim else (
                     "preparing" if name in preparing else None)})
-        return {"node": self.node, "pid": os.getpid(), "compute": self.cfg.farm.compute,
+        return {"node": self.node, "farm": self.cfg.farm.name, "pid": os.getpid(),
+                "compute": self.cfg.farm.compute, "compute_only": self.compute_only,
                 "printers": printers, "outbox": self.ledger.outbox_counts(),
                 "broker_up": self.broker_up, "heartbeat": time.time()}

@@ -220,6 +220,15 @@ class FarmQueue:
         values = self.redis.mget([self.key("node", n) for n in names]) if names else []
         return {n: (json.loads(v) if v else None) for n, v in zip(names, values, strict=True)}
 
+    def appendonly(self) -> str | None:
+        """The broker's ``appendonly`` setting ("yes" or "no"), None when it does not say
+        (CONFIG renamed or refused, as on some managed Redis services)."""
+        try:
+            value = self.redis.config_get("appendonly").get("appendonly")
+        except redis.ResponseError:
+            return None
+        return str(value) if value is not None else None
+
     def depth(self) -> dict[str, int]:
         pipe = self.redis.pipeline(transaction=False)
         pipe.llen(self.key("queue"))

@@ -24,11 +24,11 @@ async def server_info(request: web.Request) -> web.Response:
 
 async def upload(request: web.Request) -> web.Response:
     backend = request.app[BACKEND]
-    up, job_id, name = await accept(request, backend, "print", check_fields=_gcodes_root)
+    up, taken, name = await accept(request, backend, "print", check_fields=_gcodes_root)
     print_requested = up.flag("print")
     return web.json_response({"result": {
         "item": {"path": name, "root": "gcodes"}, "print_started": print_requested,
-        "print_queued": False, "action": "create_file", "preflight": {"job": job_id}}},
+        "print_queued": False, "action": "create_file", "preflight": taken}},
         status=201)
 
 

@@ -122,7 +122,7 @@ async def printer_command(request: web.Request) -> web.Response:
 
 async def upload(request: web.Request) -> web.Response:
     backend = request.app[BACKEND]
-    up, job_id, name = await accept(request, backend, "print")
+    up, taken, name = await accept(request, backend, "print")
     base = f"{request.scheme}://{request.host}"
     resource = f"{base}/api/files/local/{quote(name)}"
     effective_print = up.flag("print")
@@ -133,7 +133,7 @@ async def upload(request: web.Request) -> web.Response:
                                      "download": f"{base}/downloads/files/local/{quote(name)}"}}},
         "effectivePrint": effective_print,
         "effectiveSelect": up.flag("select") or effective_print,
-        "preflight": {"job": job_id},
+        "preflight": taken,
     }, status=201, headers={"Location": resource})
 
 

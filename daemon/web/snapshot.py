@@ -26,6 +26,8 @@ def printer_view(backend: Any, link: Any = None) -> dict[str, Any]:
     """A printer link's status (``link``; default the first printer) with what is known
     of the printer (firmware, nozzle, build volume) and its temperatures: the live ones
     when the link reports them, else those read at connection."""
+    if link is None and not backend.printers.links:
+        return no_printer_view(backend)
     link = link or backend.printer
     st = link.status() or {}
     info = st.get("info") or link.last_info() or {}
@@ -36,6 +38,20 @@ def printer_view(backend: Any, link: Any = None) -> dict[str, Any]:
     live = st.get("temperatures")
     view["temperatures"] = temperatures(live if live else info.get("temperatures"))
     view["temperatures_live"] = bool(live)
+    return view
+
+
+def no_printer_view(backend: Any) -> dict[str, Any]:
+    """The printer part of the page on a node without a printer (a compute-only node of
+    a farm): what the node does instead."""
+    view: dict[str, Any] = {k: None for k in PRINTER_FIELDS}
+    view.update(name=None, state="none", firmware=None, machine=None, nozzle=None,
+                nozzle_source=None, build_volume=None, port=None, temperatures={},
+                temperatures_live=False)
+    farm = backend.cfg.farm
+    if farm.broker:
+        view["message"] = (f"compute-only node of farm {farm.name!r}: files to print go to "
+                           "the farm's queue")
     return view
 
 

@@ -7,6 +7,11 @@ the file is linked under its real name in the spool (``link`` never replaces an
 existing file) and handed to :meth:`daemon.pipeline.Spool.intake` (with the print choice), which
 moves it into a work folder inside the journal transaction that records the job.
 Repair, slicing and the G-code policy run later, as for a spool drop.
+
+In farm mode an upload that is to print goes where a spool drop goes: the farm's
+outbox (:meth:`daemon.farm.node.FarmNode.take`), then a free printer of the farm that
+fits it. One that is not to print stays a job of this node, waiting for the user's
+"print"; a compute-only node refuses it (it has no printer to keep it for).
 """
 
 from __future__ import annotations
@@ -244,9 +249,13 @@ async def _stream_to_disk(part: BodyPartReader, spool: Path, limit: SizeLimit,
         os.close(fd)
 
 
-def take_in(spool_obj: Any, up: Upload, print_requested: bool) -> int:
-    """Give the received file its name in the spool and take it in as a job (blocking:
-    run it in an executor). Returns the job id; refusals become :class:`Refused`."""
+def take_in(spool_obj: Any, up: Upload, print_requested: bool, farm: Any = None
+            ) -> dict[str, Any]:
+    """Give the received file its name in the spool and take it in (blocking: run it in
+    an executor): as a job of this node, or, in farm mode with ``print_requested``,
+    for the farm's queue exactly as a file dropped into the spool is. Returns what the
+    answer's ``preflight`` object says (``job``, or ``farm`` and ``farm_job``);
+    refusals become :class:`Refused`."""
     assert up.temp is not None and up.name is not None
     final = spool_obj.root / up.name
     try:
@@ -256,36 +265,73 @@ def take_in(spool_obj: Any, up: Upload, print_requested: bool) -> int:
                            "spool; upload under another name") from None
     finally:
         up.discard()
+    if farm is not None and print_requested:
+        taken = _take_for_farm(farm, final)
+        if taken is not None:
+            return taken
     job_id = spool_obj.intake(final, print_requested)
     if job_id is None:  # someone moved the file away between the link and the intake
         raise Refused(500, f"{up.name} vanished from the spool before it was taken in")
     job = spool_obj.journal.get(job_id)
     if job is not None and job.kind == "refused":
         raise Refused(400, job.reason or "refused")
-    return job_id
+    return {"job": job_id}
+
+
+def _take_for_farm(farm: Any, path: Path) -> dict[str, Any] | None:
+    """The farm's outbox takes the file (None: the local spool refuses it with the
+    reason); it prints on the first free printer of the farm that fits it."""
+    from daemon.farm.node import NotForFarm
+
+    try:
+        fid = farm.take(path)
+    except NotForFarm:
+        return None
+    if fid is None and not path.exists():
+        raise Refused(500, f"{path.name} vanished from the spool before it was taken in")
+    where = f"farm {farm.cfg.farm.name!r}"
+    return {"farm": farm.cfg.farm.name, "farm_job": fid, "message": (
+        f"sent to the queue of {where}: it prints on the first free printer that fits it"
+        if fid else f"the shared artefact store of {where} is unreachable: the file waits "
+                    "in this node's spool and goes to the farm's queue when it is back")}
+
+
+def check_compute_only(backend: Any, print_requested: bool) -> None:
+    """A compute-only farm node has no printer to keep a file for: an upload that is not
+    to print now is refused (one that is goes to the farm's queue)."""
+    farm = getattr(backend, "farm", None)
+    if farm is not None and not print_requested and farm.compute_only:
+        raise Refused(409, f"refused: this is a compute-only node of farm "
+                           f"{backend.cfg.farm.name!r}, with no printer to keep the file for; "
+                           "upload it with \"print after upload\" to send it to the farm's "
+                           "queue")
 
 
 async def accept(request: web.Request, backend: Any, print_requested_field: str = "print", *,
                  check_fields: Callable[[dict[str, str]], None] | None = None
-                 ) -> tuple[Upload, int, str]:
-    """Receive an upload and take it in. Returns (upload, job id, job name).
-    ``check_fields`` may refuse the form's fields before the job is recorded."""
+                 ) -> tuple[Upload, dict[str, Any], str]:
+    """Receive an upload and take it in. Returns (upload, what the answer's ``preflight``
+    object says, the job's name). ``check_fields`` may refuse the form's fields before
+    the job is recorded."""
     cfg = backend.cfg
     up = await receive(request, cfg.spool.path, size_limit(cfg), printing_name(backend.journal))
+    print_requested = up.flag(print_requested_field)
     try:
         check_folder(up.fields.get("path", ""))
         if check_fields is not None:
             check_fields(up.fields)
+        check_compute_only(backend, print_requested)
     except Refused:
         up.discard()
         raise
     loop = asyncio.get_running_loop()
-    job_id = await loop.run_in_executor(None, take_in, backend.spool, up,
-                                        up.flag(print_requested_field))
-    job = backend.journal.get(job_id)
-    log.info("job %d: uploaded %s (%d bytes) by %s", job_id, up.name, up.size,
-             request.remote)
-    return up, job_id, job.name if job else sanitise_name(up.name or "")
+    taken = await loop.run_in_executor(None, take_in, backend.spool, up, print_requested,
+                                       getattr(backend, "farm", None))
+    job = backend.journal.get(taken["job"]) if "job" in taken else None
+    log.info("%s: uploaded %s (%d bytes) by %s",
+             f"job {taken['job']}" if job else f"farm job {taken.get('farm_job')}", up.name,
+             up.size, request.remote)
+    return up, taken, job.name if job else sanitise_name(up.name or "")
 
 
 def remove_stale_temps(spool: Path) -> int:

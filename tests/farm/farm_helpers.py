@@ -67,17 +67,17 @@ class RedisServer:
 def farm_config(folder: Path, *, node: str, broker: str, artefacts: Path,
                 printers: list[dict] | None, compute: bool = True,
                 claim_timeout: float = 60.0, task_timeout: float = 900.0,
-                speedup: float = 5000.0) -> Path:
+                speedup: float = 5000.0, listen: str = "") -> Path:
     """A farm node's config in ``folder``: ``printers`` is a list of
     ``{"name", "nozzle"[, "volume"]}`` (virtual printers, each logging to ``folder/<name>.log``),
-    None for a compute-only node."""
+    None for a compute-only node; ``listen``: its HTTP API's host:port ("" none)."""
     folder.mkdir(parents=True, exist_ok=True)
     config: dict = {
         "spool": {"path": str(folder / "spool"), "settle_seconds": 0.5,
                   "close_grace_seconds": 0.1},
         "daemon": {"state_dir": str(folder / "state"), "log_level": "DEBUG"},
         "limits": {"repair_timeout": 120, "slice_timeout": 120},
-        "web": {"listen": ""},
+        "web": {"listen": listen},
         "profile": FAST_PROFILE,
         "farm": {"broker": broker, "name": "test", "node": node, "compute": compute,
                  "artefacts": str(artefacts), "claim_timeout": claim_timeout,

@@ -70,3 +70,10 @@ def test_an_expired_lease_goes_back_and_cannot_start_printing(redis_server):
     # an explicit requeue on the printer that was interrupted may print it again
     assert not q.start_print("x", "n1", "p")
     assert q.start_print("x", "n2", "p") and q.job("x")["prints"] == "2"
+
+
+def test_the_brokers_appendonly_setting_is_read(redis_server):
+    q = _queue(redis_server)
+    assert q.appendonly() == "yes"  # the fixture runs Redis as a farm's broker should
+    q.redis.config_set("appendonly", "no")
+    assert q.appendonly() == "no"

@@ -93,7 +93,7 @@ function render(state) {
 }
 
 const STATE_TEXT = { connected: "Ready", printing: "Printing", paused: "Paused", connecting: "Connecting…",
-                     waiting: "Not connected", disconnected: "Not connected" };
+                     waiting: "Not connected", disconnected: "Not connected", none: "No printer" };
 
 function renderPrinter(p) {
   $("printer-state").textContent = (STATE_TEXT[p.state] || p.state || "unknown")
@@ -222,7 +222,9 @@ function upload(file) {
     let body = {};
     try { body = JSON.parse(xhr.responseText); } catch { /* not JSON */ }
     answer.classList.toggle("bad", xhr.status !== 201);
-    if (xhr.status === 201) answer.textContent = `${file.name} is job ${body.preflight && body.preflight.job}` + (print === "true" ? ": it prints when ready." : ": it waits at ready.");
+    const farm = body.preflight && body.preflight.farm;
+    if (xhr.status === 201 && farm) answer.textContent = `${file.name}: ${body.preflight.message}.`;
+    else if (xhr.status === 201) answer.textContent = `${file.name} is job ${body.preflight && body.preflight.job}` + (print === "true" ? ": it prints when ready." : ": it waits at ready.");
     else answer.textContent = body.error || `upload failed: HTTP ${xhr.status}`;
     if (xhr.status === 401) askKey("The key was refused: paste the current one.");
   };
