@@ -23,7 +23,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def farm_status(cfg: Any) -> dict[str, Any]:
     """The farm as its broker sees it (raises redis.RedisError if it is unreachable)."""
-    from daemon.farm.queue import FarmQueue
+    from daemon.farm.queue import FarmQueue, shown_broker
     from daemon.farm.tasks import compute_queue
 
     queue = FarmQueue(cfg.farm.broker, cfg.farm.name)
@@ -37,7 +37,7 @@ def farm_status(cfg: Any) -> dict[str, Any]:
     for fid, job in queue.all_jobs().items():
         states[job.get("state", "?")] = states.get(job.get("state", "?"), 0) + 1
         names[fid] = job.get("name", "?")
-    return {"farm": cfg.farm.name, "broker": cfg.farm.broker, "nodes": nodes,
+    return {"farm": cfg.farm.name, "broker": shown_broker(cfg.farm.broker), "nodes": nodes,
             "queue": depth, "jobs": states, "job_names": names}
 
 
@@ -70,6 +70,7 @@ def cmd_farm_status(args: argparse.Namespace) -> int:
     import redis
 
     from daemon.config import ConfigError
+    from daemon.farm.queue import shown_broker
 
     try:
         cfg = _load(args)
@@ -80,7 +81,7 @@ def cmd_farm_status(args: argparse.Namespace) -> int:
     try:
         status = farm_status(cfg)
     except redis.RedisError as e:
-        return fail(f"cannot reach the farm's broker {cfg.farm.broker}: {e}")
+        return fail(f"cannot reach the farm's broker {shown_broker(cfg.farm.broker)}: {e}")
     if args.json:
         print(json.dumps(status, indent=2))
     else:

@@ -113,6 +113,22 @@ return 1
 """
 
 
+def shown_broker(url: str) -> str:
+    """The broker URL as it may be printed or logged: a password in it becomes ``***``."""
+    from urllib.parse import urlsplit, urlunsplit
+
+    try:
+        parts = urlsplit(url)
+        if parts.password is None:
+            return url
+        user = parts.username or ""
+        host = parts.hostname or ""
+        port = f":{parts.port}" if parts.port else ""
+        return urlunsplit(parts._replace(netloc=f"{user}:***@{host}{port}"))
+    except ValueError:
+        return "<broker URL not shown>"
+
+
 class FarmQueue:
     """The farm's Redis keys, for one farm ``name``; every method may raise
     ``redis.RedisError`` (the broker is down): callers retry later."""

@@ -48,3 +48,13 @@ def test_farm_status_without_a_farm_or_a_broker(tmp_path):
     assert result.returncode == 1
     assert result.stderr.startswith("preflight: cannot reach the farm's broker")
     assert len(result.stderr.strip().splitlines()) == 1
+
+
+def test_farm_status_never_prints_the_brokers_password(tmp_path):
+    port = free_port()  # nothing listens there: the error names the broker
+    path = _config(tmp_path, {"broker": f"redis://farm:s3cret@127.0.0.1:{port}/0",
+                              "artefacts": str(tmp_path / "a")})
+    result = _run("farm", "status", "--config", str(path))
+    assert result.returncode == 1
+    assert f"redis://farm:***@127.0.0.1:{port}/0" in result.stderr
+    assert "s3cret" not in result.stderr + result.stdout
