@@ -93,10 +93,15 @@ def _run_batch(tmp, redis_server, count: int) -> None:
         assert len(prepared) <= 2 * len(inputs) < meshes
         printers = {e["printer"] for e in jobs.values()}
         assert {"a04", "a06", "b04", "b06"} <= printers  # the work was shared
+        # Nodes post their status with each heartbeat, so the last job's end shows
+        # within a heartbeat or two; a printer stuck "preparing" would never go idle.
+        idle = "printer a06: nozzle 0.6 mm, connected, idle"
+        a.wait_for(lambda: idle in a.cli("farm", "status").stdout,
+                   what="a06 idle in farm status", timeout=60, poll=1.0)
         status = a.cli("farm", "status")
         assert status.returncode == 0, status.stderr
         assert f"{count} done" in status.stdout and "node c: up (compute" in status.stdout
-        assert "printer a06: nozzle 0.6 mm, connected, idle" in status.stdout
+        assert idle in status.stdout
         assert "0 waiting for a printer, 0 claimed" in status.stdout
     finally:
         for node in nodes:
