@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from repair.errors import RepairError
-from repair.workers import die_with_parent
+from repair.workers import die_with_parent, write_arrays
 
 __all__ = ["Meshed", "run_within_budget"]
 
@@ -73,10 +73,7 @@ def _child(exact: Callable[[], Meshed], w: int) -> None:
             kind = type(e).__name__ if isinstance(e, RepairError | MemoryError) else "other"
             message = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
             payload = {"error": _text(json.dumps({"kind": kind, "message": message}))}
-        buf = io.BytesIO()
-        np.savez(buf, **payload)
-        with os.fdopen(w, "wb") as pipe:
-            pipe.write(buf.getvalue())
+        write_arrays(w, payload)
         code = 0
     finally:
         os._exit(code)

@@ -67,14 +67,11 @@ def map_forked(
             try:
                 die_with_parent()
                 os.close(r)
-                buf = io.BytesIO()
                 arrays = {}
                 for j in share:
                     for k, a in enumerate(fn(jobs[j])):
                         arrays[f"{j}_{k}"] = np.asarray(a)
-                np.savez(buf, **arrays)
-                with os.fdopen(w, "wb") as pipe:
-                    pipe.write(buf.getvalue())
+                write_arrays(w, arrays)
                 code = 0
             finally:
                 os._exit(code)
@@ -98,6 +95,16 @@ def map_forked(
         for j in share:
             out[j] = got[j] if got is not None else tuple(fn(jobs[j]))
     return [o if o is not None else tuple(fn(jobs[i])) for i, o in enumerate(out)]
+
+
+def write_arrays(fd: int, arrays: dict[str, np.ndarray]) -> None:
+    """Write ``arrays`` as one ``.npz`` archive to the pipe ``fd`` and close it: a forked
+    child's whole answer, in one write after everything is computed, so a parent that
+    reads a cut-off archive (the child died) finds it does not load."""
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    with os.fdopen(fd, "wb") as pipe:
+        pipe.write(buf.getvalue())
 
 
 def _reap(pid: int) -> None:
