@@ -47,13 +47,6 @@ class SupportLayer:
         return self.base + self.interface
 
 
-def _union(parts: list[CrossSection]) -> CrossSection:
-    parts = [p for p in parts if not p.is_empty()]
-    if not parts:
-        return CrossSection()
-    return parts[0] if len(parts) == 1 else CrossSection.batch_boolean(parts, OpType.Add)
-
-
 def bead_area_of(paths: list[Path]) -> CrossSection:
     """The area covered by the beads of ``paths`` (segments as rectangles, joints and ends
     as octagons around the points, of the path's width)."""
@@ -90,42 +83,89 @@ def support_regions(sections: list[CrossSection], heights: np.ndarray, profile: 
     need = overhangs(sections, heights, p.support_angle, s, min_area)
     if all(o.is_empty() for o in need):
         return None
+    tol = support_tolerance(p)
     # grow each overhang by half a line so the support reaches under its edge beads
-    need = [o if o.is_empty() else o.offset(p.line_width / 2, MITER) for o in need]
+    need = [o if o.is_empty() else o.offset(p.line_width / 2, MITER).simplify(tol)
+            for o in need]
+    regions = _columns(sections, need, p, widths, printed)
+    if p.support == "buildplate":
+        below = CrossSection()
+        for i in range(len(sections)):
+            if not below.is_empty() and not regions[i].is_empty():
+                regions[i] = _opened(regions[i] - below, widths[i] / 4)
+            below = below + sections[i]
+    k = max(p.support_interface_layers, 0)
+    # the columns of layer i can reach into the part above (the interface) only with
+    # overhangs of layers i + 2 .. i + k + 2, added to them less than k + 1 layers up: the
+    # older ones had the part's layers i + 2 .. i + k + 1 cut out on their way down
+    fresh = np.convolve([not o.is_empty() for o in need], np.ones(k + 1), "full")[k:]
+    out = [_with_interface(r, sections[i + 2:i + 2 + k] if i + 2 < n and fresh[i + 2] else [])
+           for i, r in enumerate(regions)]
+    if all(layer.is_empty() for layer in out):
+        return None
+    return out
+
+
+def support_tolerance(profile: Profile) -> float:
+    """How far (mm) the support columns' outlines may stray from the overhangs they hold up
+    when simplified: an eighth of a line, well inside the half line they are grown by; their
+    edges along the part (the XY gap) are not simplified."""
+    return max(profile.resolution, profile.line_width / 8)
+
+
+def _columns(sections: list[CrossSection], need: list[CrossSection], p: Profile,
+             widths: list[float], printed: list[CrossSection] | None) -> list[CrossSection]:
+    """Per layer, the support columns (before the interface split): the overhangs carried
+    down, top to bottom, clear of the part by the XY gap and of the part below by the Z gap.
+    Slivers are left in: support_paths' outline, half a bead in, drops whatever is narrower
+    than a bead, so opening the region here (as before) changed no path."""
+    n = len(sections)
+    tol = support_tolerance(p)
     regions: list[CrossSection] = [CrossSection()] * n
     carried = CrossSection()
     for i in range(n - 1, -1, -1):
         if i + 2 < n and not need[i + 2].is_empty():
-            carried = carried + need[i + 2]
+            carried = (carried + need[i + 2]).simplify(tol)
         if carried.is_empty():
             continue
-        carried = carried - sections[i]  # the column stands on the part here
+        box = carried.bounds()
+        if _overlap(box, sections[i].bounds(), 0.0):
+            carried = carried - sections[i]  # the column stands on the part here
+            if carried.is_empty():
+                continue
         part = sections[i]
         if printed is not None and not printed[i].is_empty():
             part = part + printed[i]
-        region = carried - part.offset(p.support_xy_gap, MITER)
-        if i > 0:
-            region = region - sections[i - 1]  # Z gap above the part's top
-        regions[i] = _opened(region, widths[i] / 4)
-    if p.support == "buildplate":
-        below = CrossSection()
-        for i in range(n):
-            if not below.is_empty() and not regions[i].is_empty():
-                regions[i] = _opened(regions[i] - below, widths[i] / 4)
-            below = below + sections[i]
-    out: list[SupportLayer] = []
-    k = p.support_interface_layers
-    for i in range(n):
-        r = regions[i]
-        if r.is_empty() or k <= 0:
-            out.append(SupportLayer(r, CrossSection()))
-            continue
-        roof = _union(sections[i + 2:i + 2 + k])
-        iface = r ^ roof if not roof.is_empty() else CrossSection()
-        out.append(SupportLayer(r - iface if not iface.is_empty() else r, iface))
-    if all(layer.is_empty() for layer in out):
-        return None
-    return out
+        cut = [c for c, grow in ((part, p.support_xy_gap),
+                                 (sections[i - 1] if i > 0 else CrossSection(), 0.0))
+               if not c.is_empty() and _overlap(box, c.bounds(), grow)]
+        if cut and cut[0] is part:
+            cut[0] = part.offset(p.support_xy_gap, MITER)
+        region = CrossSection.batch_boolean([carried, *cut], OpType.Subtract) if cut \
+            else carried
+        regions[i] = region
+    return regions
+
+
+def _overlap(a: tuple, b: tuple, grow: float) -> bool:
+    """Whether bounding boxes ``a`` and ``b`` (x0, y0, x1, y1), ``b`` grown by ``grow``, meet."""
+    return not (b[0] - grow > a[2] or b[2] + grow < a[0] or b[1] - grow > a[3]
+                or b[3] + grow < a[1])
+
+
+def _with_interface(region: CrossSection, roof: list[CrossSection]) -> SupportLayer:
+    """Split a layer's support into base and interface: the interface is the part of it
+    under the part's next layers above the Z gap (``roof``: those layers' sections)."""
+    if region.is_empty() or not roof:
+        return SupportLayer(region, CrossSection())
+    box = region.bounds()
+    roof = [r for r in roof if not r.is_empty() and _overlap(box, r.bounds(), 0.0)]
+    if not roof:
+        return SupportLayer(region, CrossSection())
+    base = CrossSection.batch_boolean([region, *roof], OpType.Subtract)
+    if base.area() >= region.area() - 1e-9:
+        return SupportLayer(region, CrossSection())
+    return SupportLayer(base, region - base)
 
 
 def _opened(region: CrossSection, r: float) -> CrossSection:
