@@ -35,10 +35,12 @@ BASE_ANGLE = 0.0  # base lines along x; interface lines along y
 
 @dataclass(slots=True)
 class SupportLayer:
-    """One layer's support: base region and interface (dense) region, disjoint."""
+    """One layer's support: base region and interface (dense) region, disjoint.
+    ``sheath``: the base gets an outline loop too (the first layer, for its grip on the bed)."""
 
     base: CrossSection
     interface: CrossSection
+    sheath: bool = False
 
     def is_empty(self) -> bool:
         return self.base.is_empty() and self.interface.is_empty()
@@ -103,6 +105,7 @@ def support_regions(sections: list[CrossSection], heights: np.ndarray, profile: 
            for i, r in enumerate(regions)]
     if all(layer.is_empty() for layer in out):
         return None
+    out[0].sheath = True
     return out
 
 
@@ -189,13 +192,15 @@ def support_paths(layer: SupportLayer, profile: Profile, width: float, height: f
              BASE_ANGLE + 90.0)):
         if region.is_empty():
             continue
+        outline = layer.sheath or role == "support_interface"
         key = None
         if cache is not None:
-            key = (role, width, height, hash(shape_key(region)))
+            key = (role, outline, width, height, hash(shape_key(region)))
             if key in cache:
                 out.extend(cache[key])
                 continue
-        paths = _region_paths(region, role, spacing, angle, width, s, profile.resolution)
+        paths = _region_paths(region, role, spacing, angle, width, s, profile.resolution,
+                              outline)
         if key is not None:
             if len(cache) > 64:
                 cache.clear()
@@ -205,17 +210,30 @@ def support_paths(layer: SupportLayer, profile: Profile, width: float, height: f
 
 
 def _region_paths(region: CrossSection, role: str, spacing: float, angle: float,
-                  width: float, s: float, resolution: float) -> list[Path]:
-    ring = region.offset(-s / 2, MITER).simplify(resolution)
+                  width: float, s: float, resolution: float, outline: bool) -> list[Path]:
+    """Lines across ``region`` (joined where they can be) and, with ``outline``, a loop
+    around it: every bead stays inside ``region``. Without ``outline``, an island too
+    small for any line gets its loop instead, so that no column is left out."""
+    ring = region.offset(-s / 2, MITER).simplify(resolution)  # where bead centres may go
     if ring.is_empty():
         return []
-    out = [Path(q, True, width, role) for q in contours(ring)]
+    step = max(spacing, s)
+    if not outline:
+        out: list[Path] = []
+        for island in (ring.decompose() if ring.num_contour() > 1 else [ring]):
+            edge = contours(island)
+            segs = hatch(edge, angle, step, 0.0, s)
+            if len(segs) == 0:
+                out.extend(Path(q, True, width, role) for q in edge)
+            out.extend(Path(line, False, width, role) for line in zigzag(segs, edge, step))
+        return out
+    edge = contours(ring)
+    out = [Path(q, True, width, role) for q in edge]
     core = ring.offset(-s / 2, MITER)  # lines end on the outline's inner edge
     if core.is_empty():
         return out
-    segs = hatch(contours(core), angle, max(spacing, s), 0.0, s)
-    out.extend(Path(line, False, width, role)
-               for line in zigzag(segs, contours(ring), max(spacing, s)))
+    segs = hatch(contours(core), angle, step, 0.0, s)
+    out.extend(Path(line, False, width, role) for line in zigzag(segs, edge, step))
     return out
 
 

@@ -54,6 +54,15 @@ def arch():
     return mesh_of(block - hole)
 
 
+def comb():
+    """A 10 × 20 × 10 mm block with five fins 1.6 mm wide and 8 mm long sticking out of its
+    top, 4 mm apart: narrow overhangs, at every offset from the support lines across them."""
+    block = Manifold.cube([10, 20, 10])
+    for j in range(5):
+        block = block + Manifold.cube([8, 1.6, 2]).translate([10, 4 * j, 8])
+    return mesh_of(block)
+
+
 def ramp(angle: float, height: float = 10.0):
     """A 20 mm wide block whose front face leans out at ``angle`` degrees from vertical."""
     run = height * math.tan(math.radians(angle))
@@ -171,3 +180,27 @@ def support_clearance(rep: Replay, filament_diameter: float) -> float:
         gap = dist - half[p_own[j]] - half[s_own][:, None]
         best = min(best, float(gap.min()))
     return best
+
+
+def floating_support_share(rep: Replay, reach: float) -> float:
+    """Share of the support extrusion above the first layer (length) with nothing extruded
+    on the layer below within ``reach`` mm of it: a column left out under support above
+    it. Base lines stack on the base lines below; interface lines cross them, so ``reach``
+    is half the base line spacing and a bead."""
+    support = rep.extruding & rep.labelled(*SUPPORT)
+    layers = rep.layers()
+    zs = sorted(layers)
+    bad = total = 0.0
+    for k in range(1, len(zs)):
+        idx = layers[zs[k]]
+        idx = idx[support[idx]]
+        if len(idx) == 0:
+            continue
+        pts, owner = _samples(rep, idx)
+        below, _ = _samples(rep, layers[zs[k - 1]])
+        dist, _ = cKDTree(below).query(pts, distance_upper_bound=reach)
+        weight = 1.0 / np.bincount(owner, minlength=len(rep.de))[owner]
+        seglen = np.hypot(*(rep.end[owner, :2] - rep.start[owner, :2]).T)
+        bad += float((seglen * weight)[~np.isfinite(dist)].sum())
+        total += float((seglen * weight).sum())
+    return bad / total if total else 0.0

@@ -11,11 +11,13 @@ import math
 import numpy as np
 import pytest
 from gcode_replay import NOT_PART, SUPPORT, replay
-from manifold3d import CrossSection, Manifold
+from manifold3d import CrossSection, JoinType, Manifold
 from slice_checks import bridge_part, cube, mesh_of, placed
 from support_checks import (
     BUNNY,
     arch,
+    comb,
+    floating_support_share,
     inside,
     mushroom,
     ramp,
@@ -26,7 +28,9 @@ from support_checks import (
 )
 
 from slicer.engine import slice_mesh
+from slicer.geometry import bead_spacing, contours, layer_tops
 from slicer.profile import Profile
+from slicer.support import support_paths, support_regions
 
 BASE = Profile.for_printer(nozzle_diameter=0.4, build_volume=(200, 200, 180))
 LABELS = {"External perimeter", "Perimeter", "Internal infill", "Solid infill",
@@ -48,7 +52,7 @@ def _slice(name, model, **over):
 
 OVERHANGS = {"mushroom": mushroom, "t_bracket": t_bracket, "arch": arch,
              "ramp_45": lambda: ramp(45.0), "ramp_60": lambda: ramp(60.0),
-             "ramp_75": lambda: ramp(75.0)}
+             "ramp_75": lambda: ramp(75.0), "comb": comb}
 NEED_SUPPORT = ("mushroom", "t_bracket", "ramp_75")
 
 
@@ -61,6 +65,41 @@ def test_auto_support_holds_up_the_part_without_fusing_to_it(name):
     if result.summary["support_cm3"] > 0:
         gap = support_clearance(rep, profile.filament_diameter)
         assert gap >= profile.support_xy_gap - 0.03, f"support {gap:.3f} mm from the part"
+
+
+@pytest.mark.parametrize("name", (*NEED_SUPPORT, "comb"))
+def test_support_columns_stand_on_what_is_below_them(name):
+    """Base lines (no outline loop but on the first layer) stack on the base lines below and
+    the interface crosses them: no support bead hangs over nothing."""
+    _, profile, _, rep = _slice(name, OVERHANGS[name], support="auto")
+    reach = profile.support_spacing / 2 + profile.line_width
+    assert floating_support_share(rep, reach) <= 0.005
+
+
+@pytest.mark.parametrize("name", (*NEED_SUPPORT, "comb"))
+def test_every_support_island_wide_enough_for_a_bead_gets_one(name):
+    """Base support is lines without an outline: an island narrower than the line spacing,
+    which no line crosses, still gets its loop, so no column is left out."""
+    profile = BASE
+    solid = placed(*OVERHANGS[name](), profile.build_volume)
+    lo, hi = solid.bounding_box()[2], solid.bounding_box()[5]
+    tops = layer_tops(hi - lo, profile.first_layer_height, profile.layer_height)
+    heights = np.diff(tops, prepend=0.0)
+    sections = [solid.slice(float(z)).simplify(profile.resolution) for z in tops - heights / 2]
+    widths = [profile.first_layer_line_width] + [profile.line_width] * (len(tops) - 1)
+    layers = support_regions(sections, heights, profile, widths)
+    assert layers is not None
+    islands = 0
+    for i, layer in enumerate(layers):
+        s = bead_spacing(widths[i], float(heights[i]))
+        pts = [p.points for p in support_paths(layer, profile, widths[i], float(heights[i]))]
+        for island in layer.area().offset(-s / 2, JoinType.Miter).decompose():
+            if island.is_empty():
+                continue
+            islands += 1
+            assert pts and inside(contours(island.offset(s / 4, JoinType.Miter)),
+                                  np.concatenate(pts)).any(), f"an island on layer {i} is bare"
+    assert islands > 0
 
 
 @pytest.mark.parametrize("name", NEED_SUPPORT)
