@@ -11,8 +11,10 @@ Units mm. Built top-down, one layer at a time, with manifold3d booleans on cross
 - ``buildplate`` keeps only columns with no part anywhere below them;
 - the ``support_interface_layers`` layers under the part are **interface**: an outline and
   dense lines at ``support_interface_spacing``, across the base lines; the rest is base
-  support: an outline around each island and parallel lines ``support_spacing`` apart,
-  in the same direction on every layer (stacked into thin walls that break off sideways).
+  support: parallel lines ``support_spacing`` apart, in the same direction on every layer
+  (stacked into thin walls that break off sideways), joined into serpentines where they
+  can be, with no outline loop but on the first layer (and around an island too narrow
+  for any line), as PrusaSlicer's support has none on its inner layers.
 
 Support lines get their own role, so G-code has its own speed, flow and ``;TYPE:`` label.
 """

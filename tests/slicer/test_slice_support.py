@@ -234,6 +234,8 @@ def test_rotated_bunny_chin_is_supported():
     share_auto, _ = unsupported_share(auto[3], auto[0], auto[1].line_width)
     assert share_auto <= 0.01 and share_auto <= 0.2 * share_off
     assert support_clearance(auto[3], auto[1].filament_diameter) >= auto[1].support_xy_gap - 0.03
+    reach = auto[1].support_spacing / 2 + auto[1].line_width
+    assert floating_support_share(auto[3], reach) <= 0.005
 
 
 def test_the_job_report_gives_support_volume_and_time():
