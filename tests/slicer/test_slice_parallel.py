@@ -113,3 +113,30 @@ def test_workers_from_a_toml_profile_take_a_number(tmp_path):
     assert load_profile(path, BASE).workers == "2"
     path.write_text('[slicer]\nworkers = "auto"\n')
     assert load_profile(path, BASE).workers == "auto"
+
+
+def test_the_cli_takes_workers_and_refuses_a_bad_count_in_one_line(tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    import trimesh
+
+    v, f = mushroom()
+    stl = tmp_path / "mushroom.stl"
+    trimesh.Trimesh(v, f).export(stl)
+    outs = {}
+    for workers in ("1", "2"):
+        out = tmp_path / f"w{workers}.gcode"
+        res = subprocess.run([sys.executable, "-m", "daemon", "slice", str(stl), "-o", str(out),
+                              "--workers", workers, "--json"],
+                             capture_output=True, text=True, timeout=300)
+        assert res.returncode == 0, res.stderr
+        assert json.loads(res.stdout)["workers"] == int(workers)
+        outs[workers] = out.read_bytes()
+    assert outs["1"] == outs["2"]
+    res = subprocess.run([sys.executable, "-m", "daemon", "slice", str(stl), "-o",
+                          str(tmp_path / "x.gcode"), "--workers", "0"],
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode != 0 and res.stderr.count("\n") == 1 and "workers" in res.stderr
+    assert not (tmp_path / "x.gcode").exists()
