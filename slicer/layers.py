@@ -202,45 +202,52 @@ def _write_share_in_worker(run: LayerRun, begin: int, end: int) -> tuple[list, l
 
 def write_shares(run: LayerRun, shares: list[tuple[int, int]], report: Any) -> Written:
     """All layers' G-code, the first share written by ``run`` here, the others by workers
-    (forked now, so they see the model as it is) and taken over in order."""
+    (forked now, so they see the model as it is) and taken over in order. Where no worker
+    can be forked (no memory, process limit), the parent writes those shares itself."""
     n = len(run.model.tops)
     out = Written()
-    workers = []
+    workers: list[Worker] = []
     try:
         for begin, end in shares[1:]:
-            workers.append(Worker(functools.partial(_write_share_in_worker, run, begin, end),
-                                  f"layers {begin}-{end - 1}"))
+            try:
+                workers.append(Worker(functools.partial(_write_share_in_worker, run, begin,
+                                                        end), f"layers {begin}-{end - 1}"))
+            except OSError:
+                break
         for i in range(*shares[0]):
             out.add(run.layer(i))
             _free_layer(run.model, i)
             report("gcode", 0.5 + i / n * 0.5)
-        for (begin, end), worker in zip(shares[1:], workers, strict=True):
-            codes, states = worker.result()
-            _take_over(run, out, begin, codes, states)
+        for k, (begin, end) in enumerate(shares[1:]):
+            codes, states = workers[k].result() if k < len(workers) else ([], [])
+            _take_over(run, out, begin, end, codes, states)
             report("gcode", 0.5 + end / n * 0.5)
     except WorkerError as exc:
         raise SliceError(str(exc)) from None
     finally:
         for worker in workers:
             worker.stop()
-    out.workers = len(shares)
+    out.workers = 1 + len(workers)
     out.worker_cpu_seconds = sum(w.cpu_seconds for w in workers)
     out.worker_peak_mb = max((w.peak_mb for w in workers), default=0.0)
     return out
 
 
-def _take_over(run: LayerRun, out: Written, begin: int, codes: list, states: list) -> None:
-    """Append a worker's layers: those before the first where the worker's start state
-    equals ours are written again here; from there on its text is ours."""
-    for k in range(len(codes)):
-        if _same(run.state(), states[k]):
+def _take_over(run: LayerRun, out: Written, begin: int, end: int, codes: list,
+               states: list) -> None:
+    """Append layers [begin, end), which a worker wrote as ``codes`` (none: no worker):
+    those before the first where the worker's start state equals ours are written again
+    here; from there on its text is ours."""
+    for i in range(begin, end):
+        k = i - begin
+        if k < len(codes) and _same(run.state(), states[k]):
             for later in codes[k:]:
                 out.add(later)
             run.resume(states[-1])
             break
-        out.add(run.layer(begin + k))
-        out.rewritten += 1
-    for i in range(begin, begin + len(codes)):
+        out.add(run.layer(i))
+        out.rewritten += k < len(codes)
+    for i in range(begin, end):
         _free_layer(run.model, i)
 
 

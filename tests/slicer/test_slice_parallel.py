@@ -140,3 +140,16 @@ def test_the_cli_takes_workers_and_refuses_a_bad_count_in_one_line(tmp_path):
                          capture_output=True, text=True, timeout=300)
     assert res.returncode != 0 and res.stderr.count("\n") == 1 and "workers" in res.stderr
     assert not (tmp_path / "x.gcode").exists()
+
+
+def test_when_no_worker_can_be_forked_the_parent_writes_every_layer(monkeypatch):
+    import slicer.parallel
+
+    one, _ = _gcode(mushroom, "1", support="auto")
+
+    def no_fork() -> int:
+        raise BlockingIOError(11, "Resource temporarily unavailable")
+
+    monkeypatch.setattr(slicer.parallel.os, "fork", no_fork)
+    many, summary = _gcode(mushroom, "3", support="auto")
+    assert summary["workers"] == 1 and many == one
