@@ -246,7 +246,7 @@ def timed_runs(models: dict, tools: list[str], repeat: int, folder: Path
                 done = runs.setdefault((mname, tool), [])
                 if done and "error" in done[0]:
                     continue
-                if tool.startswith("embedded"):
+                if tool in EMBEDDED_TOOLS:
                     done.append(embedded(stl, gcode, EMBEDDED_TOOLS[tool]))
                 else:
                     done.append(external(tool, stl, gcode, {}, summarise=r == 0))
