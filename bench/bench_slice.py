@@ -22,10 +22,14 @@ elapsed time, "cpu s" its user+system CPU (resource.getrusage(RUSAGE_CHILDREN) b
 after; PrusaSlicer's threads are included), "slice s" (embedded only) the CLI's own time
 after its imports. Peak memory is the child's ru_maxrss (from os.wait4: the largest of the
 slicer process and the workers it reaped), so the figures include the interpreter and
-imported libraries; "wkr MB" is the largest worker's own (from the slice's summary). Linux counts the parent's resident memory
-at fork into a child's ru_maxrss, so this parent stays small: mesh generation and G-code
-parsing run in helper children too. Volume accuracy: the sphere sliced at 100 % infill,
-extruded filament volume ÷ mesh volume.
+imported libraries; "wkr MB" is the largest worker's own (from the slice's summary).
+"main cpu" is the CPU of the slicer's main process alone (cpu s less its workers'): on an
+idle machine with a core per process its wall time is about that, since the workers'
+shares are sized to end with the main process's own; on a busy shared machine the wall
+times say little and this is the figure to compare with "emb-1proc"'s cpu. Linux counts
+the parent's resident memory at fork into a child's ru_maxrss, so this parent stays
+small: mesh generation and G-code parsing run in helper children too. Volume accuracy:
+the sphere sliced at 100 % infill, extruded filament volume ÷ mesh volume.
 """
 
 from __future__ import annotations
@@ -158,7 +162,7 @@ def embedded(stl: Path, gcode: Path, overrides: dict) -> dict:
         return {"error": err.strip().splitlines()[-1] if err.strip() else f"exit {code}"}
     summary = json.loads(out)
     return {"slice_s": summary["wall_seconds"], "wall_s": wall, "cpu_s": cpu, "peak_mb": mb,
-            "summary": summary}
+            "main_cpu_s": cpu - summary.get("worker_cpu_seconds", 0.0), "summary": summary}
 
 
 def external(name: str, stl: Path, gcode: Path, overrides: dict, summarise: bool = True
@@ -260,7 +264,8 @@ def _median(runs: list[dict], key: str) -> float:
 
 def print_table(models: dict, tools: list[str], runs: dict) -> None:
     print(f"{'model':12s} {'tris':>7s} {'slicer':9s} {'slice s':>8s} {'wall s':>8s} "
-          f"{'cpu s':>7s} {'peak MB':>8s} {'procs':>5s} {'wkr MB':>6s} {'layers':>6s} "
+          f"{'cpu s':>7s} {'main cpu':>8s} {'peak MB':>8s} {'procs':>5s} {'wkr MB':>6s} "
+          f"{'layers':>6s} "
           f"{'filament m':>10s} {'est. min':>8s} {'support cm3':>11s}")
     for mname, (_stl, _vol, tris) in models.items():
         for tool in tools:
@@ -272,6 +277,7 @@ def print_table(models: dict, tools: list[str], runs: dict) -> None:
             est = s.get("estimated_seconds")
             print(f"{mname:12s} {tris:7d} {tool:9s} {_median(rs, 'slice_s'):8.3f} "
                   f"{_median(rs, 'wall_s'):8.3f} {_median(rs, 'cpu_s'):7.3f} "
+                  f"{_median(rs, 'main_cpu_s'):8.3f} "
                   f"{max(r['peak_mb'] for r in rs):8.1f} {s.get('workers', 0):5d} "
                   f"{s.get('worker_peak_mb', 0.0):6.1f} {s['layers']:6d} "
                   f"{s['filament_mm'] / 1000:10.3f} {(est / 60 if est else float('nan')):8.1f} "

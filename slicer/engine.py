@@ -230,6 +230,7 @@ def _summary(model: _Model, written: Written, p: Profile) -> dict[str, Any]:
         "brim": bool(model.brim),
         "workers": written.workers,
         "worker_peak_mb": round(written.worker_peak_mb, 1),
+        "worker_cpu_seconds": round(written.worker_cpu_seconds, 3),
         **model.layout,
     }
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import copy
 import functools
+import gc
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -207,6 +208,10 @@ def write_shares(run: LayerRun, shares: list[tuple[int, int]], report: Any) -> W
     n = len(run.model.tops)
     out = Written()
     workers: list[Worker] = []
+    if len(shares) > 1:
+        # the objects that exist now are left out of garbage collection until the end: a
+        # collection would touch every one of them, copying the pages the workers share
+        gc.freeze()
     try:
         for begin, end in shares[1:]:
             try:
@@ -227,6 +232,7 @@ def write_shares(run: LayerRun, shares: list[tuple[int, int]], report: Any) -> W
     finally:
         for worker in workers:
             worker.stop()
+        gc.unfreeze()
     out.workers = 1 + len(workers)
     out.worker_cpu_seconds = sum(w.cpu_seconds for w in workers)
     out.worker_peak_mb = max((w.peak_mb for w in workers), default=0.0)

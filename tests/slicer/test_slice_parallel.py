@@ -153,3 +153,26 @@ def test_when_no_worker_can_be_forked_the_parent_writes_every_layer(monkeypatch)
     monkeypatch.setattr(slicer.parallel.os, "fork", no_fork)
     many, summary = _gcode(mushroom, "3", support="auto")
     assert summary["workers"] == 1 and many == one
+
+
+def test_the_daemons_slicing_child_uses_workers_under_its_memory_cap(tmp_path):
+    """The daemon's slicing child (forked by its fork server, address space capped) forks
+    its own workers; the G-code is the one process's and the task leaves no process."""
+    import trimesh
+
+    from daemon.worker import run_task
+
+    v, f = mushroom()
+    stl = tmp_path / "mushroom.stl"
+    trimesh.Trimesh(v, f).export(stl)
+    outs = {}
+    for workers in ("1", "2"):
+        spec = {"in": str(stl), "out": str(tmp_path / f"w{workers}.gcode"), "nozzle": 0.4,
+                "overrides": {"workers": workers}}
+        got = run_task("slice", spec, work_dir=tmp_path / f"work{workers}", timeout=600,
+                       memory_mb=2048)
+        assert got["summary"]["workers"] == int(workers)
+        outs[workers] = Path(spec["out"]).read_bytes()
+    assert outs["1"] == outs["2"]
+    if int(got["summary"]["worker_peak_mb"]):
+        assert got["summary"]["worker_peak_mb"] < 300
