@@ -30,10 +30,13 @@ from slicer.parallel import MAX_WORKERS, Worker, WorkerError, available_cpus, pa
 
 __all__ = ["LayerRun", "Written", "layer_shares", "worker_count", "write_shares"]
 
-#: "auto" forks no worker for a model with less estimated work than this (mm of paths per
-#: layer summed over the layers); below it forking costs more than it saves (bench_slice).
+#: "auto" forks no worker for a model with less estimated work (:func:`layer_work`, summed
+#: over the layers) than this. Measured (bench models, one process): about 18 µs of CPU
+#: per unit, and a worker costs about 0.05 s of CPU (fork, pages copied on write, its
+#: warm-up layer); 20 000 units are ~0.36 s of writing, halved on two cores. The 20 mm
+#: cube (6 200) stays in one process, the mushroom (146 000) and bunny (139 000) do not.
 AUTO_MIN_WORK = 20_000.0
-#: ... and gives each worker at least this much of it.
+#: ... and gives each worker at least half of that.
 AUTO_WORK_PER_WORKER = 10_000.0
 
 
