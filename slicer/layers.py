@@ -262,6 +262,8 @@ def _take_over(run: LayerRun, out: Written, begin: int, end: int, codes: list,
 
 def _free_layer(model: Any, i: int) -> None:
     model.shells[i] = model.solids[i] = None
+    if model.supports is not None:
+        model.supports[i] = None
     if i > 0:
         model.sections[i - 1] = None  # (section 0 stays: the skirt follows it)
 
