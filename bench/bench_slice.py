@@ -8,6 +8,10 @@ and interface layers); "support cm3" is the filament under ``;TYPE:Support mater
 
 Run: .venv/bin/python bench/bench_slice.py [--repeat N] [--only mushroom,bunny]
 
+The embedded slicer runs twice per round: "embedded" on the machine's cores (profile
+``workers = auto``: forked workers write the layers; "procs" says how many processes did)
+and "emb-1proc" on one process (``workers = 1``); the G-code is the same.
+
 Every slice is a whole process, as a user runs it: the embedded slicer is ``preflight slice
 IN -o OUT --json`` (python -m daemon.cli: interpreter start-up, imports, load, slice,
 thumbnails, write), PrusaSlicer/CuraEngine their own binaries. The slicers' runs are
@@ -16,11 +20,16 @@ hits them alike; each figure is the median of the repeats, and "emb/prusa" gives
 per-pair ratios of runs made back to back (median, and the range). "wall s" is the child's
 elapsed time, "cpu s" its user+system CPU (resource.getrusage(RUSAGE_CHILDREN) before and
 after; PrusaSlicer's threads are included), "slice s" (embedded only) the CLI's own time
-after its imports. Peak memory is the child's ru_maxrss (from os.wait4), so the figures
-include the interpreter and imported libraries. Linux counts the parent's resident memory
-at fork into a child's ru_maxrss, so this parent stays small: mesh generation and G-code
-parsing run in helper children too. Volume accuracy: the sphere sliced at 100 % infill,
-extruded filament volume ÷ mesh volume.
+after its imports. Peak memory is the child's ru_maxrss (from os.wait4: the largest of the
+slicer process and the workers it reaped), so the figures include the interpreter and
+imported libraries; "wkr MB" is the largest worker's own (from the slice's summary).
+"main cpu" is the CPU of the slicer's main process alone (cpu s less its workers'): on an
+idle machine with a core per process its wall time is about that, since the workers'
+shares are sized to end with the main process's own; on a busy shared machine the wall
+times say little and this is the figure to compare with "emb-1proc"'s cpu. Linux counts
+the parent's resident memory at fork into a child's ru_maxrss, so this parent stays
+small: mesh generation and G-code parsing run in helper children too. Volume accuracy:
+the sphere sliced at 100 % infill, extruded filament volume ÷ mesh volume.
 """
 
 from __future__ import annotations
@@ -38,6 +47,10 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+
+#: The embedded slicer as benchmarked: on the machine's cores ("auto"), and on one process.
+EMBEDDED_TOOLS = {"embedded": {}, "emb-1proc": {"workers": "1"}}
+
 
 def make_models(folder: Path) -> dict[str, tuple[Path, float, int]]:
     """Write the three STL files (in a helper child, to keep this process small)."""
@@ -149,7 +162,7 @@ def embedded(stl: Path, gcode: Path, overrides: dict) -> dict:
         return {"error": err.strip().splitlines()[-1] if err.strip() else f"exit {code}"}
     summary = json.loads(out)
     return {"slice_s": summary["wall_seconds"], "wall_s": wall, "cpu_s": cpu, "peak_mb": mb,
-            "summary": summary}
+            "main_cpu_s": cpu - summary.get("worker_cpu_seconds", 0.0), "summary": summary}
 
 
 def external(name: str, stl: Path, gcode: Path, overrides: dict, summarise: bool = True
@@ -237,8 +250,10 @@ def timed_runs(models: dict, tools: list[str], repeat: int, folder: Path
                 done = runs.setdefault((mname, tool), [])
                 if done and "error" in done[0]:
                     continue
-                done.append(embedded(stl, gcode, {}) if tool == "embedded" else
-                            external(tool, stl, gcode, {}, summarise=r == 0))
+                if tool in EMBEDDED_TOOLS:
+                    done.append(embedded(stl, gcode, EMBEDDED_TOOLS[tool]))
+                else:
+                    done.append(external(tool, stl, gcode, {}, summarise=r == 0))
     return runs
 
 
@@ -249,8 +264,9 @@ def _median(runs: list[dict], key: str) -> float:
 
 def print_table(models: dict, tools: list[str], runs: dict) -> None:
     print(f"{'model':12s} {'tris':>7s} {'slicer':9s} {'slice s':>8s} {'wall s':>8s} "
-          f"{'cpu s':>7s} {'peak MB':>8s} {'layers':>6s} {'filament m':>10s} "
-          f"{'est. min':>8s} {'support cm3':>11s}")
+          f"{'cpu s':>7s} {'main cpu':>8s} {'peak MB':>8s} {'procs':>5s} {'wkr MB':>6s} "
+          f"{'layers':>6s} "
+          f"{'filament m':>10s} {'est. min':>8s} {'support cm3':>11s}")
     for mname, (_stl, _vol, tris) in models.items():
         for tool in tools:
             rs = runs[(mname, tool)]
@@ -261,25 +277,37 @@ def print_table(models: dict, tools: list[str], runs: dict) -> None:
             est = s.get("estimated_seconds")
             print(f"{mname:12s} {tris:7d} {tool:9s} {_median(rs, 'slice_s'):8.3f} "
                   f"{_median(rs, 'wall_s'):8.3f} {_median(rs, 'cpu_s'):7.3f} "
-                  f"{max(r['peak_mb'] for r in rs):8.1f} {s['layers']:6d} "
+                  f"{_median(rs, 'main_cpu_s'):8.3f} "
+                  f"{max(r['peak_mb'] for r in rs):8.1f} {s.get('workers', 0):5d} "
+                  f"{s.get('worker_peak_mb', 0.0):6.1f} {s['layers']:6d} "
                   f"{s['filament_mm'] / 1000:10.3f} {(est / 60 if est else float('nan')):8.1f} "
                   f"{s.get('support_cm3', float('nan')):11.2f}")
 
 
 def print_ratios(models: dict, runs: dict) -> None:
-    """Embedded ÷ PrusaSlicer per back-to-back pair: wall and CPU, median and range."""
-    print("embedded ÷ prusa-slicer, whole processes, per interleaved pair (target ≤ 0.5):")
-    for mname in models:
-        emb, ext = runs.get((mname, "embedded")), runs.get((mname, "prusa"))
-        if not emb or not ext or "error" in emb[0] or "error" in ext[0]:
-            continue
-        for key, label in (("wall_s", "wall"), ("cpu_s", "cpu")):
-            ratios = sorted(e[key] / x[key] for e, x in zip(emb, ext, strict=False))
-            print(f"  {mname:12s} {label:4s} median {statistics.median(ratios):5.2f}  "
-                  f"range {ratios[0]:.2f}-{ratios[-1]:.2f}  "
-                  f"({' '.join(f'{r:.2f}' for r in ratios)})")
-        print(f"  {mname:12s} peak {max(e['peak_mb'] for e in emb):.0f} MB vs "
-              f"{max(x['peak_mb'] for x in ext):.0f} MB")
+    """Per back-to-back pair, wall and CPU: embedded ÷ PrusaSlicer, and embedded on the
+    machine's cores ÷ on one process."""
+    pairs = (("embedded", "prusa", "embedded ÷ prusa-slicer (target ≤ 0.5)"),
+             ("emb-1proc", "prusa", "embedded on one process ÷ prusa-slicer"),
+             ("embedded", "emb-1proc", "embedded on the cores ÷ on one process"))
+    print("whole processes, per interleaved pair: median, range (each pair)")
+    for mine, theirs, title in pairs:
+        shown = False
+        for mname in models:
+            emb, ext = runs.get((mname, mine)), runs.get((mname, theirs))
+            if not emb or not ext or "error" in emb[0] or "error" in ext[0]:
+                continue
+            if not shown:
+                print(f" {title}:")
+                shown = True
+            for key, label in (("wall_s", "wall"), ("cpu_s", "cpu")):
+                ratios = sorted(e[key] / x[key] for e, x in zip(emb, ext, strict=False))
+                print(f"  {mname:12s} {label:4s} median {statistics.median(ratios):5.2f}  "
+                      f"range {ratios[0]:.2f}-{ratios[-1]:.2f}  "
+                      f"({' '.join(f'{r:.2f}' for r in ratios)})")
+            if theirs == "prusa":
+                print(f"  {mname:12s} peak {max(e['peak_mb'] for e in emb):.0f} MB (largest "
+                      f"process) vs {max(x['peak_mb'] for x in ext):.0f} MB")
 
 
 def print_accuracy(models: dict, tools: list[str], folder: Path) -> None:
@@ -288,8 +316,8 @@ def print_accuracy(models: dict, tools: list[str], folder: Path) -> None:
     over = {"infill_percent": 100, "skirts": 0}
     for tool in tools:
         gcode = folder / f"acc.{tool}.gcode"
-        r = embedded(stl, gcode, over) if tool == "embedded" else \
-            external(tool, stl, gcode, over)
+        r = embedded(stl, gcode, over | EMBEDDED_TOOLS[tool]) if tool in EMBEDDED_TOOLS \
+            else external(tool, stl, gcode, over)
         if "error" in r:
             print(f"  {tool:9s} error: {r['error']}")
             continue
@@ -311,7 +339,7 @@ def main() -> int:
     from slicer import adapters
 
     have = adapters.available()
-    tools = ["embedded"] + [t for t in ("prusa", "cura") if have[t]]
+    tools = ["embedded", "emb-1proc"] + [t for t in ("prusa", "cura") if have[t]]
     missing = [t for t in ("prusa", "cura") if not have[t]]
     print(f"slicers: {', '.join(tools)}"
           + (f" (not installed: {', '.join(missing)})" if missing else ""))

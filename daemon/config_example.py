@@ -21,6 +21,7 @@ EXAMPLE_PROFILE = """\
 # infill_percent = 15
 # support = "auto"    # auto (where needed) | buildplate | everywhere | off
 # brim = "auto"       # auto (tall parts on a small footprint) | on | off; brim_width = 5.0
+# workers = "auto"    # processes per slice: auto (the CPUs; one for a small model) | 1..8
 """
 
 EXAMPLE_PRINTERS = """\

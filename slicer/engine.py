@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from slicer.errors import SliceError
+from slicer.layers import Written
 from slicer.profile import Profile
 
 __all__ = ["SliceError", "SliceResult", "slice_mesh", "slice_file", "write_gcode"]
@@ -89,17 +90,6 @@ class _Model:
     supports: list | None = None
     brim: list = field(default_factory=list)
     first_area: Any = None
-
-
-@dataclass
-class _Written:
-    """The G-code of each layer, its time (s), and the totals over the layers."""
-
-    bodies: list[str] = field(default_factory=list)
-    seconds: list[float] = field(default_factory=list)
-    filament_mm: float = 0.0
-    support_mm: float = 0.0
-    support_seconds: float = 0.0
 
 
 def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progress = None
@@ -207,72 +197,22 @@ def _plan_layers(model: _Model, man: Any, profile: Profile, report: _Reporter) -
         model.first_area = model.first_area + model.supports[0].area()
 
 
-def _layer_paths(model: _Model, i: int, profile: Profile, support_cache: dict) -> list:
-    """Everything layer ``i`` extrudes, unordered: skirt, brim, support, shells, infill."""
-    from manifold3d import CrossSection
+def _write_layers(model: _Model, profile: Profile, report: _Reporter) -> Written:
+    """Plan, order and write the layers: the first share here, one layer at a time (only
+    one layer's paths exist at once), and each further share in a forked worker (see
+    slicer.layers). The G-code is the same whatever the number of workers."""
+    from slicer.layers import LayerRun, layer_shares, layer_work, worker_count, write_shares
 
-    from slicer.planner import infill_paths, skirt_paths
-    from slicer.support import support_paths
-
-    h, width, shells = float(model.heights[i]), model.widths[i], model.shells[i]
-    paths = []
-    if i < profile.skirt_height:
-        paths.extend(skirt_paths(profile, model.first_area, width, h))
-    if i == 0:
-        paths.extend(model.brim)
-    if model.supports is not None:
-        paths.extend(support_paths(model.supports[i], profile, width, h, support_cache))
-        model.supports[i] = None
-    paths.extend(shells.loops)
-    paths.extend(shells.thin)
-    n = len(model.tops)
-    paths.extend(infill_paths(profile, i, shells.inner, model.solids[i], width, h,
-                              model.sections[i - 1] if i > 0 else None,
-                              model.sections[i + 1] if i + 1 < n else CrossSection()))
-    return paths
-
-
-def _write_layers(model: _Model, profile: Profile, report: _Reporter) -> _Written:
-    """Plan, order and write one layer at a time, so only one layer's paths exist at once."""
-    from slicer import geometry as geo
-    from slicer.gcode import GcodeWriter
-    from slicer.ordering import order_paths
-    from slicer.planner import LayerPlan
-    from slicer.travel import SeamAligner, TravelRouter
-
-    writer = GcodeWriter(profile)
-    aligner = SeamAligner() if profile.seam_position == "aligned" else None
-    pos = np.array([0.0, 0.0])
-    out = _Written()
-    support_cache: dict = {}
-    router, router_key = None, None
-    n = len(model.tops)
-    for i in range(n):
-        paths = _layer_paths(model, i, profile, support_cache)
-        plan = LayerPlan(i, float(model.tops[i]), float(model.heights[i]), paths,
-                         geo.contours(model.sections[i]))
-        ordered, _ = order_paths(plan.paths, pos, profile.seam_position, aligner)
-        if profile.avoid_crossing_perimeters:
-            key = (geo.shape_key(model.sections[i]), model.spacing[i])
-            if key != router_key:  # a layer like the one below keeps its router and graphs
-                router, router_key = TravelRouter(model.sections[i], model.spacing[i]), key
-        code = writer.layer(plan, ordered, pos, router)
-        out.bodies.append(code.text)
-        out.seconds.append(code.seconds + 0.1)  # Z move and layer change
-        out.filament_mm += code.filament_mm
-        out.support_mm += code.support_mm
-        out.support_seconds += code.support_seconds
-        pos = code.end_pos
-        model.shells[i] = model.solids[i] = None  # free as we go
-        if i > 0:
-            model.sections[i - 1] = None  # (section 0 stays: the skirt follows it)
-        report("gcode", 0.5 + i / n * 0.5)
+    work = layer_work(model)
+    shares = layer_shares(work, worker_count(profile, work))
+    run = LayerRun(model, profile)
+    out = write_shares(run, shares, report)
     model.shells = model.solids = model.sections = []
     model.first_area = None
     return out
 
 
-def _summary(model: _Model, written: _Written, p: Profile) -> dict[str, Any]:
+def _summary(model: _Model, written: Written, p: Profile) -> dict[str, Any]:
     cm3 = written.filament_mm * p.filament_area / 1000.0
     return {
         "layers": len(model.tops),
@@ -288,11 +228,14 @@ def _summary(model: _Model, written: _Written, p: Profile) -> dict[str, Any]:
         "support_cm3": round(written.support_mm * p.filament_area / 1000.0, 3),
         "support_seconds": round(written.support_seconds, 1),
         "brim": bool(model.brim),
+        "workers": written.workers,
+        "worker_peak_mb": round(written.worker_peak_mb, 1),
+        "worker_cpu_seconds": round(written.worker_cpu_seconds, 3),
         **model.layout,
     }
 
 
-def _assemble(model: _Model, written: _Written, p: Profile, head: str, tail: str,
+def _assemble(model: _Model, written: Written, p: Profile, head: str, tail: str,
               summary: dict[str, Any]) -> str:
     """The whole file: thumbnails, header comments, start G-code, the layers with M73
     progress, temperature and fan changes and Z moves, then the end G-code."""

@@ -140,6 +140,9 @@ class Profile:
     arrange_gap: float = 6.0
     avoid_crossing_perimeters: bool = True
     thumbnails: str = "16x16,220x124"
+    # processes that write the layers (slicer/layers.py): "auto" (the CPUs, one for a
+    # small model) or a count; the G-code is the same whatever it is
+    workers: str = "auto"
 
     def __post_init__(self) -> None:
         bv = tuple(float(v) for v in self.build_volume)
@@ -187,6 +190,7 @@ class Profile:
                 f"got {self.infill_pattern!r}"
             )
         _check_placement(self)
+        _check_workers(self)
         if self.seam_position not in SEAM_POSITIONS:
             raise ProfileError(
                 f"seam_position must be one of {', '.join(SEAM_POSITIONS)}, "
@@ -291,6 +295,15 @@ def _check_placement(p: Profile) -> None:
     thumbnail_sizes(p.thumbnails)
 
 
+def _check_workers(p: Profile) -> None:
+    from slicer.parallel import parse_workers
+
+    try:
+        parse_workers(p.workers)
+    except ValueError as exc:
+        raise ProfileError(str(exc)) from None
+
+
 def _coerce(key: str, current: Any, value: Any) -> Any:
     try:
         if isinstance(current, bool):
@@ -314,6 +327,8 @@ def _coerce(key: str, current: Any, value: Any) -> Any:
                 value = [v for v in value.replace("x", ",").split(",") if v.strip()]
             return tuple(float(v) for v in value)
         if isinstance(current, str):
+            if key == "workers" and isinstance(value, int) and not isinstance(value, bool):
+                return str(value)  # workers = 2 in TOML, like workers = "auto"
             if not isinstance(value, str):
                 raise ValueError(value)
             return value

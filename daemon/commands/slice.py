@@ -28,6 +28,9 @@ def register(subparsers) -> None:
     p.add_argument("--filament-diameter", type=float, metavar="MM", default=1.75)
     p.add_argument("--bed", metavar="X,Y,Z", help="build volume in mm (default 220,220,250)")
     p.add_argument("--profile", metavar="FILE", help="TOML profile with overrides")
+    p.add_argument("--workers", metavar="N",
+                   help='processes that write the layers: "auto" (default: the CPUs, one '
+                   "for a small model) or 1..8; the G-code is the same either way")
     p.add_argument("--set", metavar="KEY=VALUE", action="append", default=[],
                    help="override any profile setting (repeatable)")
     p.add_argument("--slicer", choices=("embedded", "cura", "prusa"), default="embedded",
@@ -60,6 +63,8 @@ def build_profile(args: argparse.Namespace):
         over["first_layer_height"] = max(args.layer_height, profile.first_layer_height)
     if args.infill is not None:
         over["infill_percent"] = args.infill
+    if getattr(args, "workers", None) is not None:
+        over["workers"] = args.workers
     for item in args.set:
         key, sep, value = item.partition("=")
         if not sep:
