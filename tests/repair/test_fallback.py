@@ -173,10 +173,11 @@ def test_shell_split_keeps_solids_turned_outward_and_leaves_sheets():
     assert (split.exact_shells, split.offending_shells, split.crossing_solids) == (1, 2, 0)
     assert np.array_equal(split.exact_faces, cf)
     assert np.array_equal(split.offending, [12, 13])
-    # A closed shell that crosses itself is neither kept nor thickened (it would be
-    # hollow): the fallback leaves it to the exact repair.
+    # A closed shell that crosses itself is kept (its surface's slab would be hollow),
+    # its crossing faces named as knots, for eps-blocks to cover.
     crossing = split_exact_shells(cv, cf, np.array([[0, 6]]))
-    assert (crossing.exact_shells, crossing.crossing_solids) == (0, 1)
+    assert (crossing.exact_shells, crossing.crossing_solids) == (1, 1)
+    assert np.array_equal(crossing.knots, [0, 6]) and len(crossing.offending) == 0
 
 
 def test_overlapping_shells_with_holes_fall_back_to_their_exact_union(tmp_path):
