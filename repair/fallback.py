@@ -144,30 +144,9 @@ def minkowski_pieces(
     manifold3d does not resolve a piece's own crossings) and an eps-prism per segment."""
     parts = []
     if len(faces):
-        parts.append(_sheet_pieces(vertices, faces, eps))
+        parts.append(sheet_slabs(vertices, faces, eps, strict=True))
     if segments is not None and len(segments):
         parts.append(cylinders(segments, eps))
-    return concat_meshes(parts)
-
-
-def _sheet_pieces(
-    vertices: np.ndarray, faces: np.ndarray, eps: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Slabs of the sheets ``faces``; a sheet (vertex-connected part) whose slabs would
-    cross themselves gets a block per face instead."""
-    sv, sf = sheet_slabs(vertices, faces, eps)
-    if not _self_crossing_pieces(sv, sf):
-        return sv, sf
-    f = np.asarray(faces, dtype=np.int64)
-    sheet = vertex_components(int(f.max()) + 1, f)[f[:, 0]]
-    order = np.argsort(sheet, kind="stable")
-    cuts = np.r_[0, np.flatnonzero(np.diff(sheet[order])) + 1, len(f)]
-    parts = []
-    for lo, hi in zip(cuts[:-1], cuts[1:], strict=True):  # one per sheet, not per face
-        part = f[order[lo:hi]]
-        pv, pf = sheet_slabs(vertices, part, eps)
-        parts.append(face_blocks(vertices, part, eps) if _self_crossing_pieces(pv, pf)
-                     else (pv, pf))  # fmt: skip
     return concat_meshes(parts)
 
 

@@ -172,12 +172,15 @@ def face_prisms(
 
 
 def sheet_slabs(
-    vertices: np.ndarray, faces: np.ndarray, epsilon: float, *, _depth: int = 0
+    vertices: np.ndarray, faces: np.ndarray, epsilon: float, *, strict: bool = False,
+    _depth: int = 0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Closed slabs of thickness about ``epsilon`` (mm) around the sheet ``faces``.
 
-    Returns ``(vertices, faces)`` of all slabs concatenated (may self-intersect; resolve
-    and take the outer hull afterwards). Empty input gives empty arrays.
+    Returns ``(vertices, faces)`` of all slabs concatenated (may overlap one another;
+    resolve and take the outer hull afterwards). A slab may cross itself where the
+    sheet folds everywhere, unless ``strict``: then the folding faces get blocks
+    (:func:`face_blocks`), however many. Empty input gives empty arrays.
     """
     faces = np.asarray(faces, dtype=np.int64)
     if len(faces) == 0:
@@ -224,9 +227,9 @@ def sheet_slabs(
     if thin.any() and _depth < 2:
         # A corner sharper than the miter limit (a box's): the slab would be thinner
         # than eps across every face at it, down to eps * MITER_LIMIT / sqrt(3) at a
-        # cube's corner. Those faces get prisms of exactly eps along their own normals
-        # (and eps-cylinders on their creases); the rest is slabbed on its own.
-        gv, gf = sheet_slabs(v, f[~thin], epsilon, _depth=_depth + 1)
+        # cube's corner. Those faces get blocks exactly eps thick along their own normals
+        # (overlapping across their creases); the rest is slabbed on its own.
+        gv, gf = sheet_slabs(v, f[~thin], epsilon, strict=strict, _depth=_depth + 1)
         pv, pf = face_blocks(v, f[thin], epsilon)
         return np.vstack([gv, pv]), np.vstack([gf, pf + len(gv)]).astype(np.int64)
     scale = 1.0 / np.maximum(min_cos, 1.0 / MITER_LIMIT)
@@ -243,7 +246,7 @@ def sheet_slabs(
     a, b = bnd[:, 0], bnd[:, 1]
     walls = np.vstack([np.stack([b, a, a + n], axis=1), np.stack([b, a + n, b + n], axis=1)])
     out_f = np.vstack([fs, fs[:, ::-1] + n, walls]).astype(np.int64)
-    return _replace_bad_slabs(out_v, out_f, v, f, epsilon, wall_face, _depth)
+    return _replace_bad_slabs(out_v, out_f, v, f, epsilon, wall_face, _depth, strict)
 
 
 def _replace_bad_slabs(
@@ -254,10 +257,11 @@ def _replace_bad_slabs(
     epsilon: float,
     wall_face: np.ndarray,
     depth: int,
+    strict: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Where a slab folds onto itself (sharp folds, slits left by cuts) it is not a valid
-    solid: the sheet faces involved (and their vertex neighbours) get per-face prisms
-    (:func:`face_prisms`) and the rest of the sheet is slabbed again without them."""
+    solid: the sheet faces involved (and their vertex neighbours) get per-face blocks
+    (:func:`face_blocks`) and the rest of the sheet is slabbed again without them."""
     from repair.intersections import intersecting_face_pairs
 
     m = len(f)
@@ -275,11 +279,13 @@ def _replace_bad_slabs(
     touched = np.zeros(int(f.max()) + 1, dtype=bool)
     touched[f[bad].reshape(-1)] = True
     bad |= touched[f].any(axis=1)
-    if bad.mean() > 0.2 or depth >= 2:
+    if strict and depth >= 2:
+        return face_blocks(v, f, epsilon)  # still folding after two rounds: blocks only
+    if (bad.mean() > 0.2 or depth >= 2) and not strict:
         # Folding everywhere (e.g. a neck narrower than eps): prisms would be too many;
         # keep the slab and let the union / exact arrangement sort the overlaps out.
         return sv, sf
-    gv, gf = sheet_slabs(v, f[~bad], epsilon, _depth=depth + 1)
+    gv, gf = sheet_slabs(v, f[~bad], epsilon, strict=strict, _depth=depth + 1)
     pv, pf = face_blocks(v, f[bad], epsilon)
     return np.vstack([gv, pv]), np.vstack([gf, pf + len(gv)]).astype(np.int64)
 
