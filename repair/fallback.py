@@ -3,11 +3,11 @@ within its time budget, or cannot make the model printable.
 
 The cleaned input (:mod:`repair.clean`, with small holes closed) is split by shell. A
 shell that is already a solid -- closed, every edge used twice and in opposite
-directions within the shell, a non-zero volume, crossing no face of its own -- is kept
+directions within the shell, a non-zero volume -- is kept
 exactly (turned outward if it was inside out). Open sheets, non-manifold shells and
 wires are replaced by an approximation of their eps-Minkowski sum: Attene's slabs
 (:func:`repair.thicken.sheet_slabs`: offset copies at +-eps/2 along the vertex normals,
-walls along the boundary, per-face prisms where a slab would fold) and eps-prisms
+walls along the boundary, per-face eps-blocks where a slab would fold) and eps-prisms
 (:data:`repair.wires.SIDES` sides) around wires. The solids and the slabs are united by
 manifold3d's robust booleans -- Attene's exact arrangement and outer hull, what takes
 the time, are skipped -- then finished as the exact path's result is
@@ -42,7 +42,6 @@ from repair.clean import drop_unreferenced
 from repair.errors import RepairError
 from repair.finish import finish
 from repair.holes import HolesClosed
-from repair.intersections import intersecting_face_pairs
 from repair.meshes import concat_meshes, shell_volumes, surface_area
 from repair.report import RepairOutcome, RepairTally
 from repair.rows import unique_rows
@@ -52,7 +51,6 @@ from repair.topology import (
     edge_components,
     edge_ids,
     paired_half_edges,
-    vertex_components,
 )
 from repair.union import manifold_union
 from repair.wires import cylinders
@@ -197,18 +195,6 @@ def fallback_repair(
         "seconds": round(time.perf_counter() - t0, 4),
     }
     return out
-
-
-def _self_crossing_pieces(v: np.ndarray, f: np.ndarray) -> int:
-    """How many of the indexed pieces ``(v, f)`` cross themselves."""
-    if len(f) == 0:
-        return 0
-    pairs = intersecting_face_pairs(v, f)
-    if len(pairs) == 0:
-        return 0
-    piece = vertex_components(len(v), f)[f[:, 0]]
-    own = piece[pairs[:, 0]] == piece[pairs[:, 1]]
-    return len(np.unique(piece[pairs[own, 0]]))
 
 
 def _without_cavities(
