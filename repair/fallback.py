@@ -3,23 +3,29 @@ within its time budget, or cannot make the model printable.
 
 The cleaned input (:mod:`repair.clean`, with small holes closed) is split by shell. A
 shell that is already a solid -- closed, every edge used twice and in opposite
-directions within the shell, a non-zero volume, crossing no face of its own -- is kept
+directions within the shell, a non-zero volume -- is kept
 exactly (turned outward if it was inside out). Open sheets, non-manifold shells and
 wires are replaced by an approximation of their eps-Minkowski sum: Attene's slabs
 (:func:`repair.thicken.sheet_slabs`: offset copies at +-eps/2 along the vertex normals,
-walls along the boundary, per-face prisms where a slab would fold) and eps-prisms
+walls along the boundary, per-face eps-blocks where a slab would fold) and eps-prisms
 (:data:`repair.wires.SIDES` sides) around wires. The solids and the slabs are united by
 manifold3d's robust booleans -- Attene's exact arrangement and outer hull, what takes
 the time, are skipped -- then finished as the exact path's result is
 (:func:`repair.finish.finish`: rounded to float32, checked exactly, mended locally).
 
-A closed shell that crosses itself, or a slab that would, cannot be handled so (its
-surface's slab would be hollow, and manifold3d does not resolve a solid's own
-crossings): the fallback then fails at once with that reason.
+A closed shell that crosses itself is kept too, and the faces where it does (the
+"knots", with the faces that share a corner with them) are covered by eps-blocks
+(:func:`repair.thicken.face_blocks`: each face's Minkowski sum with an eps-double
+pyramid, convex): manifold3d does not resolve a solid's own crossings, but every
+crossing lies inside the knots' blocks, so the union's surface there is the blocks'.
+A sheet whose slab would cross itself gets eps-blocks in place of the slab. The
+union's cavities (negative shells, unreachable from outside: Attene's outer hull keeps
+none) are filled.
 
-Slab points lie within ``MITER_LIMIT * eps/2`` of the input, so the deviation D of the
-thickened parts is about eps/2 (measured and reported); exact shells keep their
-triangles where nothing crosses them, D = 0 there (lids of closed holes aside).
+Slab points lie within ``MITER_LIMIT * eps/2`` of the input and block points within
+eps/2, so the deviation D of the thickened parts is about eps/2 (measured and
+reported); exact shells keep their triangles where nothing crosses them, D = 0 there
+(lids of closed holes aside).
 
 Units are mm; vertices float64 (n, 3), faces int64 (m, 3). Vectorised numpy; one
 manifold3d batch union.
@@ -32,15 +38,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from repair.clean import drop_unreferenced
 from repair.errors import RepairError
 from repair.finish import finish
 from repair.holes import HolesClosed
-from repair.intersections import intersecting_face_pairs
 from repair.meshes import concat_meshes, shell_volumes, surface_area
 from repair.report import RepairOutcome, RepairTally
 from repair.rows import unique_rows
-from repair.thicken import sheet_slabs
-from repair.topology import connected_labels, edge_ids, paired_half_edges, vertex_components
+from repair.thicken import face_blocks, sheet_slabs
+from repair.topology import (
+    connected_labels,
+    edge_components,
+    edge_ids,
+    paired_half_edges,
+)
 from repair.union import manifold_union
 from repair.wires import cylinders
 
@@ -54,8 +65,9 @@ __all__ = [
 
 #: What the fallback does, as the report states it.
 APPROXIMATION = (
-    "closed solid shells kept exact, the other parts replaced by their eps-Minkowski sum "
-    "(eps-thick slabs, eps-prisms around wires), united by manifold3d"
+    "closed solid shells kept exact (eps-blocks over the faces where one crosses itself), "
+    "the other parts replaced by their eps-Minkowski sum (eps-thick slabs or blocks, "
+    "eps-prisms around wires), united by manifold3d, cavities filled"
 )
 
 
@@ -63,14 +75,15 @@ APPROXIMATION = (
 class ShellSplit:
     """The faces of the shells kept exactly (rows of the input's, turned outward), the
     indices of the faces that are approximated, and how many shells of each; of the
-    latter, how many are closed solids that cross themselves (thickening their surface
-    would make them hollow: only the exact arrangement repairs them)."""
+    kept ones, how many are closed solids that cross themselves, and ``knots``: the
+    indices of their faces that cross a face of the same shell."""
 
     exact_faces: np.ndarray
     offending: np.ndarray
     exact_shells: int
     offending_shells: int
     crossing_solids: int
+    knots: np.ndarray
 
 
 def _shell_labels(faces: np.ndarray) -> np.ndarray:
@@ -89,7 +102,7 @@ def split_exact_shells(
     f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     if len(f) == 0:
         empty = np.zeros(0, dtype=np.int64)
-        return ShellSplit(np.zeros((0, 3), dtype=np.int64), empty, 0, 0, 0)
+        return ShellSplit(np.zeros((0, 3), dtype=np.int64), empty, 0, 0, 0, empty)
     label = _shell_labels(f)
     n = int(label.max()) + 1
     bad = np.zeros(n, dtype=bool)
@@ -106,30 +119,43 @@ def split_exact_shells(
     volume = shell_volumes(np.asarray(vertices, dtype=np.float64), f, label, n)
     bad |= volume == 0.0
     crossing = np.zeros(n, dtype=bool)
+    knots = np.zeros(0, dtype=np.int64)
     if pairs is not None and len(pairs):
         p = np.asarray(pairs, dtype=np.int64)
-        own = label[p[:, 0]] == label[p[:, 1]]
-        crossing[label[p[own, 0]]] = True
-    keep = ~(bad | crossing)[label]
+        p = p[label[p[:, 0]] == label[p[:, 1]]]
+        crossing[label[p[:, 0]]] = True
+        knots = np.unique(p[~bad[label[p[:, 0]]]])
+    keep = ~bad[label]
     exact = f[keep].copy()
     inside_out = volume[label[keep]] < 0
     exact[inside_out] = exact[inside_out][:, ::-1]
-    return ShellSplit(exact, np.flatnonzero(~keep), int(np.count_nonzero(~(bad | crossing))),
-                      int(np.count_nonzero(bad | crossing)),
-                      int(np.count_nonzero(crossing & ~bad)))  # fmt: skip
+    return ShellSplit(exact, np.flatnonzero(~keep), int(np.count_nonzero(~bad)),
+                      int(np.count_nonzero(bad)), int(np.count_nonzero(crossing & ~bad)),
+                      knots)  # fmt: skip
 
 
 def minkowski_pieces(
     vertices: np.ndarray, faces: np.ndarray, segments: np.ndarray, eps: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """Closed pieces whose union approximates the eps-Minkowski sum of the faces and
-    segments: the faces' slabs and an eps-prism per segment."""
+    segments: the faces' slabs (eps-blocks for a sheet whose slab would cross itself:
+    manifold3d does not resolve a piece's own crossings) and an eps-prism per segment."""
     parts = []
     if len(faces):
-        parts.append(sheet_slabs(vertices, faces, eps))
+        parts.append(sheet_slabs(vertices, faces, eps, strict=True))
     if segments is not None and len(segments):
         parts.append(cylinders(segments, eps))
     return concat_meshes(parts)
+
+
+def _knot_blocks(
+    vertices: np.ndarray, faces: np.ndarray, knots: np.ndarray, eps: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """eps-blocks over the ``knots`` (face indices) and the faces sharing a corner with
+    one: their union covers every crossing of those faces with room to spare."""
+    near = np.zeros(len(vertices), dtype=bool)
+    near[faces[knots].reshape(-1)] = True
+    return face_blocks(vertices, faces[near[faces].any(axis=1)], eps)
 
 
 def fallback_repair(
@@ -142,16 +168,12 @@ def fallback_repair(
     the caller to measure."""
     t0 = time.perf_counter()
     split = split_exact_shells(v, f, pairs)
-    if split.crossing_solids:
-        raise _failed(reason, f"{split.crossing_solids} closed shell(s) cross themselves")
     pv, pf = minkowski_pieces(v, f[split.offending], segments, eps)
-    folded = _self_crossing_pieces(pv, pf)
-    if folded:
-        # manifold3d's union of a solid that crosses itself is not one (and is slow).
-        raise _failed(reason, f"{folded} of its thickened part(s) would cross themselves")
-    fused = manifold_union([(v, split.exact_faces), (pv, pf)])
+    kv, kf = _knot_blocks(v, f, split.knots, eps)
+    fused = manifold_union([(v, split.exact_faces), (pv, pf), (kv, kf)])
     if fused is None:
         raise _failed(reason, "manifold3d rejected a part")
+    fused, cavities = _without_cavities(*fused)
     tally = RepairTally(sheet_triangles=len(split.offending), wires=len(segments),
                         sheet_area=surface_area(v, f[split.offending]))  # fmt: skip
     # Rounded to float32 and checked; where rounding made faces cross or collapse, mended
@@ -166,22 +188,26 @@ def fallback_repair(
         "exact_shells": split.exact_shells,
         "approximated_shells": split.offending_shells,
         "approximated_triangles": int(len(split.offending)),
+        "self_crossing_shells": split.crossing_solids,
+        "knot_triangles": int(len(split.knots)),
+        "cavities_filled": cavities,
         "wires": int(len(segments)),
         "seconds": round(time.perf_counter() - t0, 4),
     }
     return out
 
 
-def _self_crossing_pieces(v: np.ndarray, f: np.ndarray) -> int:
-    """How many of the indexed pieces ``(v, f)`` cross themselves."""
-    if len(f) == 0:
-        return 0
-    pairs = intersecting_face_pairs(v, f)
-    if len(pairs) == 0:
-        return 0
-    piece = vertex_components(len(v), f)[f[:, 0]]
-    own = piece[pairs[:, 0]] == piece[pairs[:, 1]]
-    return len(np.unique(piece[pairs[own, 0]]))
+def _without_cavities(
+    v: np.ndarray, f: np.ndarray
+) -> tuple[tuple[np.ndarray, np.ndarray], int]:
+    """The closed mesh without its negative (inward-facing) shells, and how many: the
+    cavities a union of thickened surfaces leaves inside."""
+    shell = edge_components(f)
+    n = int(shell.max()) + 1 if len(f) else 0
+    cavity = shell_volumes(v, f, shell, n) < 0
+    if not cavity.any():
+        return (v, f), 0
+    return drop_unreferenced(v, f[~cavity[shell]]), int(np.count_nonzero(cavity))
 
 
 def _failed(reason: str, why: str) -> RepairError:

@@ -33,6 +33,7 @@ from repair.topology import (
 
 __all__ = [
     "MITER_LIMIT",
+    "face_blocks",
     "face_prisms",
     "orient_patches",
     "orient_patches_with_edge_use",
@@ -171,12 +172,15 @@ def face_prisms(
 
 
 def sheet_slabs(
-    vertices: np.ndarray, faces: np.ndarray, epsilon: float, *, _depth: int = 0
+    vertices: np.ndarray, faces: np.ndarray, epsilon: float, *, strict: bool = False,
+    _depth: int = 0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Closed slabs of thickness about ``epsilon`` (mm) around the sheet ``faces``.
 
-    Returns ``(vertices, faces)`` of all slabs concatenated (may self-intersect; resolve
-    and take the outer hull afterwards). Empty input gives empty arrays.
+    Returns ``(vertices, faces)`` of all slabs concatenated (may overlap one another;
+    resolve and take the outer hull afterwards). A slab may cross itself where the
+    sheet folds everywhere, unless ``strict``: then the folding faces get blocks
+    (:func:`face_blocks`), however many. Empty input gives empty arrays.
     """
     faces = np.asarray(faces, dtype=np.int64)
     if len(faces) == 0:
@@ -223,10 +227,10 @@ def sheet_slabs(
     if thin.any() and _depth < 2:
         # A corner sharper than the miter limit (a box's): the slab would be thinner
         # than eps across every face at it, down to eps * MITER_LIMIT / sqrt(3) at a
-        # cube's corner. Those faces get prisms of exactly eps along their own normals
-        # (and eps-cylinders on their creases); the rest is slabbed on its own.
-        gv, gf = sheet_slabs(v, f[~thin], epsilon, _depth=_depth + 1)
-        pv, pf = face_prisms(v, f[thin], epsilon)
+        # cube's corner. Those faces get blocks exactly eps thick along their own normals
+        # (overlapping across their creases); the rest is slabbed on its own.
+        gv, gf = sheet_slabs(v, f[~thin], epsilon, strict=strict, _depth=_depth + 1)
+        pv, pf = face_blocks(v, f[thin], epsilon)
         return np.vstack([gv, pv]), np.vstack([gf, pf + len(gv)]).astype(np.int64)
     scale = 1.0 / np.maximum(min_cos, 1.0 / MITER_LIMIT)
     d = (0.5 * epsilon) * scale[:, None] * vn
@@ -242,7 +246,7 @@ def sheet_slabs(
     a, b = bnd[:, 0], bnd[:, 1]
     walls = np.vstack([np.stack([b, a, a + n], axis=1), np.stack([b, a + n, b + n], axis=1)])
     out_f = np.vstack([fs, fs[:, ::-1] + n, walls]).astype(np.int64)
-    return _replace_bad_slabs(out_v, out_f, v, f, epsilon, wall_face, _depth)
+    return _replace_bad_slabs(out_v, out_f, v, f, epsilon, wall_face, _depth, strict)
 
 
 def _replace_bad_slabs(
@@ -253,10 +257,11 @@ def _replace_bad_slabs(
     epsilon: float,
     wall_face: np.ndarray,
     depth: int,
+    strict: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Where a slab folds onto itself (sharp folds, slits left by cuts) it is not a valid
-    solid: the sheet faces involved (and their vertex neighbours) get per-face prisms
-    (:func:`face_prisms`) and the rest of the sheet is slabbed again without them."""
+    solid: the sheet faces involved (and their vertex neighbours) get per-face blocks
+    (:func:`face_blocks`) and the rest of the sheet is slabbed again without them."""
     from repair.intersections import intersecting_face_pairs
 
     m = len(f)
@@ -274,12 +279,14 @@ def _replace_bad_slabs(
     touched = np.zeros(int(f.max()) + 1, dtype=bool)
     touched[f[bad].reshape(-1)] = True
     bad |= touched[f].any(axis=1)
-    if bad.mean() > 0.2 or depth >= 2:
+    if strict and depth >= 2:
+        return face_blocks(v, f, epsilon)  # still folding after two rounds: blocks only
+    if (bad.mean() > 0.2 or depth >= 2) and not strict:
         # Folding everywhere (e.g. a neck narrower than eps): prisms would be too many;
         # keep the slab and let the union / exact arrangement sort the overlaps out.
         return sv, sf
-    gv, gf = sheet_slabs(v, f[~bad], epsilon, _depth=depth + 1)
-    pv, pf = face_prisms(v, f[bad], epsilon)
+    gv, gf = sheet_slabs(v, f[~bad], epsilon, strict=strict, _depth=depth + 1)
+    pv, pf = face_blocks(v, f[bad], epsilon)
     return np.vstack([gv, pv]), np.vstack([gf, pf + len(gv)]).astype(np.int64)
 
 
@@ -344,3 +351,43 @@ def region_prisms(
     if not out_f:
         return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
     return np.vstack(out_v), np.vstack(out_f)
+
+
+#: Each face block's triangles over its 12 corners: the face moved by +-eps/2 along its
+#: normal (0-2 top, 3-5 bottom) and each edge moved by eps/2 outward in the face's plane
+#: (6-11: a and b of edge ab, b and c of bc, c and a of ca).
+_BLOCK = np.array(
+    [[0, 1, 2], [3, 5, 4],
+     [0, 6, 7], [0, 7, 1], [1, 8, 9], [1, 9, 2], [2, 10, 11], [2, 11, 0],
+     [3, 7, 6], [3, 4, 7], [4, 9, 8], [4, 5, 9], [5, 11, 10], [5, 3, 11],
+     [1, 7, 8], [2, 9, 10], [0, 11, 6], [4, 8, 7], [5, 10, 9], [3, 6, 11]]
+)  # fmt: skip
+
+
+def face_blocks(
+    vertices: np.ndarray, faces: np.ndarray, epsilon: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """One convex closed block per face: its Minkowski sum with the double pyramid whose
+    apices are +-eps/2 along the face's normal and whose base corners are eps/2 out from
+    each of its edges in its plane (12 corners, 20 triangles). Exactly eps thick along
+    the normal, every point within eps/2 of the face; unlike :func:`face_prisms` the
+    blocks of two faces that meet at a crease overlap across it, so no crease cylinders
+    are needed, and a sheet of faces smaller than eps is covered by half as many pieces.
+    Degenerate faces get none. Always valid (convex) solids."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    p = v[f]
+    fn = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    fl = np.linalg.norm(fn, axis=1)
+    e = p[:, [1, 2, 0]] - p  # edges ab, bc, ca
+    el = np.linalg.norm(e, axis=2)
+    ok = (fl > 0) & (el > 0).all(axis=1)
+    p, fn, e, el = p[ok], fn[ok] / fl[ok, None], e[ok], el[ok]
+    r = 0.5 * epsilon
+    out_dir = np.cross(e, fn[:, None, :]) / el[:, :, None]  # outward in-plane, per edge
+    top, bot = p + r * fn[:, None, :], p - r * fn[:, None, :]
+    mid = np.stack([p, p[:, [1, 2, 0]]], axis=2) + r * out_dir[:, :, None, :]  # (m, 3, 2, 3)
+    corners = np.concatenate([top, bot, mid.reshape(-1, 6, 3)], axis=1)
+    m = len(p)
+    bf = (_BLOCK[None] + 12 * np.arange(m)[:, None, None]).reshape(-1, 3)
+    return corners.reshape(-1, 3), bf.astype(np.int64)

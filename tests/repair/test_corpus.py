@@ -34,7 +34,6 @@ NOTHING_PRINTABLE = {"Ghostkeeper_zero_size_cube.stl"}
 #: Known failures, asserted so, so that a fix shows up here.
 WINDING_KNOWN_FAILURES = {
     "admesh_basic.stl",
-    "mikedh_chair_model.obj",
     "mikedh_counter.unitsmm.STL",
     "mikedh_cycloidal.ply",
     "mikedh_target.obj",

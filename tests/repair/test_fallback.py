@@ -173,10 +173,11 @@ def test_shell_split_keeps_solids_turned_outward_and_leaves_sheets():
     assert (split.exact_shells, split.offending_shells, split.crossing_solids) == (1, 2, 0)
     assert np.array_equal(split.exact_faces, cf)
     assert np.array_equal(split.offending, [12, 13])
-    # A closed shell that crosses itself is neither kept nor thickened (it would be
-    # hollow): the fallback leaves it to the exact repair.
+    # A closed shell that crosses itself is kept (its surface's slab would be hollow),
+    # its crossing faces named as knots, for eps-blocks to cover.
     crossing = split_exact_shells(cv, cf, np.array([[0, 6]]))
-    assert (crossing.exact_shells, crossing.crossing_solids) == (0, 1)
+    assert (crossing.exact_shells, crossing.crossing_solids) == (1, 1)
+    assert np.array_equal(crossing.knots, [0, 6]) and len(crossing.offending) == 0
 
 
 def test_overlapping_shells_with_holes_fall_back_to_their_exact_union(tmp_path):
@@ -193,3 +194,45 @@ def test_overlapping_shells_with_holes_fall_back_to_their_exact_union(tmp_path):
     # Only the lids (each a missing triangle) stray from the input: D stays far below eps.
     assert r["deviation"] < 0.25 * EPS
     assert covered_fraction(model.vertices, model.faces, result.vertices, result.faces) >= 0.99
+
+
+def _crossed_prism() -> tuple[np.ndarray, np.ndarray]:
+    """A closed 5 mm prism over the self-crossing quadrilateral (0,0) (10,10) (10,0)
+    (0,6): one shell, every edge used twice, crossing itself along its walls and caps;
+    its two lobes wind opposite ways, the larger (31.25 mm^2) around (7.9, 4.6)."""
+    quad = np.array([[0.0, 0.0], [10.0, 10.0], [10.0, 0.0], [0.0, 6.0]])
+    v = np.vstack([np.c_[quad, np.zeros(4)], np.c_[quad, np.full(4, 5.0)]])
+    walls = [[i, (i + 1) % 4, 4 + (i + 1) % 4] for i in range(4)]
+    walls += [[i, 4 + (i + 1) % 4, 4 + i] for i in range(4)]
+    return v, np.array([[0, 2, 1], [0, 3, 2], [4, 5, 6], [4, 6, 7], *walls])
+
+
+def test_a_self_crossing_closed_shell_falls_back_to_a_filled_printable_solid(tmp_path):
+    from repair.winding import winding_numbers
+
+    v, f = _crossed_prism()
+    result = repair_mesh(v, f, EPS, time_budget=NO_TIME)
+    r = result.report
+    assert r["path"] == "fallback", r["summary"]
+    assert r["fallback"]["self_crossing_shells"] == 1
+    assert r["fallback"]["knot_triangles"] > 0
+    assert _written_check(result.vertices, result.faces, tmp_path).ok
+    # Nothing strays beyond the eps/2 of the blocks over the crossings.
+    assert 0 < r["deviation"] <= 0.5 * EPS + 1e-6
+    # Every input face is inside the output, and the lobe is solid, not a hollow skin.
+    assert covered_fraction(v, f, result.vertices, result.faces) >= 0.99
+    inside = winding_numbers(result.vertices, result.faces, np.array([[7.9, 4.6, 2.5]]))
+    assert abs(inside[0] - 1.0) < 1e-6
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not (CORPUS / "mikedh_target.obj").exists(), reason="corpus not present")
+def test_corpus_target_whose_slab_folds_falls_back_to_a_printable_file(tmp_path):
+    out = tmp_path / "target.stl"
+    report = repair_file(CORPUS / "mikedh_target.obj", out, epsilon=EPS, time_budget=NO_TIME)
+    assert report["path"] == "fallback", report["summary"]
+    mesh = load_mesh(out)
+    assert check_printable(mesh.vertices, mesh.faces, as_float32=True).ok
+    assert 0 < report["deviation"] <= 0.55 * EPS + 1e-6
+    src = load_mesh(CORPUS / "mikedh_target.obj")
+    assert covered_fraction(src.vertices, src.faces, mesh.vertices, mesh.faces) >= 0.99

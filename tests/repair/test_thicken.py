@@ -54,3 +54,37 @@ def test_region_prisms_of_nothing_are_empty():
     pv, pf = region_prisms(none, none.astype(int), np.zeros(0), none, EPS)
     assert pv.shape == (0, 3) and pf.shape == (0, 3)
 
+
+
+def test_face_blocks_are_convex_eps_thick_solids_within_eps_half_of_their_face():
+    from scipy.spatial import ConvexHull
+
+    from repair.thicken import face_blocks
+    from repair.winding import winding_numbers
+
+    rng = np.random.default_rng(7)
+    # Triangles of all shapes (a sliver, an obtuse one), far apart; plus a degenerate one.
+    tris = [rng.normal(size=(3, 3)) + 20.0 * k for k in range(6)]
+    tris += [np.array([[0.0, 0, 0], [1, 0, 0], [0.5, 1e-3, 0]]) - 20.0,
+             np.array([[0.0, 0, 0], [1, 0, 0], [3, 0.2, 0]]) - 40.0,
+             np.array([[0.0, 0, 0], [1, 1, 1], [2, 2, 2]]) - 60.0]  # fmt: skip
+    v = np.vstack(tris)
+    f = np.arange(len(v)).reshape(-1, 3)
+    bv, bf = face_blocks(v, f, EPS)
+    assert len(bf) == 20 * (len(f) - 1)  # the degenerate face gets none
+    for k in range(len(f) - 1):
+        corners, faces = bv[12 * k : 12 * k + 12], bf[20 * k : 20 * k + 20] - 12 * k
+        verdict = check_printable(corners, faces)
+        assert verdict.ok, verdict.failures()
+        # Convex and outward: its volume is its corners' hull's.
+        assert signed_volume(corners, faces) == pytest.approx(ConvexHull(corners).volume)
+        a, b, c = v[f[k]]
+        n = np.cross(b - a, c - a)
+        n /= np.linalg.norm(n)
+        centre = (a + b + c) / 3
+        # eps thick along the face's normal, and every corner within eps/2 of the face
+        # (the in-plane ones lie eps/2 out from an edge, the others above/below a corner).
+        probes = centre + np.outer([0.499, -0.499, 0.501, -0.501], EPS * n)
+        assert np.allclose(winding_numbers(corners, faces, probes), [1, 1, 0, 0], atol=1e-6)
+        base = np.array([a, b, c, a, b, c, a, b, b, c, c, a])
+        assert np.allclose(np.linalg.norm(corners - base, axis=1), EPS / 2)
