@@ -23,8 +23,8 @@ from repair.check import (
     round_to_float32,
     verdict_given_pairs,
 )
-from repair.clean import clean_soup, degenerate_mask, drop_unreferenced
-from repair.hull_and_thicken import hull_and_thicken
+from repair.clean import degenerate_mask, drop_unreferenced
+from repair.hull_and_thicken import hull_again
 from repair.intersections import intersecting_face_pairs
 from repair.mend import mend_intersections, separate_singular_edges
 from repair.meshes import concat_meshes
@@ -217,8 +217,7 @@ def finish(
                 continue
         if local_only:
             break
-        c = clean_soup(*concat_meshes([(v32, f32), *extra]), solid=True)
-        v, f, _, _ = hull_and_thicken(c.vertices, c.faces, eps, tally, solid=True)
+        v, f, before = hull_again(v32, f32, pairs, extra, eps, tally)
     assert verdict is not None
     v32, f32 = weld_exact(round_to_float32(v), f)
     return v32, f32, check_printable(v32, f32)

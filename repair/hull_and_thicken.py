@@ -20,12 +20,13 @@ from repair.hull import (
 )
 from repair.intersections import intersecting_face_pairs
 from repair.meshes import concat_meshes, surface_area
+from repair.provenance import carry_input_pairs
 from repair.report import RepairTally
 from repair.thicken import region_prisms, sheet_slabs
 from repair.union import manifold_union
 from repair.wires import cylinders, visible_segments
 
-__all__ = ["MAX_THICKEN_ROUNDS", "hull_and_thicken"]
+__all__ = ["MAX_THICKEN_ROUNDS", "hull_again", "hull_and_thicken"]
 
 #: Rounds of "thicken the sheets, take the outer hull of the union".
 MAX_THICKEN_ROUNDS = 3
@@ -87,6 +88,30 @@ def hull_and_thicken(
         v, f = c.vertices, c.faces
     sv, sf = drop_unreferenced(v, f)
     return sv, sf, first_poly, first_hull_birth
+
+
+def hull_again(
+    v32: np.ndarray,
+    f32: np.ndarray,
+    pairs: np.ndarray | None,
+    extra: list[tuple[np.ndarray, np.ndarray]],
+    eps: float,
+    tally: RepairTally,
+) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray] | None]:
+    """The whole arrangement and outer hull taken again of a rounded mesh ``(v32, f32)``
+    (float32 values) and ``extra`` solids, where mending it locally does not do.
+
+    ``pairs``: all the crossing pairs of ``(v32, f32)``, if known. Then most faces of the
+    cleaned union are faces of it, on the same points: they keep their pairs and only
+    the region near the others is tested, both for the arrangement and for the check of
+    the result, which gets them as ``before = (vertices, faces, pairs)`` (see
+    :func:`repair.finish.rounded_verdict`; None when ``pairs`` is). The outer hull keeps
+    most faces as they were, so that check too tests only near the faces it changed.
+    """
+    c = clean_soup(*concat_meshes([(v32, f32), *extra]), solid=True)
+    known = None if pairs is None else carry_input_pairs(v32, f32, pairs, c.vertices, c.faces)
+    v, f, _, _ = hull_and_thicken(c.vertices, c.faces, eps, tally, solid=True, pairs=known)
+    return v, f, None if known is None else (c.vertices, c.faces, known)
 
 
 def _sheet_solids(

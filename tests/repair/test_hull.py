@@ -164,3 +164,26 @@ def test_later_resolve_rounds_test_only_near_the_new_faces_and_find_the_same():
             break
     assert rounds > 1
     assert _triangles(*got[:3]) == _triangles(rv, rf, birth)
+
+
+def test_hull_taken_again_with_known_pairs_is_the_hull_taken_from_scratch():
+    # finish's whole-mesh rerun hands the rounded mesh's crossing pairs on (hull_again):
+    # the hull must be the one found without them, and the pairs it hands to the next
+    # check must be all the crossings of the mesh it took the hull of.
+    from repair.check import round_to_float32
+    from repair.clean import clean_soup
+    from repair.hull_and_thicken import hull_again, hull_and_thicken
+    from repair.report import RepairTally
+
+    v, f = concat(sphere(3, 10.0), sphere(3, 7.0, (9.3, 1.7, -2.1)))
+    v32 = round_to_float32(v)
+    pairs = intersecting_face_pairs(v32, f)
+    assert len(pairs) > 0 and len(f) >= LOCAL_REMESH_MIN_FACES
+    got_v, got_f, before = hull_again(v32, f, pairs, [], 0.4, RepairTally())
+    c = clean_soup(v32, f, solid=True)
+    ref_v, ref_f, _, _ = hull_and_thicken(c.vertices, c.faces, 0.4, RepairTally(), solid=True)
+    assert np.array_equal(got_v, ref_v) and np.array_equal(got_f, ref_f)
+    assert len(got_f) < len(f)  # the union dropped the faces inside the other sphere
+    bv, bf, bp = before
+    assert np.array_equal(bp, intersecting_face_pairs(bv, bf))
+    assert hull_again(v32, f, None, [], 0.4, RepairTally())[2] is None
