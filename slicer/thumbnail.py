@@ -105,25 +105,27 @@ def _solid(v: np.ndarray, f: np.ndarray, cells: int):
 
 
 def _screen(xy: np.ndarray, z: np.ndarray | float) -> np.ndarray:
-    """View axes to screen: x right, y up (the camera ELEVATION above the horizon)."""
-    return np.stack([xy[:, 0], xy[:, 1] * math.sin(ELEVATION) + z * math.cos(ELEVATION)],
-                    axis=1)
-
-
-def _stack(vertices: np.ndarray, faces: np.ndarray, layers: int, cells: int) -> _Stack:
-    """Slice the model, turned into view axes, at ``layers`` (at most MAX_LAYERS) heights."""
-    v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    """Model axes to screen (x right, y up): turned by AZIMUTH about the vertical, seen
+    from ELEVATION above the horizon."""
     c, s = math.cos(AZIMUTH), math.sin(AZIMUTH)
-    v = (v - v.mean(axis=0)) @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]).T
-    man = _solid(v, f, cells)
-    pts = np.asarray(man.to_mesh().vert_properties, dtype=np.float64)[:, :3]
-    lo, hi = pts.min(axis=0), pts.max(axis=0)
-    scr = _screen(pts[:, :2], pts[:, 2])
-    box = (*scr.min(axis=0).tolist(), *scr.max(axis=0).tolist())
+    depth = s * xy[:, 0] + c * xy[:, 1]  # away from the viewer
+    return np.stack([c * xy[:, 0] - s * xy[:, 1],
+                     depth * math.sin(ELEVATION) + z * math.cos(ELEVATION)], axis=1)
+
+
+def _screen_box(vertices: np.ndarray) -> tuple[float, float, float, float]:
+    scr = _screen(vertices[:, :2], vertices[:, 2])
+    return (*scr.min(axis=0).tolist(), *scr.max(axis=0).tolist())  # type: ignore[return-value]
+
+
+def _stack(vertices: np.ndarray, man, layers: int) -> _Stack:
+    """Slice the solid ``man`` at ``layers`` (at most MAX_LAYERS) heights."""
+    v = np.asarray(vertices, dtype=np.float64)
+    box = _screen_box(v)
+    lo, hi = float(v[:, 2].min()), float(v[:, 2].max())
     n = int(min(max(layers, 1), MAX_LAYERS))
-    dz = (hi[2] - lo[2]) / n
-    tops = lo[2] + dz * np.arange(1, n + 1)
+    dz = (hi - lo) / n
+    tops = lo + dz * np.arange(1, n + 1)
     rings, layer = [], []
     for i, top in enumerate(tops):
         polys = man.slice(float(top - dz / 2)).to_polygons()
@@ -161,15 +163,12 @@ def _pixels_per_mm(box: tuple[float, float, float, float], px_w: int, px_h: int)
 def _layers_needed(vertices: np.ndarray, sizes: list[tuple[int, int]]) -> int:
     """Layers so that, in the largest picture, drawn layers are LAYER_PX apart at most."""
     v = np.asarray(vertices, dtype=np.float64)
-    c, s = math.cos(AZIMUTH), math.sin(AZIMUTH)
-    xy = v[:, :2] @ np.array([[c, -s], [s, c]]).T
-    scr = _screen(xy, v[:, 2])
-    box = (*scr.min(axis=0).tolist(), *scr.max(axis=0).tolist())
-    height = float(np.ptp(v[:, 2])) if len(v) else 0.0
+    box = _screen_box(v)
+    height = float(np.ptp(v[:, 2]))
     need = 1
     for w, h in sizes:
         k = _scale(w, h)
-        ppm = _pixels_per_mm(box, w * k, h * k)  # type: ignore[arg-type]
+        ppm = _pixels_per_mm(box, w * k, h * k)
         need = max(need, math.ceil(height * math.cos(ELEVATION) * ppm / LAYER_PX))
     return need
 
@@ -234,26 +233,32 @@ def _draw(stack: _Stack, width: int, height: int) -> bytes:
     return out.getvalue()
 
 
-def _cells(sizes: list[tuple[int, int]]) -> int:
-    return max(48, int(0.4 * max(max(w, h) for w, h in sizes)))
-
-
 def render_png(vertices: np.ndarray, faces: np.ndarray, width: int, height: int) -> bytes:
     """A ``width`` × ``height`` PNG (RGBA, transparent background) of the mesh."""
-    sizes = [(width, height)]
-    stack = _stack(vertices, faces, _layers_needed(vertices, sizes), _cells(sizes))
-    return _draw(stack, width, height)
+    return _pngs(vertices, faces, [(width, height)], None)[0]
 
 
-def thumbnail_blocks(vertices: np.ndarray, faces: np.ndarray,
-                     sizes: list[tuple[int, int]]) -> str:
-    """G-code comment blocks with one PNG thumbnail per (width, height), smallest first."""
+def _pngs(vertices: np.ndarray, faces: np.ndarray, sizes: list[tuple[int, int]],
+          solid) -> list[bytes]:
+    v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+    if solid is None:
+        cells = max(48, int(0.4 * max(max(w, h) for w, h in sizes)))
+        solid = _solid(v, np.asarray(faces, dtype=np.int64).reshape(-1, 3), cells)
+    stack = _stack(v, solid, _layers_needed(v, sizes))
+    return [_draw(stack, w, h) for w, h in sizes]
+
+
+def thumbnail_blocks(vertices: np.ndarray, faces: np.ndarray, sizes: list[tuple[int, int]],
+                     solid=None) -> str:
+    """G-code comment blocks with one PNG thumbnail per (width, height), smallest first.
+    ``solid``: the mesh's manifold3d Manifold when the caller has it (the slicer does),
+    which saves building it again (about a microsecond a triangle)."""
     if not sizes:
         return ""
-    stack = _stack(vertices, faces, _layers_needed(vertices, sizes), _cells(sizes))
+    sizes = sorted(sizes)
     parts: list[str] = []
-    for w, h in sorted(sizes):
-        data = base64.b64encode(_draw(stack, w, h)).decode("ascii")
+    for (w, h), png in zip(sizes, _pngs(vertices, faces, sizes, solid), strict=True):
+        data = base64.b64encode(png).decode("ascii")
         lines = "".join(f"; {data[i:i + LINE]}\n" for i in range(0, len(data), LINE))
         parts.append(f";\n; thumbnail begin {w}x{h} {len(data)}\n{lines}; thumbnail end\n;\n")
     return "".join(parts)
