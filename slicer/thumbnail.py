@@ -118,8 +118,9 @@ def _screen_box(vertices: np.ndarray) -> tuple[float, float, float, float]:
     return (*scr.min(axis=0).tolist(), *scr.max(axis=0).tolist())  # type: ignore[return-value]
 
 
-def _stack(vertices: np.ndarray, man, layers: int) -> _Stack:
-    """Slice the solid ``man`` at ``layers`` (at most MAX_LAYERS) heights."""
+def _stack(vertices: np.ndarray, man, layers: int, tolerance: float) -> _Stack:
+    """Slice the solid ``man`` at ``layers`` (at most MAX_LAYERS) heights; the sections
+    simplified within ``tolerance`` (mm; a fraction of a pixel: fewer points to draw)."""
     v = np.asarray(vertices, dtype=np.float64)
     box = _screen_box(v)
     lo, hi = float(v[:, 2].min()), float(v[:, 2].max())
@@ -128,7 +129,7 @@ def _stack(vertices: np.ndarray, man, layers: int) -> _Stack:
     tops = lo + dz * np.arange(1, n + 1)
     rings, layer = [], []
     for i, top in enumerate(tops):
-        polys = man.slice(float(top - dz / 2)).to_polygons()
+        polys = man.slice(float(top - dz / 2)).simplify(tolerance).to_polygons()
         rings.extend(polys)
         layer.extend([i] * len(polys))
     if not rings:
@@ -160,17 +161,14 @@ def _pixels_per_mm(box: tuple[float, float, float, float], px_w: int, px_h: int)
     return 1.0 / (2.0 * half)
 
 
-def _layers_needed(vertices: np.ndarray, sizes: list[tuple[int, int]]) -> int:
-    """Layers so that, in the largest picture, drawn layers are LAYER_PX apart at most."""
+def _finest(vertices: np.ndarray, sizes: list[tuple[int, int]]) -> tuple[int, float]:
+    """Layers so that, in the largest picture, drawn layers are LAYER_PX apart at most; and
+    the length (mm) of a quarter of that picture's pixels."""
     v = np.asarray(vertices, dtype=np.float64)
     box = _screen_box(v)
+    ppm = max(_pixels_per_mm(box, w * _scale(w, h), h * _scale(w, h)) for w, h in sizes)
     height = float(np.ptp(v[:, 2]))
-    need = 1
-    for w, h in sizes:
-        k = _scale(w, h)
-        ppm = _pixels_per_mm(box, w * k, h * k)
-        need = max(need, math.ceil(height * math.cos(ELEVATION) * ppm / LAYER_PX))
-    return need
+    return max(1, math.ceil(height * math.cos(ELEVATION) * ppm / LAYER_PX)), 0.25 / ppm
 
 
 def _fill_with_holes(img, rings: list[np.ndarray], area: np.ndarray, fill: tuple) -> None:
@@ -244,7 +242,7 @@ def _pngs(vertices: np.ndarray, faces: np.ndarray, sizes: list[tuple[int, int]],
     if solid is None:
         cells = max(48, int(0.4 * max(max(w, h) for w, h in sizes)))
         solid = _solid(v, np.asarray(faces, dtype=np.int64).reshape(-1, 3), cells)
-    stack = _stack(v, solid, _layers_needed(v, sizes))
+    stack = _stack(v, solid, *_finest(v, sizes))
     return [_draw(stack, w, h) for w, h in sizes]
 
 
