@@ -1,20 +1,23 @@
 """PNG thumbnails of the model for the printer's screen, in PrusaSlicer's G-code blocks.
 
 The model is drawn the way it will be printed, as a stack of layers: manifold3d slices the
-solid (turned to a fixed front-right view) at up to ``MAX_LAYERS`` heights, and Pillow's
-ImageDraw fills each layer's section, projected at 35° from above, bottom layer first, each
-a shade lighter than the one below and outlined darker. Seen from above, whatever hides a
-point of a layer lies higher up, so drawing bottom to top is a correct painter's order; the
-layers are drawn under a pixel of the picture apart, so the stacked outlines show the walls and
-the last layer drawn over a pixel shows the top faces. The Python loop is over layers (a
-few hundred at most), never over triangles: the slicing is manifold3d's, the filling
-Pillow's. A layer with holes (a cup's rim, a ring) is filled through a mask, so what is below
-shows through its holes. The picture is drawn at a few times its size and scaled down with
-Lanczos filtering for smooth edges, then encoded as PNG. A mesh with more triangles than
-the picture could show (``MAX_TRIANGLES``) is first simplified by vertex clustering on a
-grid finer than the picture's pixels when that keeps it a closed solid; a mesh that is not
-a closed solid is drawn as its convex hull. Pillow, not matplotlib: importing matplotlib's
-figure machinery took longer (~0.6 s of CPU) than slicing a small model.
+solid at up to ``MAX_LAYERS`` heights (each section simplified within a quarter pixel), and
+Pillow's ImageDraw fills each layer's section, seen from the front right and 35° above,
+bottom layer first, each a shade lighter than the one below and outlined darker. Seen from
+above, whatever hides a point of a layer lies higher up, so drawing bottom to top is a
+correct painter's order; the layers are drawn under a pixel of the picture apart, so the
+stacked outlines show the walls and the last layer drawn over a pixel shows the top faces.
+The Python loop is over layers (a few hundred at most), never over triangles: the slicing is
+manifold3d's, the filling Pillow's. A layer with holes (a cup's rim, a ring) is filled
+through a mask, so what is below shows through its holes. The picture is drawn at a few
+times its size and scaled down with Lanczos filtering for smooth edges, then encoded as PNG.
+
+The slicer passes the solid it has built; given only a mesh, the solid is built here (about
+a microsecond a triangle): over ``MAX_TRIANGLES``, from a copy simplified by vertex
+clustering on a grid finer than the picture's pixels when that copy is still a closed solid;
+a mesh that is not a closed solid is drawn as its convex hull. Pillow, not matplotlib:
+importing matplotlib's figure machinery took longer (~0.6 s of CPU) than slicing a small
+model.
 
 Block format (what Prusa firmware, OctoPrint and the Klipper UIs read)::
 
