@@ -10,7 +10,7 @@ stacked outlines show the walls and the last layer drawn over a pixel shows the 
 The Python loop is over layers (a few hundred at most), never over triangles: the slicing is
 manifold3d's, the filling Pillow's. A layer with holes (a cup's rim, a ring) is filled
 through a mask, so what is below shows through its holes. The picture is drawn at a few
-times its size and scaled down with Lanczos filtering for smooth edges, then encoded as PNG.
+times its size and scaled down by block averaging for smooth edges, then encoded as PNG.
 
 The slicer passes the solid it has built; given only a mesh, the solid is built here (about
 a microsecond a triangle): over ``MAX_TRIANGLES``, from a copy simplified by vertex
@@ -227,7 +227,7 @@ def _draw(stack: _Stack, width: int, height: int) -> bytes:
                     draw.polygon(ring, fill=None if stack.holed[lay] else fills[lay],
                                  outline=edges[lay])
         i = j
-    img = img.resize((width, height), Image.Resampling.LANCZOS)
+    img = img.reduce(k)  # each pixel the mean of its k × k block: the supersampling's filter
     out = io.BytesIO()
     out.name = "thumbnail.png"  # the format from the name: Pillow loads its PNG plugin only
     img.save(out, optimize=False)
