@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from daemon.config import Config
+from daemon.events import AnyEvent
 from daemon.journal import Job, Journal
 from daemon.pins import BadSidecar, find_sidecar, folder_nozzle, is_sidecar, read_sidecar
 from daemon.report import write_reports
@@ -489,21 +490,3 @@ class Processor:
                                 note="G-code checked", gcode_path=job.input_path,
                                 printer_info=info,
                                 slice_summary={"gcode_check": checked.to_dict()})
-
-
-class AnyEvent:
-    """Duck-typed ``threading.Event`` that is set when any of the given events is."""
-
-    def __init__(self, *events: threading.Event) -> None:
-        self.events = events
-
-    def is_set(self) -> bool:
-        return any(e.is_set() for e in self.events)
-
-    def wait(self, timeout: float | None = None) -> bool:
-        end = None if timeout is None else time.monotonic() + timeout
-        while not self.is_set():
-            if end is not None and time.monotonic() >= end:
-                return False
-            time.sleep(0.05)
-        return True

@@ -99,12 +99,13 @@ def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progres
     model, man = _placed(*_checked_mesh(vertices, faces), profile)
     head, tail = _head_and_tail(profile, model.tops)  # before the heavy work: fail fast
     _plan_layers(model, man, profile, report)
+    thumbnails = _thumbnails(model, man, profile)  # drawn from the solid, while it exists
     del man
     written = _write_layers(model, profile, report)
     if written.filament_mm <= 0:
         raise SliceError("nothing to print: the model produced no extrusions")
     summary = _summary(model, written, profile)
-    gcode = _assemble(model, written, profile, head, tail, summary)
+    gcode = _assemble(model, written, profile, head, tail, summary, thumbnails)
     report("done", 1.0)
     return SliceResult(gcode, summary)
 
@@ -235,19 +236,26 @@ def _summary(model: _Model, written: Written, p: Profile) -> dict[str, Any]:
     }
 
 
+def _thumbnails(model: _Model, man: Any, p: Profile) -> str:
+    """The thumbnail blocks of the profile's sizes ("" for none), drawn from the solid."""
+    from slicer.profile import thumbnail_sizes
+    from slicer.thumbnail import thumbnail_blocks
+
+    sizes = thumbnail_sizes(p.thumbnails)
+    return thumbnail_blocks(model.vertices, model.faces, sizes, solid=man) if sizes else ""
+
+
 def _assemble(model: _Model, written: Written, p: Profile, head: str, tail: str,
-              summary: dict[str, Any]) -> str:
+              summary: dict[str, Any], thumbnails: str = "") -> str:
     """The whole file: thumbnails, header comments, start G-code, the layers with M73
     progress, temperature and fan changes and Z moves, then the end G-code."""
     from slicer.gcode import fan_command, m73
     from slicer.profile import thumbnail_sizes
-    from slicer.thumbnail import thumbnail_blocks
 
     parts: list[str] = []
-    sizes = thumbnail_sizes(p.thumbnails)
-    if sizes:  # first in the file, where printers and UIs look for them
-        parts.append(thumbnail_blocks(model.vertices, model.faces, sizes))
-        summary["thumbnails"] = [f"{w}x{h}" for w, h in sizes]
+    if thumbnails:  # first in the file, where printers and UIs look for them
+        parts.append(thumbnails)
+        summary["thumbnails"] = [f"{w}x{h}" for w, h in thumbnail_sizes(p.thumbnails)]
     total = float(sum(written.seconds))
     filament = written.filament_mm
     cm3 = filament * p.filament_area / 1000.0

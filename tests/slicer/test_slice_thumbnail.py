@@ -76,3 +76,67 @@ def test_a_200k_triangle_mesh_is_drawn_from_a_simplified_copy():
     rows, cols = np.flatnonzero(alpha.any(axis=1)), np.flatnonzero(alpha.any(axis=0))
     box = (rows[-1] - rows[0] + 1) * (cols[-1] - cols[0] + 1)
     assert alpha.sum() / box == pytest.approx(np.pi / 4, abs=0.05)
+
+
+def _alpha(vertices, faces, width=220, height=124) -> np.ndarray:
+    from slicer.thumbnail import render_png
+
+    img = Image.open(io.BytesIO(render_png(vertices, faces, width, height)))
+    assert img.size == (width, height)
+    return np.asarray(img.convert("RGBA"))[:, :, 3] > 127
+
+
+def _mesh(solid) -> tuple[np.ndarray, np.ndarray]:
+    m = solid.to_mesh()
+    return np.asarray(m.vert_properties[:, :3], dtype=np.float64), np.asarray(m.tri_verts)
+
+
+def test_the_silhouette_follows_the_model_not_its_hull():
+    """A mushroom and its convex hull have the same box, so they are drawn at the same
+    scale and place: the mushroom's picture lies inside the hull's and misses the space
+    under its cap; a cube's picture is its hull's, and differs clearly from the mushroom's."""
+    from manifold3d import Manifold
+
+    mushroom = Manifold.cylinder(30, 8, 8, 64) + Manifold.cylinder(8, 25, 25, 192).translate(
+        [0, 0, 30])
+    cube = Manifold.cube([50, 50, 38])
+    shapes = {name: (_alpha(*_mesh(s)), _alpha(*_mesh(s.hull())))
+              for name, s in {"mushroom": mushroom, "cube": cube}.items()}
+    mush, mush_hull = shapes["mushroom"]
+    box, box_hull = shapes["cube"]
+    assert (mush & ~mush_hull).sum() <= 0.01 * mush.sum()
+    assert 0.5 < mush.sum() / mush_hull.sum() < 0.95  # the cap hides most of the stem
+    assert (box == box_hull).mean() > 0.99
+    iou = (mush & box).sum() / (mush | box).sum()
+    assert iou < 0.8, "a mushroom does not look like a box"
+
+
+def test_a_box_covers_the_share_of_its_picture_its_projected_corners_enclose():
+    from manifold3d import CrossSection, Manifold
+
+    from slicer.thumbnail import AZIMUTH, ELEVATION
+
+    alpha = _alpha(*_mesh(Manifold.cube([30, 20, 10])))
+    corners = np.array([[x, y, z] for x in (0, 30) for y in (0, 20) for z in (0, 10)], float)
+    c, s = np.cos(AZIMUTH), np.sin(AZIMUTH)
+    x = c * corners[:, 0] - s * corners[:, 1]
+    y = (s * corners[:, 0] + c * corners[:, 1]) * np.sin(ELEVATION) + corners[:, 2] * np.cos(
+        ELEVATION)
+    expected = CrossSection.hull_points(np.c_[x, y]).area() / (np.ptp(x) * np.ptp(y))
+    rows, cols = np.flatnonzero(alpha.any(axis=1)), np.flatnonzero(alpha.any(axis=0))
+    drawn = alpha.sum() / ((rows[-1] - rows[0] + 1) * (cols[-1] - cols[0] + 1))
+    assert drawn == pytest.approx(expected, abs=0.05)
+
+
+def test_a_hole_shows_what_is_behind_it_and_an_open_mesh_still_gets_a_picture():
+    from manifold3d import Manifold
+
+    washer = Manifold.cylinder(4, 15, 15, 96) - Manifold.cylinder(10, 10, 10, 96).translate(
+        [0, 0, -3])
+    alpha = _alpha(*_mesh(washer), 64, 64)
+    assert alpha.mean() > 0.2
+    assert not alpha[28:36, 28:36].any(), "the background shows through the washer's hole"
+    v, f = _mesh(Manifold.cube([20, 20, 20]))
+    keep = ~np.all(v[f][:, :, 2] > 19.999, axis=1)  # the lid removed: not a closed solid
+    open_box = _alpha(v, f[keep], 64, 64)
+    assert (open_box == _alpha(v, f, 64, 64)).mean() > 0.98
