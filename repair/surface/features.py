@@ -125,6 +125,8 @@ def _absorbed(v: np.ndarray, f: np.ndarray, found: list) -> list[tuple[Surface, 
     """Each feature grown by the neighbouring faces that lie on its surface too (vertices
     within its fit's residual, normal within ``ABSORB_ANGLE_DEG`` of the surface's), which
     the region growing split off; a face goes to the first feature that claims it."""
+    if not found:  # nothing to grow: skip the face geometry and edge pairing of the mesh
+        return []
     owner = np.full(len(f), -1, dtype=np.int64)
     for fid, (_, group, _) in enumerate(found):
         owner[group] = fid
