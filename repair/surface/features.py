@@ -103,15 +103,15 @@ def find_features(vertices: np.ndarray, faces: np.ndarray, *, tolerance: float,
     f = np.asarray(faces, dtype=np.int64)
     if not kinds or len(f) == 0:
         return []
-    labels = face_regions(v, f)
-    normals, areas, centroids = face_geometry(v, f)
+    normals, areas, centroids = geometry = face_geometry(v, f)
+    labels = face_regions(v, f, geometry=geometry)
     order = np.argsort(labels, kind="stable")
     cuts = np.flatnonzero(np.diff(labels[order])) + 1
     found = []
     for group in np.split(order, cuts):
         if len(group) < MIN_FACES:
             continue
-        pts = v[np.unique(f[group])]
+        pts = v[_used_vertices(f[group], len(v))]
         size = float(np.linalg.norm(np.ptp(pts, axis=0)))
         accept = min(FIT_SHARE * tolerance, FIT_RELATIVE * size)
         surface = fit_surface(pts, centroids[group], normals[group], areas[group], kinds,
@@ -119,6 +119,16 @@ def find_features(vertices: np.ndarray, faces: np.ndarray, *, tolerance: float,
         if surface is not None:
             found.append((surface, group, accept))
     return _absorbed(v, f, found)
+
+
+def _used_vertices(corners: np.ndarray, n_vertices: int) -> np.ndarray:
+    """The sorted distinct vertex indices in ``corners`` (``np.unique``'s result): a mask
+    over all vertices when the corners are many (no sort), else ``np.unique``."""
+    if corners.size * 8 < n_vertices:
+        return np.unique(corners)
+    used = np.zeros(n_vertices, dtype=bool)
+    used[corners.reshape(-1)] = True
+    return np.flatnonzero(used)
 
 
 def _absorbed(v: np.ndarray, f: np.ndarray, found: list) -> list[tuple[Surface, np.ndarray]]:
