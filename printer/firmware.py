@@ -17,8 +17,6 @@ anything else         unknown     marlin
 
 from __future__ import annotations
 
-from printer.gcode import lex
-
 FAMILIES = ("marlin", "prusa", "buddy", "klipper", "rrf", "unknown")
 #: The G-code dialects the slicers write.
 SLICER_FLAVOURS = ("marlin", "klipper", "reprapfirmware")
@@ -110,7 +108,15 @@ def keepalives_promised(family: str, command: str) -> bool:
     levelling, and unknown firmware may stay silent for the whole command."""
     if family in ("marlin", "prusa", "buddy"):
         return True
-    return family == "klipper" and lex(command).word in HEAT_WAITS
+    return family == "klipper" and _word(command) in HEAT_WAITS
+
+
+def _word(command: str) -> str | None:
+    # the lexer is imported on first use: the slicer reads this table (its G-code
+    # flavours) and never lexes, so `preflight slice` does not load it
+    from printer.gcode import lex
+
+    return lex(command).word
 
 
 def heat_wait_break(family: str) -> str | None:
@@ -138,6 +144,8 @@ def long_command_wait(command: str) -> float | None:
 
     ``"M190 S60"`` -> 0.0, ``"G4 S30"`` -> 30.0, ``"G4 P200"`` -> None, ``"G1 X5"`` -> None.
     """
+    from printer.gcode import lex
+
     lexed = lex(command)
     word = lexed.word
     if word == "G4":

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -324,6 +323,8 @@ def _coerce(key: str, current: Any, value: Any) -> Any:
 
 def load_profile(path: str | Path, base: Profile) -> Profile:
     """Read a TOML profile (flat keys, or under a [slicer] / [profile] table) over ``base``."""
+    import tomllib  # here: only a run with a profile file pays for the TOML parser's import
+
     p = Path(path)
     try:
         data = tomllib.loads(p.read_text(encoding="utf-8"))

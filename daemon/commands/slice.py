@@ -73,13 +73,18 @@ def build_profile(args: argparse.Namespace):
 def _load(path: str, nozzle: float):
     try:
         from repair.io import load_mesh
-        from repair.io.step import chordal_deflection
+        from repair.io.base import STEP_SUFFIXES
     except ImportError:  # repair area not present: fall back to trimesh
         import trimesh
 
         m = trimesh.load(path, force="mesh")
         return m.vertices, m.faces
-    mesh = load_mesh(path, deflection=chordal_deflection(nozzle))  # a STEP's tessellation
+    deflection = None
+    if os.path.splitext(path)[1].lower() in STEP_SUFFIXES:  # a STEP's tessellation
+        from repair.io.step import chordal_deflection
+
+        deflection = chordal_deflection(nozzle)
+    mesh = load_mesh(path, deflection=deflection)
     return mesh.vertices, mesh.faces
 
 

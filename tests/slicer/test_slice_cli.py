@@ -67,3 +67,25 @@ def test_a_mushroom_is_supported_by_default_and_the_summary_says_so(tmp_path):
     res = run(str(stl), "-o", str(out), "--set", "support=sometimes")
     assert res.returncode != 0 and res.stderr.count("\n") == 1
     assert "support must be one of auto, buildplate, everywhere, off" in res.stderr
+
+
+def test_slicing_an_stl_loads_only_what_slicing_needs(tmp_path):
+    """Start-up is part of every `preflight slice`: a run without a profile file, on an
+    STL, imports neither the web stack, trimesh, scipy, the journal, the daemon's config,
+    the TOML parser, the G-code lexer, pkgutil nor the other mesh formats' readers."""
+    stl = tmp_path / "part.stl"
+    trimesh.creation.box((10, 10, 4)).export(stl)
+    unwanted = ["aiohttp", "trimesh", "scipy", "sqlite3", "asyncio", "daemon.config",
+                "tomllib", "printer.gcode", "pkgutil", "zipfile", "repair.io.threemf",
+                "repair.io.ply", "repair.io.obj", "repair.io.step"]
+    probe = (
+        "import sys\n"
+        "from daemon.cli import main\n"
+        f"code = main(['slice', {str(stl)!r}, '-o', {str(tmp_path / 'p.gcode')!r}, '--json'])\n"
+        f"print(code, *sorted(m for m in {unwanted!r} if m in sys.modules), file=sys.stderr)\n"
+    )
+    res = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                         timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert res.stderr.split() == ["0"]
+    assert json.loads(res.stdout)["layers"] == 20
