@@ -8,7 +8,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-SUPPORTED_SUFFIXES = (".stl", ".obj", ".ply", ".3mf", ".step", ".stp")  # STEP: repair/io/step.py
+STEP_SUFFIXES = (".step", ".stp")  # read by repair/io/step.py (the optional ``cad`` extra)
+SUPPORTED_SUFFIXES = (".stl", ".obj", ".ply", ".3mf", *STEP_SUFFIXES)
 
 #: Default cap on the total decompressed size of a 3MF archive when the caller gives no
 #: ``max_bytes`` (with ``max_bytes``, the cap is ``EXPANSION_3MF * max_bytes``).

@@ -8,6 +8,7 @@ from pathlib import Path
 from repair.io.base import (
     DEFAULT_MAX_3MF_DECOMPRESSED,
     EXPANSION_3MF,
+    STEP_SUFFIXES,
     SUPPORTED_SUFFIXES,
     Mesh,
     MeshReadError,
@@ -15,11 +16,6 @@ from repair.io.base import (
     looks_like_text,
     sniff_foreign,
 )
-from repair.io.obj import read_obj
-from repair.io.ply import read_ply
-from repair.io.step import STEP_SUFFIXES, read_step
-from repair.io.stl import read_stl
-from repair.io.threemf import read_3mf
 
 
 def load_mesh(
@@ -55,7 +51,11 @@ def load_mesh(
         raise MeshReadError(
             f"{name}: file is {human_bytes(size)}, over the {human_bytes(max_bytes)} limit"
         )
+    # each reader is imported when its format is read: a process that reads STL files never
+    # loads the 3MF reader's zip/XML modules (start-up time of `preflight slice`/`repair`)
     if suffix in STEP_SUFFIXES:
+        from repair.io.step import read_step
+
         return read_step(p, name, deflection=deflection, max_triangles=max_triangles)
     if suffix == ".3mf":
         if max_decompressed is None:
@@ -74,6 +74,8 @@ def load_mesh(
             raise MeshReadError(
                 f"{name}: not a 3MF file" + (f", it is {foreign}" if foreign else "")
             )
+        from repair.io.threemf import read_3mf
+
         return read_3mf(p, name, max_triangles, max_decompressed)
     try:
         data = p.read_bytes()
@@ -82,6 +84,8 @@ def load_mesh(
     if not data[:65536].strip() and not data.strip():
         raise MeshReadError(f"{name}: the file is empty (only whitespace)")
     if suffix == ".stl":
+        from repair.io.stl import read_stl
+
         return read_stl(data, name, max_triangles)
     foreign = sniff_foreign(data[:16])
     if foreign:
@@ -89,7 +93,11 @@ def load_mesh(
     if suffix == ".obj":
         if not looks_like_text(data[:4096]):
             raise MeshReadError(f"{name}: not a mesh: binary data in an OBJ file")
+        from repair.io.obj import read_obj
+
         return read_obj(data, name, max_triangles)
+    from repair.io.ply import read_ply
+
     return read_ply(data, name, max_triangles)
 
 

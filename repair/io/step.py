@@ -18,10 +18,9 @@ from __future__ import annotations
 import tempfile
 from pathlib import Path
 
+from repair.io.base import STEP_SUFFIXES as STEP_SUFFIXES  # where callers have looked for it
 from repair.io.base import Mesh, MeshReadError, finish, sniff_foreign
 from repair.io.stl import read_stl
-
-STEP_SUFFIXES = (".step", ".stp")
 
 #: Largest chordal deflection (mm) of the tessellation; a finer nozzle lowers it (nozzle/40).
 MAX_CHORDAL_DEFLECTION = 0.01

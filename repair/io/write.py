@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import errno
 import os
-import secrets
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -115,7 +114,7 @@ def _create_beside(out: Path, suffix: str) -> tuple[Path, int]:
     the kernel applies the umask to mode 0666. Returns (path, open write descriptor)."""
     flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0)
     while True:
-        tmp = out.with_name(f".{out.name}.{secrets.token_hex(4)}{suffix}")
+        tmp = out.with_name(f".{out.name}.{os.urandom(4).hex()}{suffix}")
         try:
             return tmp, os.open(tmp, flags, 0o666)
         except FileExistsError:
