@@ -373,6 +373,8 @@ def main() -> int:
     ap.add_argument("--json", metavar="FILE", help="also write all results as JSON")
     ap.add_argument("--tools", default=",".join(TOOLS),
                     help=f"comma-separated tools to run (default {','.join(TOOLS)})")
+    ap.add_argument("--no-fallback", action="store_true",
+                    help="skip the fallback runs on the outliers after the table")
     a = ap.parse_args()
     tools = tuple(t for t in TOOLS if t in a.tools.split(","))
     specs = []
@@ -417,8 +419,8 @@ def main() -> int:
                              f"{mem:>13} {'OK ' if r['ok'] else 'BAD'}")  # fmt: skip
         print(f"{name[:36]:36} {tris:8d} " + " ".join(cells), flush=True)
     print()
-    def median_rate(runs: list[dict]) -> str:
-        rates = [r["tris"] / r["s"] for r in runs if r.get("tris", 0) > 1000 and "s" in r]
+    def median_rate(runs: list[dict], clock: str = "s") -> str:
+        rates = [r["tris"] / r[clock] for r in runs if r.get("tris", 0) > 1000 and r.get(clock)]
         return f"{statistics.median(rates) / 1e3:.1f}k" if rates else "-"
 
     for t in tools:
@@ -427,11 +429,12 @@ def main() -> int:
         ok = sum(1 for r in runs if r.get("ok"))
         goal = " (target >= 50k)" if t == "preflight" else ""
         print(f"{t:10} printable {ok}/{len(runs)}; median tri/s on inputs > 1k triangles: "
-              f"corpus {median_rate(corpus)}{goal} "
+              f"corpus {median_rate(corpus)}{goal}, per CPU second {median_rate(corpus, 'cpu')} "
               f"({sum(1 for r in corpus if r.get('tris', 0) > 1000)}"
               f" files), all rows {median_rate(runs)} (whole-process cli: rows excluded)")
     _print_family_and_outliers(results, tools)
-    _print_fallback(results, specs, a.timeout)
+    if not a.no_fallback:
+        _print_fallback(results, specs, a.timeout)
     _print_scan_cleanup(results)
     if a.json:
         Path(a.json).write_text(json.dumps(results, indent=2))
