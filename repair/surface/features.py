@@ -103,15 +103,15 @@ def find_features(vertices: np.ndarray, faces: np.ndarray, *, tolerance: float,
     f = np.asarray(faces, dtype=np.int64)
     if not kinds or len(f) == 0:
         return []
-    labels = face_regions(v, f)
-    normals, areas, centroids = face_geometry(v, f)
+    normals, areas, centroids = geometry = face_geometry(v, f)
+    labels = face_regions(v, f, geometry=geometry)
     order = np.argsort(labels, kind="stable")
     cuts = np.flatnonzero(np.diff(labels[order])) + 1
     found = []
     for group in np.split(order, cuts):
         if len(group) < MIN_FACES:
             continue
-        pts = v[np.unique(f[group])]
+        pts = v[_used_vertices(f[group], len(v))]
         size = float(np.linalg.norm(np.ptp(pts, axis=0)))
         accept = min(FIT_SHARE * tolerance, FIT_RELATIVE * size)
         surface = fit_surface(pts, centroids[group], normals[group], areas[group], kinds,
@@ -121,10 +121,22 @@ def find_features(vertices: np.ndarray, faces: np.ndarray, *, tolerance: float,
     return _absorbed(v, f, found)
 
 
+def _used_vertices(corners: np.ndarray, n_vertices: int) -> np.ndarray:
+    """The sorted distinct vertex indices in ``corners`` (``np.unique``'s result): a mask
+    over all vertices when the corners are many (no sort), else ``np.unique``."""
+    if corners.size * 8 < n_vertices:
+        return np.unique(corners)
+    used = np.zeros(n_vertices, dtype=bool)
+    used[corners.reshape(-1)] = True
+    return np.flatnonzero(used)
+
+
 def _absorbed(v: np.ndarray, f: np.ndarray, found: list) -> list[tuple[Surface, np.ndarray]]:
     """Each feature grown by the neighbouring faces that lie on its surface too (vertices
     within its fit's residual, normal within ``ABSORB_ANGLE_DEG`` of the surface's), which
     the region growing split off; a face goes to the first feature that claims it."""
+    if not found:  # nothing to grow: skip the face geometry and edge pairing of the mesh
+        return []
     owner = np.full(len(f), -1, dtype=np.int64)
     for fid, (_, group, _) in enumerate(found):
         owner[group] = fid

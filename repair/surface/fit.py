@@ -14,7 +14,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
 
 #: the order fits are tried in: two coaxial circles (a cylinder's or cone's rims) also lie
 #: on a sphere and a torus, so the ruled surfaces come first
@@ -221,6 +220,9 @@ def fit_surface(points: np.ndarray, centroids: np.ndarray, normals: np.ndarray,
     if np.linalg.eigh(np.cov((p - c).T))[0][0] ** 0.5 < accept / 3 and np.abs(
             (p - c) @ np.linalg.eigh(np.cov((p - c).T))[1][:, 0]).max() <= accept:
         return None
+    # scipy.optimize takes ~1 s to import: only a region worth fitting pays for it
+    from scipy.optimize import least_squares
+
     # fit a few hundred vertices first: a region that is no such surface fails cheaply
     few = p[np.linspace(0, len(p) - 1, min(len(p), SUBSAMPLE)).astype(int)]
     for kind in (k for k in KINDS if k in kinds):

@@ -30,12 +30,15 @@ def face_geometry(vertices: np.ndarray, faces: np.ndarray
 
 
 def face_regions(vertices: np.ndarray, faces: np.ndarray,
-                 max_angle_deg: float = MAX_ANGLE_DEG) -> np.ndarray:
+                 max_angle_deg: float = MAX_ANGLE_DEG,
+                 geometry: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+                 ) -> np.ndarray:
     """Region label (0..k-1) of each face: components of the face graph whose edges join
-    facets turning by at most ``max_angle_deg``, with consistent curvature."""
+    facets turning by at most ``max_angle_deg``, with consistent curvature. ``geometry``:
+    the faces' :func:`face_geometry`, if the caller has it."""
     v = np.asarray(vertices, dtype=float)
     f = np.asarray(faces, dtype=np.int64)
-    normals, _, centroids = face_geometry(v, f)
+    normals, _, centroids = face_geometry(v, f) if geometry is None else geometry
     eid, _ = edge_ids(f)
     first, second, _ = paired_half_edges(eid)
     fa, fb = first // 3, second // 3
@@ -44,8 +47,8 @@ def face_regions(vertices: np.ndarray, faces: np.ndarray,
     # curvature across the edge: turn per distance between the two centroids
     dist = np.linalg.norm(centroids[fa] - centroids[fb], axis=1)
     kappa = turn / np.maximum(dist, 1e-12)
-    join = (turn <= np.radians(max_angle_deg)) & (np.linalg.norm(normals[fa], axis=1) > 0) & (
-        np.linalg.norm(normals[fb], axis=1) > 0)
+    proper = np.any(normals != 0, axis=1)  # a degenerate face's normal is 0
+    join = (turn <= np.radians(max_angle_deg)) & proper[fa] & proper[fb]
     # a face's curvature: the largest turn rate across its joined edges; curved edges whose
     # rate disagrees with either face's (a sharp crease inside a smooth area) do not join
     bent = join & (turn > np.radians(0.5))
