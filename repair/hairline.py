@@ -35,10 +35,13 @@ __all__ = ["fill_hairline_gaps", "hairline_suspects", "hairline_failures",
 
 #: How far the filling prisms reach either side of a failing face, in probe distances.
 FILL_REACH = 2.0
-#: Meshes with more faces are left as they are: finding the failing faces (the winding
-#: number at every suspect's probes) and mending each fill took tens of seconds on the
-#: corpus's 30k-90k-face outputs, more than the rest of their repair.
+#: Meshes with more faces are only zipped (:func:`repair.zip.zip_hairline`, a fraction
+#: of a second a round): snapping and filling, each rounded and mended, took tens of
+#: seconds on the corpus's 30k-90k-face outputs, more than the rest of their repair.
 MAX_FACES = 20_000
+#: Meshes with more faces are left as they are: finding the failing faces costs 2-15 s on
+#: the corpus's 64k-90k-face outputs (the exact winding numbers near the surface).
+MAX_ZIP_FACES = 40_000
 #: Rounds of "find, fill, round and check" at most.
 MAX_FILL_ROUNDS = 6
 
@@ -96,6 +99,7 @@ def fill_hairline_gaps(
 def _closed_by(method: str, v: np.ndarray, f: np.ndarray, bad: np.ndarray):
     """``(v, f)`` with the hairline at the failing faces ``bad`` closed by ``method``
     (``zip``: corners within the fill's reach merged, back-to-back faces dropped;
+    ``merge``: the same, walls triangulated differently left overlapping to be mended;
     ``snap``: one wall's corners moved onto the facing wall, then mended exactly;
     ``fill``: prisms united), not yet rounded; None when the method finds nothing."""
     from repair.mend import mend_intersections
@@ -103,8 +107,8 @@ def _closed_by(method: str, v: np.ndarray, f: np.ndarray, bad: np.ndarray):
     from repair.zip import snap_onto_opposite, zip_hairline
 
     reach = FILL_REACH * probe_distance(v)
-    if method == "zip":
-        zipped = zip_hairline(v, f, bad, reach)
+    if method in ("zip", "merge"):
+        zipped = zip_hairline(v, f, bad, reach, guarded=method == "zip")
         return None if zipped is None else zipped[:2]
     if method == "snap":
         snapped = snap_onto_opposite(v, f, bad, reach)
@@ -131,11 +135,13 @@ def _one_round(
     from repair.finish import finish
 
     chosen = None
-    for method in ("zip", "snap", "fill"):
+    no_pairs = np.zeros((0, 2), dtype=np.int64)
+    for method in ("zip", "merge", "snap", "fill") if len(f) <= MAX_FACES else ("zip",):
         closed = _closed_by(method, v, f, bad)
         if closed is None:
             continue
-        tv, tf, verdict = finish(*closed, eps, tally, local_only=True)
+        # (v, f) is printable on float32 points: only near what changed is tested again.
+        tv, tf, verdict = finish(*closed, eps, tally, (v, f, no_pairs), local_only=True)
         if not verdict.ok:
             continue
         left = hairline_failures(tv, tf)
@@ -151,15 +157,17 @@ def without_hairline_gaps(out: RepairOutcome, eps: float) -> RepairOutcome:
     checked and mended locally (:func:`repair.finish.finish`; a result that local mending
     cannot make printable is given up: the whole arrangement may take minutes). Each
     round tries, in turn, a zip of the failing faces' corners that lie within
-    :data:`FILL_REACH` probe distances of each other (:func:`repair.zip.zip_hairline`),
+    :data:`FILL_REACH` probe distances of each other (:func:`repair.zip.zip_hairline`,
+    without and with walls left overlapping for the mend),
     a snap of one wall onto the other and an exact mend
     (:func:`repair.zip.snap_onto_opposite`), and a fill with prisms
     (:func:`fill_hairline_gaps`); the one that leaves the mesh printable with the fewest
     faces failing the two-sided winding test (:func:`_one_round`) is taken; the round
     with the fewest is kept.
-    Meshes of more than :data:`MAX_FACES` faces are returned as they are (time).
+    Meshes of more than :data:`MAX_FACES` faces are only zipped, of more than
+    :data:`MAX_ZIP_FACES` returned as they are (time).
     Counted in ``out.sections["hairline_gaps"]``."""
-    if not out.verdict.ok or not 0 < len(out.faces) <= MAX_FACES:
+    if not out.verdict.ok or not 0 < len(out.faces) <= MAX_ZIP_FACES:
         return out
     bad = hairline_failures(out.vertices, out.faces)
     found = best = len(bad)

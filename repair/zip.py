@@ -8,7 +8,9 @@ wall's corners close onto the opposite wall's corners: the slit's two walls, or 
 blade's two faces, become the same triangles with opposite orientation). Faces left
 with a repeated corner go, and coincident faces cancel by orientation
 (:func:`repair.clean.cancel_opposite_faces`), so a closed, oriented surface stays one.
-Nothing moves by more than ``reach`` x the length of a merged chain; the caller rounds,
+Closed shells the zip leaves thinner than ``reach`` on average (tetrahedra pinched off
+between merged corners) go too. Nothing moves by more than ``reach`` x the length of a
+merged chain; the caller rounds,
 checks and keeps the result only when it is printable and fewer faces fail.
 
 Units are mm; vertices float64 (n, 3), faces int64 (m, 3).
@@ -25,12 +27,16 @@ __all__ = ["zip_hairline"]
 
 
 def zip_hairline(
-    vertices: np.ndarray, faces: np.ndarray, which: np.ndarray, reach: float
+    vertices: np.ndarray, faces: np.ndarray, which: np.ndarray, reach: float,
+    guarded: bool = True,
 ) -> tuple[np.ndarray, np.ndarray, float] | None:
     """Merge the corners of the faces ``which`` that lie within ``reach`` (mm) of each
     other onto their group's mean, drop the faces this collapses and the coincident
-    pairs it makes cancel. Returns ``(vertices, faces, largest move in mm)``, or None
-    when no two such corners are that near."""
+    pairs it makes cancel. ``guarded``: a merge that would leave an edge not shared by
+    exactly two faces in opposite directions is not made; else walls triangulated
+    differently are left overlapping, for :func:`repair.mend.mend_intersections`.
+    Returns ``(vertices, faces, largest move in mm)``, or None when no two such corners
+    are that near (or every merge is undone)."""
     from scipy.spatial import cKDTree
 
     v = np.asarray(vertices, dtype=np.float64)
@@ -41,24 +47,74 @@ def zip_hairline(
     near = cKDTree(v[corners]).query_pairs(reach, output_type="ndarray")
     if len(near) == 0:
         return None
-    lab = connected_labels(len(v), corners[near[:, 0]], corners[near[:, 1]])
+    pairs = corners[near]
+    # A merge that would leave an edge not shared by exactly two faces of opposite
+    # directions is undone (its pairs dropped), round by round: the rest zips.
+    for _ in range(8 if guarded else 1):
+        merged = _merged(v, f, pairs)
+        bad = _bad_topology_vertices(merged[1], len(v)) & guarded
+        if not bad.any():
+            break
+        pairs = pairs[~(bad[pairs[:, 0]] | bad[pairs[:, 1]])]
+        if len(pairs) == 0:
+            return None
+    out_v, nf = merged
+    if bad.any():
+        return None
+    shift = float(np.linalg.norm(out_v - v, axis=1).max())
+    out_v, nf = drop_unreferenced(out_v, nf[~_hair_thin_shells(out_v, nf, reach)])
+    return out_v, nf, shift
+
+
+def _hair_thin_shells(v: np.ndarray, f: np.ndarray, reach: float) -> np.ndarray:
+    """Per face: on a closed shell thinner than ``reach`` on average (2 |volume| / area;
+    the tetrahedra a zip pinches off between three merged corners)."""
+    from repair.meshes import shell_volumes
+    from repair.topology import edge_components
+
+    lab = edge_components(f)
+    n = int(lab.max()) + 1
+    if n == 1:
+        return np.zeros(len(f), dtype=bool)
+    p = v[f]
+    area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    shell_area = np.bincount(lab, weights=area, minlength=n)
+    thin = 2.0 * np.abs(shell_volumes(v, f, lab, n)) < reach * shell_area
+    return thin[lab]
+
+
+def _merged(v: np.ndarray, f: np.ndarray, pairs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices joined by ``pairs`` merged onto their group's mean (each group's lowest
+    index stands for it); faces left with a repeated corner dropped and coincident faces
+    cancelled by orientation. Vertices keep their indices (unused ones stay)."""
+    lab = connected_labels(len(v), pairs[:, 0], pairs[:, 1])
     size = np.bincount(lab)
     mean = np.zeros((len(size), 3))
     np.add.at(mean, lab, v)
     mean /= size[:, None]
-    # Each group's lowest vertex index stands for it, at the group's mean.
     rep = np.full(len(size), len(v), dtype=np.int64)
     np.minimum.at(rep, lab, np.arange(len(v)))
     moved = size[lab] > 1
     out_v = v.copy()
     out_v[moved] = mean[lab[moved]]
-    shift = float(np.linalg.norm(out_v[moved] - v[moved], axis=1).max())
     nf = rep[lab][f]
     keep = (nf[:, 0] != nf[:, 1]) & (nf[:, 1] != nf[:, 2]) & (nf[:, 2] != nf[:, 0])
     nf = nf[keep]
-    nf = nf[cancel_opposite_faces(nf)]
-    out_v, nf = drop_unreferenced(out_v, nf)
-    return out_v, nf, shift
+    return out_v, nf[cancel_opposite_faces(nf)]
+
+
+def _bad_topology_vertices(f: np.ndarray, n: int) -> np.ndarray:
+    """Per vertex: on an edge not shared by exactly two faces in opposite directions."""
+    from repair.rows import unique_rows
+    from repair.topology import edge_ids, half_edges
+
+    he = half_edges(f)
+    eid, count = edge_ids(f)
+    _, inv, hcount = unique_rows(he, return_inverse=True, return_counts=True)
+    bad_he = (count[eid] != 2) | (hcount[inv.reshape(-1)] > 1)
+    mark = np.zeros(n, dtype=bool)
+    mark[he[bad_he].reshape(-1)] = True
+    return mark
 
 
 def closest_on_triangles(q: np.ndarray, tri: np.ndarray) -> np.ndarray:
