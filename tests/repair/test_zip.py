@@ -11,44 +11,21 @@ from repair.deviation import max_deviation
 from repair.finish import finish
 from repair.hairline import FILL_REACH, hairline_failures, without_hairline_gaps
 from repair.holes import HolesClosed
-from repair.junk import face_winding_sides, failing_faces, probe_distance
+from repair.junk import probe_distance
 from repair.report import RepairOutcome, RepairTally
-from repair.topology import weld_exact
 from repair.zip import closest_on_triangles, snap_onto_opposite, zip_hairline
-
-#: A float32 ulp or two at x = 5: under the probe distance of a 10 mm part.
-GAP = 2.0**-20
-
-
-def _solid(manifold) -> tuple[np.ndarray, np.ndarray]:
-    mesh = manifold.to_mesh()
-    v = np.asarray(mesh.vert_properties, dtype=np.float64)[:, :3]
-    return weld_exact(v, np.asarray(mesh.tri_verts, dtype=np.int64))
+from tests.repair.test_hairline import GAP, _failing, _slotted_box, _solid
 
 
 def _blade_box():
     """Two 10 mm cubes side by side, GAP apart, joined by a bridge on top: the two facing
-    walls are a slit whose corners face each other (matching triangulations)."""
+    walls are a slit; their corners face each other, their diagonals cross."""
     import manifold3d as m3d
 
     a = m3d.Manifold.cube([10, 10, 10])
     b = m3d.Manifold.cube([10, 10, 10]).translate([10 + GAP, 0, 0])
     bridge = m3d.Manifold.cube([4, 10, 2]).translate([8, 0, 9])
     return a + b + bridge
-
-
-def _slotted_box():
-    """A 10 mm cube with a slot GAP wide cut 8 mm deep from its side: one shell, the
-    slot's walls triangulated alike (corners facing corners)."""
-    import manifold3d as m3d
-
-    box = m3d.Manifold.cube([10, 10, 10])
-    return box - m3d.Manifold.cube([GAP, 12, 8]).translate([5, -1, 3])
-
-
-def _failing(v: np.ndarray, f: np.ndarray) -> int:
-    outside, inside = face_winding_sides(v, f)
-    return int(failing_faces(outside, inside).sum())
 
 
 def test_merging_the_slit_walls_corners_and_mending_closes_the_slit():
