@@ -27,13 +27,14 @@ FILES = (
 NOTHING_PRINTABLE = {"Ghostkeeper_zero_size_cube.stl"}
 #: Outputs that still hold a few faces failing the two-sided winding test (1-263 each):
 #: walls of slits thinner than the probe (another wall of the same shell 1e-9 to 1e-5 mm
-#: away: winding 1|1), blades that thin (0|0) and needles (600 mm x 3.5e-6 mm on
-#: admesh_basic) -- kept from near-coincident input faces by the arrangement and the
-#: union. repair.hairline fills them on outputs of up to 20k faces where its fill
-#: rounds to a printable mesh (admesh_remove-unconnected-bad: 2 -> 0); not on these.
+#: away: winding 1|1) whose corners do not face each other, and blades that thin (0|0)
+#: -- kept from near-coincident input faces by the arrangement and the union.
+#: repair.hairline zips, snaps or fills them on outputs of up to 20k faces where the
+#: result rounds to a printable mesh (admesh_basic: a 600 mm x 3.5e-6 mm needle, zipped,
+#: 2 -> 0; admesh_remove-unconnected-bad: 2 -> 0); not on these. (mikedh_chair_model's
+#: blade went with the sheets' eps-blocks, repair.thicken.face_blocks.)
 #: Known failures, asserted so, so that a fix shows up here.
 WINDING_KNOWN_FAILURES = {
-    "admesh_basic.stl",
     "mikedh_counter.unitsmm.STL",
     "mikedh_cycloidal.ply",
     "mikedh_target.obj",
