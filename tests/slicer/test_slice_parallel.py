@@ -53,13 +53,14 @@ def _gcode(model, workers: str, **over) -> tuple[str, dict]:
     ("islands absolute E", _islands, {"relative_e": False, "seam_position": "aligned"}),
 ])
 def test_workers_write_the_same_gcode_as_one_process(name, model, over):
+    before = _children()  # other tests' long-lived children (servers, pools) are not ours
     one, s1 = _gcode(model, "1", **over)
     for workers in ("2", "3"):
         many, sn = _gcode(model, workers, **over)
         assert sn["workers"] == int(workers)
         assert many == one, f"{name}: {workers} workers changed the G-code"
     assert s1["workers"] == 1
-    assert not _children()
+    assert not _children() - before
 
 
 @pytest.mark.slow
@@ -75,10 +76,11 @@ def test_rotated_bunny_with_support_is_the_same_on_two_processes():
 def test_a_killed_worker_is_a_slice_error_and_leaves_no_process():
     v, f = mushroom()
     killed: list[int] = []
+    before = _children()  # other tests' long-lived children: never killed, not counted
 
     def kill_a_worker(stage: str, fraction: float) -> None:
         if stage == "gcode" and not killed:
-            for pid in _children():
+            for pid in _children() - before:
                 os.kill(pid, signal.SIGKILL)
                 killed.append(pid)
 
@@ -86,7 +88,7 @@ def test_a_killed_worker_is_a_slice_error_and_leaves_no_process():
         slice_mesh(v, f, BASE.with_overrides({"workers": "2", "support": "auto"}),
                    progress=kill_a_worker)
     assert killed
-    assert not _children()
+    assert not _children() - before
 
 
 def test_a_worker_that_raises_names_the_error():
