@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from manifold3d import CrossSection, JoinType
 
-from slicer.geometry import contours, points_inside, polygon_edges, segments_cross
+from slicer.geometry import EdgeSet, contours, polygon_edges
 
 MAX_NODES = 120
 
@@ -32,10 +32,8 @@ MAX_NODES = 120
 class _Island:
     shape: CrossSection
     polys: list[np.ndarray]
-    fence_a: np.ndarray | None = None  # edges of the outline shrunk and simplified within it
-    fence_b: np.ndarray | None = None
-    edge_a: np.ndarray | None = None  # the outline's own edges
-    edge_b: np.ndarray | None = None
+    fence: EdgeSet | None = None  # edges of the outline shrunk and simplified within it
+    edges: EdgeSet | None = None  # the outline's own edges
     nodes: np.ndarray | None = None  # (n, 2) graph corners
     legs: np.ndarray | None = None  # (n, n) leg lengths found so far (0: none or not yet)
     known: np.ndarray | None = None  # (n,) corners whose row of ``legs`` is complete
@@ -106,13 +104,13 @@ class TravelRouter:
         self.spacing = spacing
         self._islands: list[_Island] | None = None
         self._polys = contours(section)
-        self._a, self._b = polygon_edges(self._polys)
+        self._outline = EdgeSet(*polygon_edges(self._polys))
         # legs are tested against a "fence": the outline shrunk by τ and simplified within τ,
         # so it lies inside the outline with far fewer edges; a leg with both ends inside the
         # fence that crosses none of its edges stays inside the part
         tau = spacing / 4
-        self._fence = contours(section.offset(-tau, JoinType.Miter).simplify(tau))
-        self._fa, self._fb = polygon_edges(self._fence)
+        fence = contours(section.offset(-tau, JoinType.Miter).simplify(tau))
+        self._fence = EdgeSet(*polygon_edges(fence))
 
     def _all_islands(self) -> list[_Island]:
         if self._islands is None:
@@ -124,10 +122,11 @@ class TravelRouter:
     def _graph(self, isl: _Island) -> None:
         """The island's fence and corners; legs between corners are found as routes ask."""
         s = self.spacing
-        fence = contours(isl.shape.offset(-s / 8, JoinType.Miter).simplify(s / 8))
-        isl.fence_a, isl.fence_b = polygon_edges(fence)
-        if isl.edge_a is None:
-            isl.edge_a, isl.edge_b = polygon_edges(isl.polys)
+        fence = EdgeSet(*polygon_edges(
+            contours(isl.shape.offset(-s / 8, JoinType.Miter).simplify(s / 8))))
+        isl.fence = fence
+        if isl.edges is None:
+            isl.edges = EdgeSet(*polygon_edges(isl.polys))
         # corners on the external perimeter's middle line (narrow necks stay passable),
         # kept only where they lie inside the fence
         shape = isl.shape.offset(-s / 2, JoinType.Miter)
@@ -138,7 +137,7 @@ class TravelRouter:
             nodes = _reflex_corners(contours(shape.simplify(tol)))
         if len(nodes) > MAX_NODES:
             nodes = np.zeros((0, 2))
-        nodes = nodes[points_inside(fence, nodes)] if len(nodes) else nodes
+        nodes = nodes[fence.contains(nodes)] if len(nodes) else nodes
         isl.nodes = nodes
         isl.legs = np.zeros((len(nodes), len(nodes)))
         isl.known = np.zeros(len(nodes), dtype=bool)
@@ -152,7 +151,7 @@ class TravelRouter:
             other = np.arange(len(nodes))
             lo, hi = nodes[np.minimum(other, i)], nodes[np.maximum(other, i)]
             length = np.hypot(*(hi - lo).T)
-            length[segments_cross(lo, hi, isl.fence_a, isl.fence_b)] = 0.0
+            length[isl.fence.crossed_by(lo, hi)] = 0.0
             length[i] = 0.0
             isl.legs[i] = length
             isl.legs[:, i] = length
@@ -169,8 +168,8 @@ class TravelRouter:
         ends = np.array([p, q])
         # the ends may lie nearer the outline than the fence: their legs are tested against
         # the outline itself
-        see = ~segments_cross(np.repeat(ends, n, axis=0), np.tile(nodes, (2, 1)),
-                              isl.edge_a, isl.edge_b).reshape(2, n)
+        see = ~isl.edges.crossed_by(np.repeat(ends, n, axis=0),
+                                    np.tile(nodes, (2, 1))).reshape(2, n)
         if not see[0].any() or not see[1].any():
             return None
         to_q = np.hypot(*(nodes - q).T)
@@ -186,18 +185,15 @@ class TravelRouter:
         leaves = np.zeros(m, dtype=bool)
         waypoints: list[np.ndarray | None] = [None] * m
         todo = np.flatnonzero(moving)
-        if len(todo) == 0 or len(self._a) == 0:
+        if len(todo) == 0 or len(self._outline) == 0:
             return TravelPlan(waypoints, leaves, length)
         # ends inside the fence: testing the fence's few edges is enough; other travels
         # (to the skirt, along thin walls) are tested against the outline itself
-        inside = points_inside(self._fence, np.concatenate([prev[todo], starts[todo]]),
-                               edges=(self._fa, self._fb))
+        inside = self._fence.contains(np.concatenate([prev[todo], starts[todo]]))
         fenced = inside[:len(todo)] & inside[len(todo):]
         hit = np.zeros(len(todo), dtype=bool)
-        hit[fenced] = segments_cross(prev[todo[fenced]], starts[todo[fenced]], self._fa,
-                                     self._fb)
-        hit[~fenced] = segments_cross(prev[todo[~fenced]], starts[todo[~fenced]], self._a,
-                                      self._b)
+        hit[fenced] = self._fence.crossed_by(prev[todo[fenced]], starts[todo[fenced]])
+        hit[~fenced] = self._outline.crossed_by(prev[todo[~fenced]], starts[todo[~fenced]])
         crossing = todo[hit]
         if len(crossing) == 0:
             return TravelPlan(waypoints, leaves, length)
@@ -205,10 +201,9 @@ class TravelRouter:
         islands = self._all_islands()
         where = np.full((len(crossing), 2), -1)
         for k, isl in enumerate(islands):
-            if isl.edge_a is None:
-                isl.edge_a, isl.edge_b = polygon_edges(isl.polys)
-            inside = points_inside(isl.polys, np.concatenate([prev[crossing], starts[crossing]]),
-                                   edges=(isl.edge_a, isl.edge_b))
+            if isl.edges is None:
+                isl.edges = EdgeSet(*polygon_edges(isl.polys))
+            inside = isl.edges.contains(np.concatenate([prev[crossing], starts[crossing]]))
             where[inside[:len(crossing)], 0] = k
             where[inside[len(crossing):], 1] = k
         for t, (i0, i1) in zip(crossing, where, strict=True):
