@@ -198,6 +198,12 @@ class TravelRouter:
         if len(crossing) == 0:
             return TravelPlan(waypoints, leaves, length)
         leaves[crossing] = True
+        # only travels with both ends inside the outline can stay inside an island (those to
+        # and from support and skirt cannot): the islands are looked at for these alone
+        ends_in = self._outline.contains(np.concatenate([prev[crossing], starts[crossing]]))
+        crossing = crossing[ends_in[:len(crossing)] & ends_in[len(crossing):]]
+        if len(crossing) == 0:
+            return TravelPlan(waypoints, leaves, length)
         islands = self._all_islands()
         where = np.full((len(crossing), 2), -1)
         for k, isl in enumerate(islands):
