@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from manifold3d import CrossSection, JoinType, OpType
 
-from slicer.geometry import bead_spacing, contours, hatch, polygon_edges
+from slicer.geometry import bead_spacing, contours, hatch
 from slicer.overhang import BRIDGE_ANGLES, line_anchoring
 from slicer.profile import Profile
 
@@ -63,8 +63,6 @@ def _thin_paths(lost: CrossSection, spacing: float, height: float) -> list[Path]
     if lost.is_empty():
         return out
     min_area = 0.5 * spacing * spacing
-    if _largest_loop_area(contours(lost)) < 0.999 * min_area:
-        return out  # only slivers (the usual case): no component can reach min_area
     for comp in lost.decompose():
         area = comp.area()
         if area < min_area:
@@ -172,17 +170,6 @@ def _strip_midline(comp: CrossSection, t: float, length: float) -> np.ndarray | 
         if norm > 0:
             line[end] = line[end] + d / norm * ext
     return line
-
-
-def _largest_loop_area(polys: list[np.ndarray]) -> float:
-    """The largest signed area among closed polygons (0 for none), all in one pass: a
-    component's area (its outer loop less its holes) is at most its outer loop's."""
-    if not polys:
-        return 0.0
-    a, b = polygon_edges(polys)
-    cross = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
-    counts = np.fromiter((len(p) for p in polys), dtype=np.int64, count=len(polys))
-    return 0.5 * float(np.add.reduceat(cross, np.cumsum(counts) - counts).max())
 
 
 def _signed_area(p: np.ndarray) -> float:
