@@ -7,6 +7,7 @@ numpy (hatch-line clipping); nothing here loops over triangles or polygon vertic
 from __future__ import annotations
 
 import math
+from functools import cached_property
 
 import numpy as np
 
@@ -148,6 +149,78 @@ def hatch(
     return seg @ rot.T
 
 
+class EdgeSet:
+    """Edges a[j] → b[j] prepared once for many crossing and inside tests (a router tests the
+    same outline and fence many times per layer): what depends on the edges alone is
+    computed here, so each test is a few matrix products."""
+
+    def __init__(self, a: np.ndarray, b: np.ndarray) -> None:
+        self.a, self.b = a, b
+
+    @cached_property
+    def _sides(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The origin and the (3, m) factors of both orientation tests."""
+        a, b = self.a, self.b
+        origin = a[0]
+        # coordinates relative to the first edge keep the products' size small
+        ra, rb = a - origin, b - origin
+        e = rb - ra
+        one = np.ones(len(a))
+        # cross(b - a, x - a) = ex·xy − ey·xx + (ey·ax − ex·ay), for x = p and x = q
+        edge_side = np.stack([e[:, 0], -e[:, 1], e[:, 1] * ra[:, 0] - e[:, 0] * ra[:, 1]])
+        return (origin, edge_side, np.stack([ra[:, 1], ra[:, 0], one]),
+                np.stack([rb[:, 1], rb[:, 0], one]))
+
+    @cached_property
+    def _rows(self) -> tuple[np.ndarray, ...]:
+        """The edges' ay, by, ax, bx − ax and by − ay as (1, m) rows."""
+        a, b = self.a, self.b
+        return (a[None, :, 1], b[None, :, 1], a[None, :, 0], b[None, :, 0] - a[None, :, 0],
+                b[None, :, 1] - a[None, :, 1])
+
+    def __len__(self) -> int:
+        return len(self.a)
+
+    def crossed_by(self, p: np.ndarray, q: np.ndarray, chunk: int = 2_000_000) -> np.ndarray:
+        """For each segment p[i]→q[i], does it properly cross any edge? (bool (n,))."""
+        n, m = len(p), len(self.a)
+        out = np.zeros(n, dtype=bool)
+        if n == 0 or m == 0:
+            return out
+        origin, edge_side, at, bt = self._sides
+        p, q = p - origin, q - origin
+        one_n = np.ones(n)
+        u = q - p
+        # cross(q - p, y - p) = ux·yy − uy·yx + (uy·px − ux·py), for y = a and y = b
+        seg_side = np.stack([u[:, 0], -u[:, 1], u[:, 1] * p[:, 0] - u[:, 0] * p[:, 1]], axis=1)
+        pt = np.stack([p[:, 1], p[:, 0], one_n], axis=1)
+        qt = np.stack([q[:, 1], q[:, 0], one_n], axis=1)
+        step = max(1, chunk // m)
+        for i0 in range(0, n, step):
+            rows = slice(i0, i0 + step)
+            hit = (seg_side[rows] @ at) * (seg_side[rows] @ bt) < 0
+            hit &= (pt[rows] @ edge_side) * (qt[rows] @ edge_side) < 0
+            out[rows] = hit.any(axis=1)
+        return out
+
+    def contains(self, pts: np.ndarray, chunk: int = 2_000_000) -> np.ndarray:
+        """Even-odd test of points (k, 2) against the closed polygons these edges bound."""
+        out = np.zeros(len(pts), dtype=bool)
+        m = len(self.a)
+        if m == 0 or len(pts) == 0:
+            return out
+        ay, by, ax, dx, dy = self._rows
+        step = max(1, chunk // m)
+        for i0 in range(0, len(pts), step):
+            px = pts[i0:i0 + step, 0][:, None]
+            py = pts[i0:i0 + step, 1][:, None]
+            straddle = (ay > py) != (by > py)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                x_cross = ax + (py - ay) * dx / dy
+            out[i0:i0 + step] = (np.count_nonzero(straddle & (px < x_cross), axis=1) % 2) == 1
+        return out
+
+
 def segments_cross(
     p: np.ndarray, q: np.ndarray, a: np.ndarray, b: np.ndarray, chunk: int = 2_000_000
 ) -> np.ndarray:
@@ -156,47 +229,11 @@ def segments_cross(
     Both orientation tests are linear in the tested point, so each is one (n, 3) @ (3, m)
     matrix product (coordinates taken relative to the first edge, to keep their size small)
     instead of a dozen (n, m) temporaries."""
-    n, m = len(p), len(a)
-    out = np.zeros(n, dtype=bool)
-    if n == 0 or m == 0:
-        return out
-    origin = a[0]
-    p, q, a, b = p - origin, q - origin, a - origin, b - origin
-    one_m, one_n = np.ones(m), np.ones(n)
-    e = b - a
-    # cross(b - a, x - a) = ex·xy − ey·xx + (ey·ax − ex·ay), for x = p and x = q
-    edge_side = np.stack([e[:, 0], -e[:, 1], e[:, 1] * a[:, 0] - e[:, 0] * a[:, 1]])
-    u = q - p
-    # cross(q - p, y - p) = ux·yy − uy·yx + (uy·px − ux·py), for y = a and y = b
-    seg_side = np.stack([u[:, 0], -u[:, 1], u[:, 1] * p[:, 0] - u[:, 0] * p[:, 1]], axis=1)
-    at = np.stack([a[:, 1], a[:, 0], one_m])
-    bt = np.stack([b[:, 1], b[:, 0], one_m])
-    pt = np.stack([p[:, 1], p[:, 0], one_n], axis=1)
-    qt = np.stack([q[:, 1], q[:, 0], one_n], axis=1)
-    step = max(1, chunk // m)
-    for i0 in range(0, n, step):
-        rows = slice(i0, i0 + step)
-        hit = (seg_side[rows] @ at) * (seg_side[rows] @ bt) < 0
-        hit &= (pt[rows] @ edge_side) * (qt[rows] @ edge_side) < 0
-        out[rows] = hit.any(axis=1)
-    return out
+    return EdgeSet(a, b).crossed_by(p, q, chunk)
 
 
 def points_inside(polys: list[np.ndarray], pts: np.ndarray, chunk: int = 2_000_000,
                   edges: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Even-odd test of points (k, 2) against closed polygons; bool (k,). Vectorised.
     ``edges``: the polygons' ``polygon_edges``, when the caller has them already."""
-    a, b = polygon_edges(polys) if edges is None else edges
-    out = np.zeros(len(pts), dtype=bool)
-    if len(a) == 0 or len(pts) == 0:
-        return out
-    step = max(1, chunk // len(a))
-    for i0 in range(0, len(pts), step):
-        px = pts[i0:i0 + step, 0][:, None]
-        py = pts[i0:i0 + step, 1][:, None]
-        ay, by_ = a[None, :, 1], b[None, :, 1]
-        straddle = (ay > py) != (by_ > py)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            x_cross = a[None, :, 0] + (py - ay) * (b[None, :, 0] - a[None, :, 0]) / (by_ - ay)
-        out[i0:i0 + step] = (np.count_nonzero(straddle & (px < x_cross), axis=1) % 2) == 1
-    return out
+    return EdgeSet(*(polygon_edges(polys) if edges is None else edges)).contains(pts, chunk)

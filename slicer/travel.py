@@ -6,8 +6,10 @@ corners of the island shrunk by half a bead spacing (routes run along the extern
 perimeter's middle line, or further in). A leg between two corners is usable when it
 crosses no edge of a fence just inside the outline (the outline shrunk and simplified by
 an eighth of a bead: few edges, all inside the part); legs from the travel's own ends are
-tested against the outline itself. Graphs are built lazily, once per island per layer, only
-for islands a travel needs to cross; travels between islands, or islands too intricate for
+tested against the outline itself. The shortest way is an A* search that tests the legs from
+a corner only when it reaches that corner (a route round one or two corners tests a few rows,
+not all pairs). Corners are found lazily, once per island per layer, only for islands a
+travel needs to cross; travels between islands, or islands too intricate for
 a small graph, keep the straight line and count as leaving the part (the writer retracts).
 So do travels between parts of an island joined only by a neck narrower than a bead (a
 thin wall): the routes keep half a bead inside the outline.
@@ -15,12 +17,13 @@ thin wall): the routes keep half a bead inside the outline.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 from manifold3d import CrossSection, JoinType
 
-from slicer.geometry import contours, points_inside, polygon_edges, segments_cross
+from slicer.geometry import EdgeSet, contours, polygon_edges
 
 MAX_NODES = 120
 
@@ -29,13 +32,11 @@ MAX_NODES = 120
 class _Island:
     shape: CrossSection
     polys: list[np.ndarray]
-    fence_a: np.ndarray | None = None  # edges of the outline shrunk and simplified within it
-    fence_b: np.ndarray | None = None
-    edge_a: np.ndarray | None = None  # the outline's own edges
-    edge_b: np.ndarray | None = None
+    fence: EdgeSet | None = None  # edges of the outline shrunk and simplified within it
+    edges: EdgeSet | None = None  # the outline's own edges
     nodes: np.ndarray | None = None  # (n, 2) graph corners
-    dist: np.ndarray | None = None  # (n, n) shortest distances inside, inf: no way
-    pred: np.ndarray | None = None  # (n, n) predecessor of j on the way from i
+    legs: np.ndarray | None = None  # (n, n) leg lengths found so far (0: none or not yet)
+    known: np.ndarray | None = None  # (n,) corners whose row of ``legs`` is complete
 
 
 @dataclass(frozen=True)
@@ -48,24 +49,40 @@ class TravelPlan:
     length: np.ndarray
 
 
-def all_shortest_paths(legs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Floyd–Warshall over a dense symmetric matrix of leg lengths (0: no leg), one
-    vectorised relaxation per corner (n ≤ MAX_NODES, so a few ms): (dist, pred) where
-    dist[i, j] is the shortest way i → j (inf: none) and pred[i, j] the corner before j
-    on it (-1: none). In numpy because importing scipy's graph module cost more CPU than all
-    of a small model's routing."""
-    n = len(legs)
-    dist = np.where(legs > 0, legs, np.inf)
-    np.fill_diagonal(dist, 0.0)
-    pred = np.where(np.isfinite(dist), np.arange(n)[:, None], -1)
-    np.fill_diagonal(pred, -1)
-    for k in range(n):
-        via = dist[:, k, None] + dist[None, k, :]
-        better = via < dist
-        if better.any():
-            dist = np.where(better, via, dist)
-            pred = np.where(better, pred[None, k, :], pred)
-    return dist, pred
+def shortest_route(legs_from: Callable[[int], np.ndarray], start: np.ndarray,
+                   finish: np.ndarray, guess: np.ndarray) -> tuple[list[int], float]:
+    """A* from a virtual start to a virtual end over ``n`` corners: ``start[i]`` / ``finish[i]``
+    is the leg start → corner i / corner i → end (inf: none), ``legs_from(i)`` the (n,) leg
+    lengths from corner i (0: no leg), ``guess[i]`` a lower bound of corner i's way to the
+    end (the straight distance). Returns the corners of the shortest way and its length
+    (([], inf): none). Legs are asked for only at the corners the search settles, so a route
+    round one or two corners tests a few rows of legs instead of all pairs."""
+    g = np.asarray(start, dtype=np.float64).copy()
+    n = len(g)
+    pred = np.full(n, -1)
+    done = np.zeros(n, dtype=bool)
+    best, last = np.inf, -1
+    rank = np.empty(n)
+    while True:
+        np.add(g, guess, out=rank)
+        rank[done] = np.inf
+        u = int(np.argmin(rank)) if n else 0
+        if n == 0 or not rank[u] < best:  # nothing left that could beat the best way
+            break
+        done[u] = True
+        if g[u] + finish[u] < best:
+            best, last = g[u] + finish[u], u
+        legs = legs_from(u)
+        via = np.where(legs > 0, g[u] + legs, np.inf)
+        better = (via < g) & ~done
+        g[better] = via[better]
+        pred[better] = u
+    if last < 0:
+        return [], np.inf
+    path = [last]
+    while pred[path[-1]] >= 0:
+        path.append(int(pred[path[-1]]))
+    return path[::-1], float(best)
 
 
 def _reflex_corners(polys: list[np.ndarray]) -> np.ndarray:
@@ -87,13 +104,13 @@ class TravelRouter:
         self.spacing = spacing
         self._islands: list[_Island] | None = None
         self._polys = contours(section)
-        self._a, self._b = polygon_edges(self._polys)
+        self._outline = EdgeSet(*polygon_edges(self._polys))
         # legs are tested against a "fence": the outline shrunk by τ and simplified within τ,
         # so it lies inside the outline with far fewer edges; a leg with both ends inside the
         # fence that crosses none of its edges stays inside the part
         tau = spacing / 4
-        self._fence = contours(section.offset(-tau, JoinType.Miter).simplify(tau))
-        self._fa, self._fb = polygon_edges(self._fence)
+        fence = contours(section.offset(-tau, JoinType.Miter).simplify(tau))
+        self._fence = EdgeSet(*polygon_edges(fence))
 
     def _all_islands(self) -> list[_Island]:
         if self._islands is None:
@@ -103,11 +120,13 @@ class TravelRouter:
         return self._islands
 
     def _graph(self, isl: _Island) -> None:
+        """The island's fence and corners; legs between corners are found as routes ask."""
         s = self.spacing
-        fence = contours(isl.shape.offset(-s / 8, JoinType.Miter).simplify(s / 8))
-        isl.fence_a, isl.fence_b = polygon_edges(fence)
-        if isl.edge_a is None:
-            isl.edge_a, isl.edge_b = polygon_edges(isl.polys)
+        fence = EdgeSet(*polygon_edges(
+            contours(isl.shape.offset(-s / 8, JoinType.Miter).simplify(s / 8))))
+        isl.fence = fence
+        if isl.edges is None:
+            isl.edges = EdgeSet(*polygon_edges(isl.polys))
         # corners on the external perimeter's middle line (narrow necks stay passable),
         # kept only where they lie inside the fence
         shape = isl.shape.offset(-s / 2, JoinType.Miter)
@@ -118,18 +137,26 @@ class TravelRouter:
             nodes = _reflex_corners(contours(shape.simplify(tol)))
         if len(nodes) > MAX_NODES:
             nodes = np.zeros((0, 2))
-        nodes = nodes[points_inside(fence, nodes)] if len(nodes) else nodes
-        n = len(nodes)
-        legs = np.zeros((n, n))
-        if n > 1:
-            i, j = np.triu_indices(n, 1)
-            length = np.hypot(*(nodes[j] - nodes[i]).T)
-            length[segments_cross(nodes[i], nodes[j], isl.fence_a, isl.fence_b)] = 0.0
-            legs[i, j] = length  # 0: no leg
-            legs[j, i] = length
-        # all pairs at once (n ≤ MAX_NODES): each route is then a few array look-ups
-        isl.dist, isl.pred = all_shortest_paths(legs)
+        nodes = nodes[fence.contains(nodes)] if len(nodes) else nodes
         isl.nodes = nodes
+        isl.legs = np.zeros((len(nodes), len(nodes)))
+        isl.known = np.zeros(len(nodes), dtype=bool)
+
+    def _legs_from(self, isl: _Island, i: int) -> np.ndarray:
+        """Lengths of the legs from corner i to every corner (0: the leg leaves the fence),
+        kept in the island for later routes. Each pair is tested lower corner first, so a
+        leg's answer does not depend on which end asked."""
+        if not isl.known[i]:
+            nodes = isl.nodes
+            other = np.arange(len(nodes))
+            lo, hi = nodes[np.minimum(other, i)], nodes[np.maximum(other, i)]
+            length = np.hypot(*(hi - lo).T)
+            length[isl.fence.crossed_by(lo, hi)] = 0.0
+            length[i] = 0.0
+            isl.legs[i] = length
+            isl.legs[:, i] = length
+            isl.known[i] = True
+        return isl.legs[i]
 
     def _route(self, isl: _Island, p: np.ndarray, q: np.ndarray) -> np.ndarray | None:
         """Shortest inside route p → q: its inner waypoints (k, 2), or None if none."""
@@ -141,22 +168,15 @@ class TravelRouter:
         ends = np.array([p, q])
         # the ends may lie nearer the outline than the fence: their legs are tested against
         # the outline itself
-        see = ~segments_cross(np.repeat(ends, n, axis=0), np.tile(nodes, (2, 1)),
-                              isl.edge_a, isl.edge_b).reshape(2, n)
-        sa, sb = np.flatnonzero(see[0]), np.flatnonzero(see[1])
-        if len(sa) == 0 or len(sb) == 0:
+        see = ~isl.edges.crossed_by(np.repeat(ends, n, axis=0),
+                                    np.tile(nodes, (2, 1))).reshape(2, n)
+        if not see[0].any() or not see[1].any():
             return None
-        da = np.hypot(*(nodes[sa] - p).T)
-        db = np.hypot(*(nodes[sb] - q).T)
-        total = da[:, None] + isl.dist[np.ix_(sa, sb)] + db[None, :]
-        k = int(np.argmin(total))
-        if not np.isfinite(total.flat[k]):
-            return None
-        first, last = int(sa[k // len(sb)]), int(sb[k % len(sb)])
-        path = [last]
-        while path[-1] != first:  # walk the predecessors back from the last corner
-            path.append(int(isl.pred[first, path[-1]]))
-        return nodes[path[::-1]]
+        to_q = np.hypot(*(nodes - q).T)
+        start = np.where(see[0], np.hypot(*(nodes - p).T), np.inf)
+        finish = np.where(see[1], to_q, np.inf)
+        path, _ = shortest_route(lambda i: self._legs_from(isl, i), start, finish, to_q)
+        return nodes[path] if path else None
 
     def plan(self, prev: np.ndarray, starts: np.ndarray, moving: np.ndarray) -> TravelPlan:
         """Routes for the travels prev[i] → starts[i] (only where ``moving``)."""
@@ -165,29 +185,31 @@ class TravelRouter:
         leaves = np.zeros(m, dtype=bool)
         waypoints: list[np.ndarray | None] = [None] * m
         todo = np.flatnonzero(moving)
-        if len(todo) == 0 or len(self._a) == 0:
+        if len(todo) == 0 or len(self._outline) == 0:
             return TravelPlan(waypoints, leaves, length)
         # ends inside the fence: testing the fence's few edges is enough; other travels
         # (to the skirt, along thin walls) are tested against the outline itself
-        inside = points_inside(self._fence, np.concatenate([prev[todo], starts[todo]]),
-                               edges=(self._fa, self._fb))
+        inside = self._fence.contains(np.concatenate([prev[todo], starts[todo]]))
         fenced = inside[:len(todo)] & inside[len(todo):]
         hit = np.zeros(len(todo), dtype=bool)
-        hit[fenced] = segments_cross(prev[todo[fenced]], starts[todo[fenced]], self._fa,
-                                     self._fb)
-        hit[~fenced] = segments_cross(prev[todo[~fenced]], starts[todo[~fenced]], self._a,
-                                      self._b)
+        hit[fenced] = self._fence.crossed_by(prev[todo[fenced]], starts[todo[fenced]])
+        hit[~fenced] = self._outline.crossed_by(prev[todo[~fenced]], starts[todo[~fenced]])
         crossing = todo[hit]
         if len(crossing) == 0:
             return TravelPlan(waypoints, leaves, length)
         leaves[crossing] = True
+        # only travels with both ends inside the outline can stay inside an island (those to
+        # and from support and skirt cannot): the islands are looked at for these alone
+        ends_in = self._outline.contains(np.concatenate([prev[crossing], starts[crossing]]))
+        crossing = crossing[ends_in[:len(crossing)] & ends_in[len(crossing):]]
+        if len(crossing) == 0:
+            return TravelPlan(waypoints, leaves, length)
         islands = self._all_islands()
         where = np.full((len(crossing), 2), -1)
         for k, isl in enumerate(islands):
-            if isl.edge_a is None:
-                isl.edge_a, isl.edge_b = polygon_edges(isl.polys)
-            inside = points_inside(isl.polys, np.concatenate([prev[crossing], starts[crossing]]),
-                                   edges=(isl.edge_a, isl.edge_b))
+            if isl.edges is None:
+                isl.edges = EdgeSet(*polygon_edges(isl.polys))
+            inside = isl.edges.contains(np.concatenate([prev[crossing], starts[crossing]]))
             where[inside[:len(crossing)], 0] = k
             where[inside[len(crossing):], 1] = k
         for t, (i0, i1) in zip(crossing, where, strict=True):

@@ -89,26 +89,67 @@ def test_aligned_seams_stay_in_one_place_layer_after_layer():
 
 
 @pytest.mark.parametrize("n", [1, 2, 7, 60, 120])
-def test_route_graph_shortest_paths_match_scipy(n):
-    """The routes' all-pairs shortest paths (numpy Floyd–Warshall) against scipy's Dijkstra
-    on random sparse corner graphs, and every predecessor chain walks a path of that length."""
+def test_route_search_finds_the_shortest_way_as_scipy_does(n):
+    """The routes' A* over corners (legs asked for row by row) against scipy's all-pairs
+    Dijkstra on random sparse corner graphs in the plane: the same length from a start that
+    sees some corners to an end seen from others, a path of legs that exist and add up to
+    it, and legs asked for from fewer corners than there are when the way is short."""
     from scipy.sparse.csgraph import shortest_path
 
-    from slicer.travel import all_shortest_paths
+    from slicer.travel import shortest_route
 
     rng = np.random.default_rng(n)
-    legs = np.triu(rng.random((n, n)) * (rng.random((n, n)) < 0.15), 1)
+    corners = rng.uniform(0, 50, (n, 2))
+    p, q = rng.uniform(0, 50, (2, 2))
+    gap = np.hypot(*(corners[:, None] - corners[None]).T)
+    legs = np.triu(gap * (rng.random((n, n)) < 0.15), 1)
     legs = legs + legs.T
-    dist, pred = all_shortest_paths(legs)
-    expected = shortest_path(legs, directed=False)
-    assert np.array_equal(np.isinf(dist), np.isinf(expected))
-    assert np.allclose(dist[np.isfinite(dist)], expected[np.isfinite(expected)])
-    for i, j in zip(*np.nonzero(np.isfinite(dist) & ~np.eye(n, dtype=bool)), strict=True):
-        walked, node = 0.0, j
-        while node != i:
-            walked += legs[pred[i, node], node]
-            node = pred[i, node]
-        assert walked == pytest.approx(dist[i, j])
+    start = np.where(rng.random(n) < 0.3, np.hypot(*(corners - p).T), np.inf)
+    to_q = np.hypot(*(corners - q).T)
+    finish = np.where(rng.random(n) < 0.3, to_q, np.inf)
+    asked = []
+
+    def legs_from(i):
+        asked.append(i)
+        return legs[i]
+
+    path, length = shortest_route(legs_from, start, finish, to_q)
+    dist = shortest_path(legs, directed=False)
+    expected = (start[:, None] + dist + finish[None, :]).min()
+    if not np.isfinite(expected):
+        assert path == [] and length == np.inf
+        return
+    assert length == pytest.approx(expected)
+    walked = start[path[0]] + finish[path[-1]] + sum(legs[i, j] for i, j in
+                                                      zip(path, path[1:], strict=False))
+    assert all(legs[i, j] > 0 for i, j in zip(path, path[1:], strict=False))
+    assert walked == pytest.approx(length)
+    assert len(set(asked)) == len(asked)  # each row once
+
+
+def test_route_search_asks_for_few_legs_on_a_short_way():
+    """Corners on a line from start to end, each seeing its neighbours: the search settles
+    the corners on the way, not the far-off ones."""
+    from slicer.travel import shortest_route
+
+    line = np.stack([np.arange(10.0), np.zeros(10)], axis=1)
+    far = np.stack([np.arange(40.0), np.full(40, 100.0)], axis=1)
+    corners = np.vstack([line, far])
+    n = len(corners)
+    legs = np.zeros((n, n))
+    for block in (np.arange(10), np.arange(10, n)):
+        i, j = block[:-1], block[1:]
+        legs[i, j] = legs[j, i] = np.hypot(*(corners[j] - corners[i]).T)
+    start = np.full(n, np.inf)
+    start[0] = 1.0
+    finish = np.full(n, np.inf)
+    finish[9] = 1.0
+    asked = []
+    path, length = shortest_route(lambda i: asked.append(i) or legs[i], start, finish,
+                                  np.hypot(*(corners - [10.0, 0.0]).T))
+    assert path == list(range(10))
+    assert length == pytest.approx(11.0)
+    assert set(asked) <= set(range(10))
 
 
 def test_segments_cross_finds_proper_crossings_only():
