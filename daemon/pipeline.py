@@ -72,8 +72,17 @@ def repair_budget(cfg: Config) -> float | None:
 
 def slice_overrides(cfg: Config) -> dict[str, Any]:
     """The profile overrides a job is sliced with: ``[profile]`` over the daemon's own
-    defaults (it turns a model only when that avoids support entirely: orient if-needed)."""
-    return {"orient": "if-needed", **cfg.profile}
+    defaults (it turns a model only when that avoids support entirely: orient if-needed).
+    With several jobs at once (``[daemon] workers``), a slice's ``workers = auto`` gets its
+    share of the CPUs, so that the jobs do not each take them all."""
+    overrides = {"orient": "if-needed", **cfg.profile}
+    if cfg.daemon.workers > 1 and str(overrides.get("workers", "auto")) == "auto":
+        from slicer.parallel import available_cpus
+
+        share = available_cpus() // cfg.daemon.workers
+        if share < available_cpus():
+            overrides["workers"] = str(max(1, share))
+    return overrides
 
 
 def _take(model: Path, dest: Path, sidecar: Path | None, work: Path) -> None:
