@@ -72,9 +72,8 @@ def repair_budget(cfg: Config) -> float | None:
 
 def slice_overrides(cfg: Config) -> dict[str, Any]:
     """The profile overrides a job is sliced with: ``[profile]`` over the daemon's own
-    defaults (it turns a model only when that avoids support entirely: orient if-needed).
-    With several jobs at once (``[daemon] workers``), a slice's ``workers = auto`` gets its
-    share of the CPUs, so that the jobs do not each take them all."""
+    defaults (orient if-needed: turn a model only when that avoids support entirely); with
+    several jobs at once, ``workers = auto`` becomes this job's share of the CPUs."""
     overrides = {"orient": "if-needed", **cfg.profile}
     if cfg.daemon.workers > 1 and str(overrides.get("workers", "auto")) == "auto":
         from slicer.parallel import available_cpus
