@@ -58,25 +58,7 @@ def load_mesh(
 
         return read_step(p, name, deflection=deflection, max_triangles=max_triangles)
     if suffix == ".3mf":
-        if max_decompressed is None:
-            max_decompressed = (
-                EXPANSION_3MF * max_bytes
-                if max_bytes is not None
-                else DEFAULT_MAX_3MF_DECOMPRESSED
-            )
-        try:
-            with open(p, "rb") as fh:
-                head = fh.read(4)
-        except OSError as exc:
-            raise MeshReadError(f"{name}: cannot read: {exc.strerror or exc}") from None
-        if head != b"PK\x03\x04":
-            foreign = sniff_foreign(head)
-            raise MeshReadError(
-                f"{name}: not a 3MF file" + (f", it is {foreign}" if foreign else "")
-            )
-        from repair.io.threemf import read_3mf
-
-        return read_3mf(p, name, max_triangles, max_decompressed)
+        return _load_3mf(p, name, max_bytes, max_triangles, max_decompressed)
     try:
         data = p.read_bytes()
     except OSError as exc:
@@ -100,6 +82,25 @@ def load_mesh(
 
     return read_ply(data, name, max_triangles)
 
+
+def _load_3mf(p: Path, name: str, max_bytes: int | None, max_triangles: int | None,
+              max_decompressed: int | None) -> Mesh:
+    """A 3MF file, refused at once when it is not a zip, its decompressed size capped."""
+    if max_decompressed is None:
+        max_decompressed = (
+            EXPANSION_3MF * max_bytes if max_bytes is not None else DEFAULT_MAX_3MF_DECOMPRESSED
+        )
+    try:
+        with open(p, "rb") as fh:
+            head = fh.read(4)
+    except OSError as exc:
+        raise MeshReadError(f"{name}: cannot read: {exc.strerror or exc}") from None
+    if head != b"PK\x03\x04":
+        foreign = sniff_foreign(head)
+        raise MeshReadError(f"{name}: not a 3MF file" + (f", it is {foreign}" if foreign else ""))
+    from repair.io.threemf import read_3mf
+
+    return read_3mf(p, name, max_triangles, max_decompressed)
 
 
 def _file_size(p: Path, name: str) -> int:
