@@ -62,7 +62,7 @@ def _thin_paths(lost: CrossSection, spacing: float, height: float) -> list[Path]
     out: list[Path] = []
     if lost.is_empty():
         return out
-    min_area = 0.5 * spacing * spacing
+    min_area = _min_thin_area(spacing)
     for comp in lost.decompose():
         area = comp.area()
         if area < min_area:
@@ -200,18 +200,32 @@ def plan_shells(
         if not ok.is_empty():
             ok = ok.simplify(resolution)
             loops.extend(_loops(ok, width, "external_perimeter" if k == 0 else "perimeter"))
-            covered = ok.offset(half, MITER)
-            lost_parts.append(region - covered)
+            if thin_walls:  # what the loops leave uncovered is printed as thin walls
+                lost_parts.append(region - ok.offset(half, MITER))
             region = inner
         else:
             lost_parts.append(region)
             region = CrossSection()
     thin: list[Path] = []
-    if thin_walls and lost_parts:
+    if thin_walls and _may_hold_thin_walls(lost_parts, s):
         lost = CrossSection.batch_boolean(lost_parts, OpType.Add) if len(lost_parts) > 1 \
             else lost_parts[0]
         thin = _thin_paths(lost, s, height)
     return _Shells(loops, thin, region)
+
+
+def _may_hold_thin_walls(lost_parts: list[CrossSection], spacing: float) -> bool:
+    """Whether the union of ``lost_parts`` can have a component as large as the smallest
+    thin wall ``_thin_paths`` prints (half a spacing squared). The union's area is at most
+    the parts' summed areas, so when those fall short, every component does: most layers
+    lose only slivers at their corners, and their union and decomposition are skipped."""
+    total = sum(part.area() for part in lost_parts)
+    return total >= _min_thin_area(spacing) * (1.0 - 1e-6)
+
+
+def _min_thin_area(spacing: float) -> float:
+    """Area (mm²) below which a lost piece is too small to print as a thin wall."""
+    return 0.5 * spacing * spacing
 
 
 def skin_regions(
