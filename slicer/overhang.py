@@ -29,7 +29,27 @@ def unsupported(section: CrossSection, below: CrossSection, reach: float) -> Cro
         return section
     if below.is_empty():
         return section
-    return section - below.offset(reach, JoinType.Miter)
+    beyond = section - below  # most layers stand on the one below, all but a few slivers
+    if beyond.is_empty():
+        return beyond
+    # only the layer below near what stands beyond it matters: growing the whole layer
+    # costs more than the rest of this function
+    near = near_piece(below, beyond.bounds(), reach)
+    return beyond - near.offset(reach, JoinType.Miter) if not near.is_empty() else beyond
+
+
+def near_piece(part: CrossSection, box: tuple, grow: float) -> CrossSection:
+    """The piece of ``part`` that can reach into ``box`` (x0, y0, x1, y1) when grown by
+    ``grow`` with mitred corners (at most 2·grow out, manifold3d's miter limit). The cut
+    edges, 3·grow and more outside the box, grow no nearer to it than 2·grow, so inside the
+    box the grown piece and the grown part agree."""
+    reach = 3.0 * grow + 1e-3
+    pb = part.bounds()
+    x0, y0, x1, y1 = box[0] - reach, box[1] - reach, box[2] + reach, box[3] + reach
+    if pb[0] >= x0 and pb[1] >= y0 and pb[2] <= x1 and pb[3] <= y1:
+        return part  # all of it is near
+    window = CrossSection.square((x1 - x0, y1 - y0)).translate((x0, y0))
+    return part ^ window
 
 
 def anchored_share(piece: CrossSection, below: CrossSection, spacing: float) -> float:

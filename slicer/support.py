@@ -27,7 +27,7 @@ import numpy as np
 from manifold3d import CrossSection, FillRule, JoinType, OpType
 
 from slicer.geometry import bead_spacing, contours, hatch, points_inside, shape_key
-from slicer.overhang import overhangs
+from slicer.overhang import near_piece, overhangs
 from slicer.planner import Path
 from slicer.profile import Profile
 
@@ -145,7 +145,7 @@ def _columns(sections: list[CrossSection], need: list[CrossSection], p: Profile,
                                  (sections[i - 1] if i > 0 else CrossSection(), 0.0))
                if not c.is_empty() and _overlap(box, c.bounds(), grow)]
         if cut and cut[0] is part:
-            cut[0] = part.offset(p.support_xy_gap, MITER)
+            cut[0] = near_piece(part, box, p.support_xy_gap).offset(p.support_xy_gap, MITER)
         region = CrossSection.batch_boolean([carried, *cut], OpType.Subtract) if cut \
             else carried
         regions[i] = region
