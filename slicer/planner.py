@@ -236,6 +236,7 @@ def skin_regions(
     above and the ``bottom`` layers below (outside the model counts as uncovered)."""
     n = len(inner)
     out: list[CrossSection] = []
+    common = _RunIntersections(sections)
     for i in range(n):
         r = inner[i]
         if r.is_empty() or all_solid:
@@ -244,12 +245,12 @@ def skin_regions(
         if i - bottom < 0 or i + top >= n:
             out.append(r)
             continue
-        neigh = [sections[j] for j in range(i - bottom, i + top + 1) if j != i]
-        if not neigh:  # no top or bottom layers asked for
+        runs = [common.of(lo, hi) for lo, hi in ((i - bottom, i), (i + 1, i + top + 1))
+                if hi > lo]
+        if not runs:  # no top or bottom layers asked for
             out.append(CrossSection())
             continue
-        cover = CrossSection.batch_boolean(neigh, OpType.Intersect) if len(neigh) > 1 \
-            else neigh[0]
+        cover = runs[0] ^ runs[1] if len(runs) > 1 else runs[0]
         solid = r - cover
         if solid.is_empty():
             out.append(solid)
@@ -262,6 +263,38 @@ def skin_regions(
             continue
         out.append(solid.offset(1.5 * s, MITER) ^ r)
     return out
+
+
+class _RunIntersections:
+    """Intersections of runs of consecutive sections, ``of(lo, hi)`` = sections lo .. hi − 1,
+    from a table of power-of-two runs built as asked: each run is the intersection of the two
+    power-of-two runs that cover it (they may overlap: intersecting is idempotent), and each
+    power-of-two run of two smaller ones. The skins of every layer look at the same few
+    layers above and below, so each layer costs about four intersections, not one per
+    neighbour."""
+
+    def __init__(self, sections: list[CrossSection]) -> None:
+        self.sections = sections
+        self.table: dict[tuple[int, int], CrossSection] = {}
+
+    def _power(self, lo: int, level: int) -> CrossSection:
+        """Sections lo .. lo + 2**level − 1."""
+        if level == 0:
+            return self.sections[lo]
+        key = (lo, level)
+        got = self.table.get(key)
+        if got is None:
+            half = 1 << (level - 1)
+            got = self._power(lo, level - 1) ^ self._power(lo + half, level - 1)
+            self.table[key] = got
+        return got
+
+    def of(self, lo: int, hi: int) -> CrossSection:
+        level = (hi - lo).bit_length() - 1
+        first = self._power(lo, level)
+        if hi - lo == 1 << level:
+            return first
+        return first ^ self._power(hi - (1 << level), level)
 
 
 def bridge_region(solid: CrossSection, below: CrossSection | None, spacing: float
