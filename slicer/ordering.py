@@ -23,6 +23,8 @@ def _nearest_neighbour(
     With ``rear_seam``, closed loops start at their rearmost vertex (largest y, then
     smallest x) instead of the nearest one, so that seams line up at the back of the part.
     """
+    if len(paths) == 1:
+        return _only_path(paths[0], pos, rear_seam, aligner)
     ends_only = [p.points if p.closed or len(p.points) == 2 else p.points[[0, -1]]
                  for p in paths]
     counts = np.fromiter((len(a) for a in ends_only), dtype=np.int64, count=len(paths))
@@ -61,6 +63,34 @@ def _nearest_neighbour(
         last = out[-1][0][-1]
         x, y = float(last[0]), float(last[1])
     return out, np.array([x, y])
+
+
+def _only_path(p: Path, pos: np.ndarray, rear_seam: bool, aligner
+               ) -> tuple[list[tuple[np.ndarray, Path]], np.ndarray]:
+    """``_nearest_neighbour`` of a group of one path (a third of all groups: one skirt, one
+    outer loop, one island's solid infill...), without its tables: the same squared
+    distances, so the same start."""
+    if p.closed and (aligner is not None or rear_seam):
+        k = 0
+    else:
+        cand = p.points if p.closed or len(p.points) == 2 else p.points[[0, -1]]
+        gap = cand[:, 0] - float(pos[0])
+        gap *= gap
+        dy = cand[:, 1] - float(pos[1])
+        dy *= dy
+        gap += dy
+        k = int(gap.argmin())
+    if p.closed:
+        if aligner is not None:
+            oriented = aligner.ring(p.points)
+        else:
+            if rear_seam:
+                k = int(np.lexsort((p.points[:, 0], -p.points[:, 1]))[0])
+            oriented = np.concatenate([p.points[k:], p.points[:k + 1]])
+    else:
+        oriented = p.points if k == 0 else p.points[::-1]
+    last = oriented[-1]
+    return [(oriented, p)], np.array([float(last[0]), float(last[1])])
 
 
 def order_paths(paths: list[Path], pos: np.ndarray, seam: str = "rear", aligner=None
