@@ -46,8 +46,9 @@ def near_piece(part: CrossSection, box: tuple, grow: float) -> CrossSection:
     reach = 3.0 * grow + 1e-3
     pb = part.bounds()
     x0, y0, x1, y1 = box[0] - reach, box[1] - reach, box[2] + reach, box[3] + reach
-    if pb[0] >= x0 and pb[1] >= y0 and pb[2] <= x1 and pb[3] <= y1:
-        return part  # all of it is near
+    if (min(pb[2], x1) - max(pb[0], x0)) * (min(pb[3], y1) - max(pb[1], y0)) \
+            > 0.5 * (pb[2] - pb[0]) * (pb[3] - pb[1]):
+        return part  # most of it is near: cutting it would cost more than it saves
     window = CrossSection.square((x1 - x0, y1 - y0)).translate((x0, y0))
     return part ^ window
 
