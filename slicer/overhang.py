@@ -29,13 +29,7 @@ def unsupported(section: CrossSection, below: CrossSection, reach: float) -> Cro
         return section
     if below.is_empty():
         return section
-    beyond = section - below  # most layers stand on the one below, all but a few slivers
-    if beyond.is_empty():
-        return beyond
-    # only the layer below near what stands beyond it matters: growing the whole layer
-    # costs more than the rest of this function
-    near = near_piece(below, beyond.bounds(), reach)
-    return beyond - near.offset(reach, JoinType.Miter) if not near.is_empty() else beyond
+    return section - below.offset(reach, JoinType.Miter)
 
 
 def near_piece(part: CrossSection, box: tuple, grow: float) -> CrossSection:

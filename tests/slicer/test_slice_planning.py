@@ -1,6 +1,6 @@
 """The planners' shortcuts give what the plain formulas give, on real layers of real solids:
-run intersections for the skins, the clipped growth of the layer below for overhangs and of
-the part for the support's XY gap, and the skipped thin-wall search."""
+run intersections for the skins, the clipped growth of the part for the support's XY gap,
+and the skipped thin-wall search."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 from manifold3d import CrossSection, JoinType, Manifold, OpType
 
 from slicer.geometry import bead_spacing
-from slicer.overhang import near_piece, unsupported
+from slicer.overhang import near_piece
 from slicer.planner import _RunIntersections, plan_shells
 
 MITER = JoinType.Miter
@@ -23,7 +23,7 @@ def _layers(solid: Manifold, height: float = 0.2) -> list[CrossSection]:
 
 def _mushroom() -> Manifold:
     """A 30 mm bowl on an off-centre 8 mm stem, beside a 0.4 mm fin: a widening overhang on
-    every layer of the bowl, a thin wall, and layers much wider than their overhangs."""
+    every layer of the bowl, a thin wall, and a column beside the fin."""
     stem = Manifold.cylinder(12.5, 4.0, 4.0, 64).translate((6.0, 0.0, 0.0))
     bowl = (Manifold.sphere(15.0, 96) ^ Manifold.cube((40.0, 40.0, 15.0), True)
             .translate((0.0, 0.0, -7.5))).translate((0.0, 0.0, 27.0))
@@ -55,17 +55,6 @@ def test_run_intersections_equal_the_batch_intersection(layers):
             assert _same(got, whole) < 1e-6, (lo, length)
             checked += 1
     assert checked > 100
-
-
-def test_unsupported_equals_the_whole_layer_grown(layers):
-    overhanging = 0
-    for below, section in zip(layers, layers[1:], strict=False):
-        for reach in (0.1, 0.24, 1.0):
-            whole = section - below.offset(reach, MITER)
-            got = unsupported(section, below, reach)
-            assert _same(got, whole) < 1e-6
-            overhanging += not whole.is_empty()
-    assert overhanging > 10  # the cap's underside overhangs on many layers
 
 
 def test_near_piece_grows_like_the_whole_part_inside_the_box(layers):
