@@ -10,7 +10,7 @@ from manifold3d import CrossSection, JoinType, Manifold, OpType
 
 from slicer.geometry import bead_spacing
 from slicer.overhang import near_piece
-from slicer.planner import _RunIntersections, plan_shells
+from slicer.planner import _RunIntersections, plan_shells, skin_regions
 
 MITER = JoinType.Miter
 
@@ -47,7 +47,7 @@ def test_run_intersections_equal_the_batch_intersection(layers):
     n = len(layers)
     checked = 0
     for lo in range(0, n - 1, 3):
-        for length in (1, 2, 3, 4, 5, 7):
+        for length in (1, 2, 3, 4, 5, 7, 8):
             if lo + length > n:
                 continue
             whole = CrossSection.batch_boolean(layers[lo:lo + length], OpType.Intersect)
@@ -55,6 +55,23 @@ def test_run_intersections_equal_the_batch_intersection(layers):
             assert _same(got, whole) < 1e-6, (lo, length)
             checked += 1
     assert checked > 100
+
+
+def test_skins_are_what_the_neighbours_do_not_cover(layers):
+    width, height, top, bottom = 0.45, 0.2, 4, 3
+    s = bead_spacing(width, height)
+    inner = [plan_shells(cs, width, height, 2, True, 0.0125).inner for cs in layers]
+    got = skin_regions(inner, layers, top, bottom, [s] * len(layers), False)
+    solid_layers = 0
+    for i in range(bottom, len(layers) - top):
+        neigh = layers[i - bottom:i] + layers[i + 1:i + top + 1]
+        solid = inner[i] - CrossSection.batch_boolean(neigh, OpType.Intersect)
+        if not solid.is_empty():
+            solid = solid.offset(-s / 2, MITER)
+        want = solid.offset(1.5 * s, MITER) ^ inner[i] if not solid.is_empty() else solid
+        assert _same(got[i], want) < 1e-6, i
+        solid_layers += not want.is_empty()
+    assert solid_layers > 10  # the bowl's underside and the tops of stem and fin
 
 
 def test_near_piece_grows_like_the_whole_part_inside_the_box(layers):
