@@ -90,6 +90,11 @@ class _Model:
     supports: list | None = None
     brim: list = field(default_factory=list)
     first_area: Any = None
+    #: processes that planned the shells (this one included), the workers' CPU seconds and
+    #: largest peak resident memory (MB)
+    plan_workers: int = 1
+    plan_worker_cpu_seconds: float = 0.0
+    plan_worker_peak_mb: float = 0.0
 
 
 def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progress = None
@@ -162,7 +167,7 @@ def _plan_layers(model: _Model, man: Any, profile: Profile, report: _Reporter) -
     """Slice at mid-layer heights, then plan shells, skins, support and the brim."""
     from slicer import geometry as geo
     from slicer.brim import brim_paths, needs_brim
-    from slicer.planner import plan_shells, skin_regions
+    from slicer.layer_plans import plan_shells_and_skins
     from slicer.support import bead_area_of, support_regions
 
     heights, res = model.heights, profile.resolution
@@ -172,19 +177,8 @@ def _plan_layers(model: _Model, man: Any, profile: Profile, report: _Reporter) -
         report("slice", i / n * 0.2)
     model.widths = [profile.first_layer_line_width if i == 0 else profile.line_width
                     for i in range(n)]
-    planned: dict = {}  # identical layers (prismatic parts) share their shells
-    for i in range(n):
-        key = (geo.shape_key(model.sections[i]), model.widths[i], float(heights[i]))
-        if key not in planned:
-            planned[key] = plan_shells(model.sections[i], model.widths[i], float(heights[i]),
-                                       profile.perimeters, profile.thin_walls, res)
-        model.shells.append(planned[key])
-        report("shells", 0.2 + i / n * 0.2)
-    del planned
     model.spacing = [geo.bead_spacing(model.widths[i], float(heights[i])) for i in range(n)]
-    model.solids = skin_regions([s.inner for s in model.shells], model.sections,
-                                profile.top_layers, profile.bottom_layers, model.spacing,
-                                profile.infill_percent >= 100)
+    plan_shells_and_skins(model, profile, report)
     report("skins", 0.45)
     model.supports = support_regions(model.sections, heights, profile, model.widths,
                                      [bead_area_of(sh.thin) for sh in model.shells])
@@ -229,9 +223,10 @@ def _summary(model: _Model, written: Written, p: Profile) -> dict[str, Any]:
         "support_cm3": round(written.support_mm * p.filament_area / 1000.0, 3),
         "support_seconds": round(written.support_seconds, 1),
         "brim": bool(model.brim),
-        "workers": written.workers,
-        "worker_peak_mb": round(written.worker_peak_mb, 1),
-        "worker_cpu_seconds": round(written.worker_cpu_seconds, 3),
+        "workers": max(written.workers, model.plan_workers),
+        "worker_peak_mb": round(max(written.worker_peak_mb, model.plan_worker_peak_mb), 1),
+        "worker_cpu_seconds": round(written.worker_cpu_seconds
+                                    + model.plan_worker_cpu_seconds, 3),
         **model.layout,
     }
 

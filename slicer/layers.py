@@ -159,18 +159,19 @@ def layer_work(model: Any) -> np.ndarray:
     return work
 
 
-def worker_count(profile: Any, work: np.ndarray) -> int:
+def worker_count(profile: Any, work: np.ndarray, writing: bool = True) -> int:
     """The profile's ``workers``; for "auto", the CPUs this process may use (at most
-    MAX_WORKERS), fewer for a model with too little work to be worth a fork, and one with
-    aligned seams: each seam follows the one below it from the first layer up, so a worker
-    cannot know where its layers' seams are and the parent writes them all again."""
+    MAX_WORKERS), fewer for a model with too little work to be worth a fork, and, for
+    ``writing`` the layers, one with aligned seams: each seam follows the one below it from
+    the first layer up, so a worker cannot know where its layers' seams are and the parent
+    writes them all again (planning them is not affected)."""
     try:
         asked = parse_workers(profile.workers)
     except ValueError as exc:
         raise SliceError(str(exc)) from None
     if asked is not None:
         return asked
-    if profile.seam_position == "aligned":
+    if writing and profile.seam_position == "aligned":
         return 1
     cpus = min(available_cpus(), MAX_WORKERS)
     total = float(work.sum())
