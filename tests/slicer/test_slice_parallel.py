@@ -91,6 +91,44 @@ def test_a_killed_worker_is_a_slice_error_and_leaves_no_process():
     assert not _children() - before
 
 
+def test_a_killed_planning_worker_is_a_slice_error_and_leaves_no_process():
+    """The shells are planned on the workers before the layers are written: a worker killed
+    then (a 20k-triangle sphere: a tenth of a second of planning each) is a one-line
+    SliceError as well."""
+    v, f = sphere(20.0, 5)
+    killed: list[int] = []
+    before = _children()
+
+    def kill_a_planner(stage: str, fraction: float) -> None:
+        if stage == "shells" and not killed:
+            for pid in _children() - before:
+                os.kill(pid, signal.SIGKILL)
+                killed.append(pid)
+
+    with pytest.raises(SliceError, match="planning layers .* killed by SIGKILL") as err:
+        slice_mesh(v, f, BASE.with_overrides({"workers": "2"}), progress=kill_a_planner)
+    assert killed and "\n" not in str(err.value)
+    assert not _children() - before
+
+
+def test_shells_planned_on_workers_are_those_planned_in_one_process():
+    """Each layer's shells and solid skin, planned by any process, are the same arrays."""
+    from slicer import engine
+    from slicer.geometry import shape_key
+
+    v, f = mushroom()
+    planned = {}
+    for workers in ("1", "3"):
+        profile = BASE.with_overrides({"workers": workers, "support": "auto"})
+        model, man = engine._placed(*engine._checked_mesh(v, f), profile)
+        engine._plan_layers(model, man, profile, engine._Reporter(None))
+        assert model.plan_workers == int(workers)
+        planned[workers] = [
+            ([p.points.tobytes() for p in sh.loops + sh.thin], shape_key(sh.inner),
+             shape_key(solid)) for sh, solid in zip(model.shells, model.solids, strict=True)]
+    assert len(planned["1"]) >= 100 and planned["3"] == planned["1"]
+
+
 def test_a_worker_that_raises_names_the_error():
     worker = Worker(lambda: 1 / 0, "test")
     with pytest.raises(WorkerError, match="ZeroDivisionError"):
