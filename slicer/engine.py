@@ -10,6 +10,7 @@ estimated_seconds (trapezoidal motion estimate; heating time is not included), p
 
 from __future__ import annotations
 
+import functools
 import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -104,13 +105,19 @@ def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progres
     model, man = _placed(*_checked_mesh(vertices, faces), profile)
     head, tail = _head_and_tail(profile, model.tops)  # before the heavy work: fail fast
     _plan_layers(model, man, profile, report)
-    thumbnails = _thumbnails(model, man, profile)  # drawn from the solid, while it exists
-    del man
-    written = _write_layers(model, profile, report)
-    if written.filament_mm <= 0:
-        raise SliceError("nothing to print: the model produced no extrusions")
-    summary = _summary(model, written, profile)
-    gcode = _assemble(model, written, profile, head, tail, summary, thumbnails)
+    # drawn from the solid while it exists; by a worker while support is planned, where the
+    # shells were planned on several processes (the other core would wait for support)
+    thumbnails = _Thumbnails(model, man, profile, forked=model.plan_workers > 1)
+    try:
+        _plan_support(model, profile, report)
+        del man
+        written = _write_layers(model, profile, report)
+        if written.filament_mm <= 0:
+            raise SliceError("nothing to print: the model produced no extrusions")
+        summary = _summary(model, written, profile)
+        gcode = _assemble(model, written, profile, head, tail, summary, thumbnails.result())
+    finally:
+        thumbnails.stop()
     report("done", 1.0)
     return SliceResult(gcode, summary)
 
@@ -164,11 +171,9 @@ def _head_and_tail(profile: Profile, tops: np.ndarray) -> tuple[str, str]:
 
 
 def _plan_layers(model: _Model, man: Any, profile: Profile, report: _Reporter) -> None:
-    """Slice at mid-layer heights, then plan shells, skins, support and the brim."""
+    """Slice at mid-layer heights, then plan shells and skins (slicer.layer_plans)."""
     from slicer import geometry as geo
-    from slicer.brim import brim_paths, needs_brim
     from slicer.layer_plans import plan_shells_and_skins
-    from slicer.support import bead_area_of, support_regions
 
     heights, res = model.heights, profile.resolution
     n = len(model.tops)
@@ -180,6 +185,14 @@ def _plan_layers(model: _Model, man: Any, profile: Profile, report: _Reporter) -
     model.spacing = [geo.bead_spacing(model.widths[i], float(heights[i])) for i in range(n)]
     plan_shells_and_skins(model, profile, report)
     report("skins", 0.45)
+
+
+def _plan_support(model: _Model, profile: Profile, report: _Reporter) -> None:
+    """Plan support (from the top layer down: it needs every layer) and the brim."""
+    from slicer.brim import brim_paths, needs_brim
+    from slicer.support import bead_area_of, support_regions
+
+    heights = model.heights
     model.supports = support_regions(model.sections, heights, profile, model.widths,
                                      [bead_area_of(sh.thin) for sh in model.shells])
     report("support", 0.5)
@@ -229,6 +242,37 @@ def _summary(model: _Model, written: Written, p: Profile) -> dict[str, Any]:
                                     + model.plan_worker_cpu_seconds, 3),
         **model.layout,
     }
+
+
+class _Thumbnails:
+    """The thumbnail blocks of the profile's sizes ("" for none), drawn from the solid,
+    here or in a forked worker (slicer.parallel)."""
+
+    def __init__(self, model: _Model, man: Any, p: Profile, forked: bool) -> None:
+        from slicer.parallel import Worker
+
+        self.worker, self.text = None, None
+        if forked and p.thumbnails:
+            try:
+                self.worker = Worker(functools.partial(_thumbnails, model, man, p), "thumbnails")
+            except OSError:  # no fork: drawn here
+                pass
+        if self.worker is None:
+            self.text = _thumbnails(model, man, p)
+
+    def result(self) -> str:
+        from slicer.parallel import WorkerError
+
+        if self.text is None:
+            try:
+                self.text = self.worker.result()
+            except WorkerError as exc:
+                raise SliceError(str(exc)) from None
+        return self.text
+
+    def stop(self) -> None:
+        if self.worker is not None:
+            self.worker.stop()
 
 
 def _thumbnails(model: _Model, man: Any, p: Profile) -> str:

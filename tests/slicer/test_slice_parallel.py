@@ -121,7 +121,7 @@ def test_shells_planned_on_workers_are_those_planned_in_one_process():
     for workers in ("1", "3"):
         profile = BASE.with_overrides({"workers": workers, "support": "auto"})
         model, man = engine._placed(*engine._checked_mesh(v, f), profile)
-        engine._plan_layers(model, man, profile, engine._Reporter(None))
+        engine._plan_layers(model, man, profile, engine._Reporter(None))  # shells, skins
         assert model.plan_workers == int(workers)
         planned[workers] = [
             ([p.points.tobytes() for p in sh.loops + sh.thin], shape_key(sh.inner),
