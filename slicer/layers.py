@@ -159,12 +159,14 @@ def layer_work(model: Any) -> np.ndarray:
     return work
 
 
-def worker_count(profile: Any, work: np.ndarray, writing: bool = True) -> int:
+def worker_count(profile: Any, work: np.ndarray, *, writing: bool = True,
+                 min_work: float = AUTO_MIN_WORK, per_worker: float = AUTO_WORK_PER_WORKER
+                 ) -> int:
     """The profile's ``workers``; for "auto", the CPUs this process may use (at most
-    MAX_WORKERS), fewer for a model with too little work to be worth a fork, and, for
-    ``writing`` the layers, one with aligned seams: each seam follows the one below it from
-    the first layer up, so a worker cannot know where its layers' seams are and the parent
-    writes them all again (planning them is not affected)."""
+    MAX_WORKERS), fewer for a model with less ``work`` than ``min_work`` (then one) or
+    ``per_worker`` for each, and, for ``writing`` the layers, one with aligned seams: each
+    seam follows the one below it from the first layer up, so a worker cannot know where its
+    layers' seams are and the parent writes them all again (planning them is not affected)."""
     try:
         asked = parse_workers(profile.workers)
     except ValueError as exc:
@@ -175,9 +177,9 @@ def worker_count(profile: Any, work: np.ndarray, writing: bool = True) -> int:
         return 1
     cpus = min(available_cpus(), MAX_WORKERS)
     total = float(work.sum())
-    if cpus <= 1 or total < AUTO_MIN_WORK:
+    if cpus <= 1 or total < min_work:
         return 1
-    return max(1, min(cpus, int(total // AUTO_WORK_PER_WORKER)))
+    return max(1, min(cpus, int(total // per_worker)))
 
 
 def layer_shares(work: np.ndarray, workers: int) -> list[tuple[int, int]]:

@@ -13,7 +13,7 @@ from slice_checks import mesh_of, sphere
 from support_checks import BUNNY, mushroom, rotated_bunny, t_bracket
 
 from slicer.engine import SliceError, slice_mesh
-from slicer.parallel import Worker, WorkerError
+from slicer.parallel import Worker, WorkerError, available_cpus
 from slicer.profile import Profile, ProfileError, load_profile
 
 BASE = Profile.for_printer(nozzle_diameter=0.4, build_volume=(200, 200, 180))
@@ -127,6 +127,18 @@ def test_shells_planned_on_workers_are_those_planned_in_one_process():
             ([p.points.tobytes() for p in sh.loops + sh.thin], shape_key(sh.inner),
              shape_key(solid)) for sh, solid in zip(model.shells, model.solids, strict=True)]
     assert len(planned["1"]) >= 100 and planned["3"] == planned["1"]
+
+
+@pytest.mark.skipif(available_cpus() < 2, reason="one CPU: auto never forks")
+def test_auto_plans_a_detailed_model_on_the_cores_and_a_prismatic_one_in_one_process():
+    from slicer import engine
+
+    for model, several in ((lambda: sphere(20.0, 5), True), (mushroom, False)):
+        v, f = model()
+        profile = BASE.with_overrides({"support": "auto"})
+        placed, man = engine._placed(*engine._checked_mesh(v, f), profile)
+        engine._plan_layers(placed, man, profile, engine._Reporter(None))
+        assert (placed.plan_workers > 1) == several
 
 
 def test_a_worker_that_raises_names_the_error():
