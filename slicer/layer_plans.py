@@ -15,14 +15,12 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import gc
 from typing import Any
 
 import numpy as np
 from manifold3d import CrossSection, FillRule
 
-from slicer.errors import SliceError
-from slicer.parallel import Worker, WorkerError
+from slicer.parallel import forked
 
 __all__ = ["plan_shells_and_skins", "plan_work"]
 
@@ -115,35 +113,21 @@ def plan_shells_and_skins(model: Any, profile: Any, report: Any) -> None:
                                              min_work=PLAN_MIN_WORK,
                                              per_worker=PLAN_WORK_PER_WORKER))
     model.shells, model.solids = [None] * n, [None] * n
-    forked: list[Worker] = []
-    if len(shares) > 1:
-        gc.freeze()  # a collection would touch, and so copy, every page the workers share
-    try:
-        for begin, end in shares[1:]:
-            try:
-                forked.append(Worker(functools.partial(_plan_share, model, profile, begin,
-                                                       end), f"planning layers {begin}-{end - 1}"))
-            except OSError:
-                break
+    jobs = [(functools.partial(_plan_share, model, profile, begin, end),
+             f"planning layers {begin}-{end - 1}") for begin, end in shares[1:]]
+    with forked(jobs) as workers:
         report("shells", 0.2)
         results = [_plan_share(model, profile, *shares[0])]
         for k, (begin, end) in enumerate(shares[1:]):
-            results.append(forked[k].result() if k < len(forked)
-                       else _plan_share(model, profile, begin, end))
+            results.append(workers[k].result() if k < len(workers)
+                           else _plan_share(model, profile, begin, end))
             report("shells", 0.2 + end / n * 0.25)
-    except WorkerError as exc:
-        raise SliceError(str(exc)) from None
-    finally:
-        for worker in forked:
-            worker.stop()
-        if len(shares) > 1:
-            gc.unfreeze()
     template = _template(model, profile)
     for (begin, _), planned in zip(shares, results, strict=True):
         _adopt(model, begin, planned, template)
-    model.plan_workers = 1 + len(forked)
-    model.plan_worker_cpu_seconds = sum(w.cpu_seconds for w in forked)
-    model.plan_worker_peak_mb = max((w.peak_mb for w in forked), default=0.0)
+    model.plan_workers = 1 + len(workers)
+    model.plan_worker_cpu_seconds = sum(w.cpu_seconds for w in workers)
+    model.plan_worker_peak_mb = max((w.peak_mb for w in workers), default=0.0)
 
 
 def _template(model: Any, profile: Any) -> Any:

@@ -19,14 +19,13 @@ from __future__ import annotations
 
 import copy
 import functools
-import gc
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from slicer.errors import SliceError
-from slicer.parallel import MAX_WORKERS, Worker, WorkerError, available_cpus, parse_workers
+from slicer.parallel import MAX_WORKERS, available_cpus, forked, parse_workers
 
 __all__ = ["LayerRun", "Written", "layer_shares", "worker_count", "write_shares"]
 
@@ -213,18 +212,9 @@ def write_shares(run: LayerRun, shares: list[tuple[int, int]], report: Any) -> W
     can be forked (no memory, process limit), the parent writes those shares itself."""
     n = len(run.model.tops)
     out = Written()
-    workers: list[Worker] = []
-    if len(shares) > 1:
-        # the objects that exist now are left out of garbage collection until the end: a
-        # collection would touch every one of them, copying the pages the workers share
-        gc.freeze()
-    try:
-        for begin, end in shares[1:]:
-            try:
-                workers.append(Worker(functools.partial(_write_share_in_worker, run, begin,
-                                                        end), f"layers {begin}-{end - 1}"))
-            except OSError:
-                break
+    jobs = [(functools.partial(_write_share_in_worker, run, begin, end),
+             f"layers {begin}-{end - 1}") for begin, end in shares[1:]]
+    with forked(jobs) as workers:
         for i in range(*shares[0]):
             out.add(run.layer(i))
             _free_layer(run.model, i)
@@ -233,12 +223,6 @@ def write_shares(run: LayerRun, shares: list[tuple[int, int]], report: Any) -> W
             codes, states = workers[k].result() if k < len(workers) else ([], [])
             _take_over(run, out, begin, end, codes, states)
             report("gcode", 0.5 + end / n * 0.5)
-    except WorkerError as exc:
-        raise SliceError(str(exc)) from None
-    finally:
-        for worker in workers:
-            worker.stop()
-        gc.unfreeze()
     out.workers = 1 + len(workers)
     out.worker_cpu_seconds = sum(w.cpu_seconds for w in workers)
     out.worker_peak_mb = max((w.peak_mb for w in workers), default=0.0)
