@@ -24,8 +24,8 @@ from slicer.parallel import forked
 
 __all__ = ["plan_shells_and_skins", "plan_work"]
 
-#: Planning CPU per vertex, in layer_work's units: measured 5-6 µs per vertex of the
-#: bunny's, the sphere's and the torus's sections (0.3-0.8 s of planning on one process).
+#: Planning work per vertex: measured 5-6 µs of CPU per vertex of the bunny's, the
+#: sphere's and the torus's sections (0.3-0.8 s of planning on one process).
 PLAN_UNIT = 0.3
 
 #: "auto" plans in one process below this much work (:func:`plan_work`), and gives each
@@ -42,10 +42,10 @@ Portable = tuple[list, list, list[np.ndarray], list[np.ndarray]]
 
 
 def plan_work(sections: list, perimeters: int, spacing: list[float]) -> np.ndarray:
-    """Per layer, its expected planning work before anything is planned, in the units of
-    slicer.layers.layer_work (about 18 µs of CPU each): PLAN_UNIT for each vertex of its
-    perimeter loops (about the section's, per loop) and of its area at bead spacing; a
-    layer like one below it (prismatic parts) costs next to nothing: its plan is shared."""
+    """Per layer, its expected planning work before anything is planned (15-21 µs of CPU
+    per unit on the bench models): PLAN_UNIT for each vertex of its perimeter loops (about
+    the section's, per loop) and of its area at bead spacing; a layer like one below it
+    (prismatic parts) costs next to nothing: its plan is shared."""
     from slicer.geometry import shape_key
 
     seen: set = set()
@@ -55,7 +55,7 @@ def plan_work(sections: list, perimeters: int, spacing: list[float]) -> np.ndarr
         if key not in seen:
             seen.add(key)
             work[i] += PLAN_UNIT * (section.num_vert() * max(perimeters, 1)
-                        + 0.05 * section.area() / spacing[i])
+                                    + 0.05 * section.area() / spacing[i])
     return work
 
 

@@ -30,10 +30,10 @@ from slicer.parallel import MAX_WORKERS, available_cpus, forked, parse_workers
 __all__ = ["LayerRun", "Written", "layer_shares", "worker_count", "write_shares"]
 
 #: "auto" forks no worker for a model with less estimated work (:func:`layer_work`, summed
-#: over the layers) than this. Measured (bench models, one process): about 18 µs of CPU
-#: per unit, and a worker costs about 0.05 s of CPU (fork, pages copied on write, its
-#: warm-up layer); 20 000 units are ~0.36 s of writing, halved on two cores. The 20 mm
-#: cube (6 200) stays in one process, the mushroom (146 000) and bunny (139 000) do not.
+#: over the layers) than this. Measured (bench models, one process): 5-17 µs of CPU per
+#: unit, and a worker costs about 0.05 s of CPU (fork, pages copied on write, its warm-up
+#: layer); 20 000 units are 0.1-0.35 s of writing, halved on two cores. The 20 mm cube
+#: (5 700) stays in one process, the mushroom (81 000) and bunny (132 000) do not.
 AUTO_MIN_WORK = 20_000.0
 #: ... and gives each worker at least half of that.
 AUTO_WORK_PER_WORKER = 10_000.0
@@ -145,16 +145,28 @@ def _layer_paths(model: Any, i: int, profile: Any, support_cache: dict) -> list:
 
 
 def layer_work(model: Any) -> np.ndarray:
-    """Per layer, a rough measure of its writing work, fitted to CPU time per layer on the
-    bench models: its loops' vertices, its support and (less) its section at bead spacing,
-    and a constant for the layer itself."""
+    """Per layer, a rough measure of its writing work (about 13 µs of CPU per unit), fitted
+    to CPU time per layer on the bench models (bunny, mushroom, sphere, torus; least squares
+    with no negative term): its loops' vertices and a constant per loop (each island is a
+    travel route), its support area at bead spacing (a fifth; a twentieth where the region
+    repeats one seen before, whose paths are cached) and contours, its solid skin's area
+    at bead spacing, and a constant for the layer itself."""
+    from slicer.geometry import shape_key
+
     work = np.zeros(len(model.tops))
-    for i, section in enumerate(model.sections):
-        support = 0.0
-        if model.supports is not None and model.supports[i] is not None:
-            support = model.supports[i].area().area()
-        vertices = sum(len(p.points) for p in model.shells[i].loops)
-        work[i] = vertices + (0.15 * support + 0.05 * section.area()) / model.spacing[i] + 5
+    seen: set = set()
+    for i, shells in enumerate(model.shells):
+        s = model.spacing[i]
+        loops = shells.loops
+        work[i] = (sum(len(p.points) for p in loops) + 18.0 * len(loops)
+                   + 0.14 * model.solids[i].area() / s + 5.0)
+        support = model.supports[i] if model.supports is not None else None
+        if support is not None and not support.is_empty():
+            key = (shape_key(support.base), shape_key(support.interface))
+            weight = 0.05 if key in seen else 0.2
+            seen.add(key)
+            work[i] += (weight * support.area().area() / s
+                        + 0.9 * (support.base.num_contour() + support.interface.num_contour()))
     return work
 
 
