@@ -105,13 +105,13 @@ def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progres
     model, man = _placed(*_checked_mesh(vertices, faces), profile)
     head, tail = _head_and_tail(profile, model.tops)  # before the heavy work: fail fast
     _plan_layers(model, man, profile, report)
-    # drawn from the solid while it exists; by a worker while support is planned, where the
-    # shells were planned on several processes (the other core would wait for support)
-    thumbnails = _Thumbnails(model, man, profile, forked=model.plan_workers > 1)
+    thumbnails = _Thumbnails(model, man, profile)  # drawn from the solid (kept till then)
+    del man
     try:
+        if model.plan_workers > 1:  # a model worth the cores: drawn while support is planned
+            thumbnails.start(forked=True)
         _plan_support(model, profile, report)
-        del man
-        written = _write_layers(model, profile, report)
+        written = _write_layers(model, profile, report, thumbnails)
         if written.filament_mm <= 0:
             raise SliceError("nothing to print: the model produced no extrusions")
         summary = _summary(model, written, profile)
@@ -205,14 +205,17 @@ def _plan_support(model: _Model, profile: Profile, report: _Reporter) -> None:
         model.first_area = model.first_area + model.supports[0].area()
 
 
-def _write_layers(model: _Model, profile: Profile, report: _Reporter) -> Written:
+def _write_layers(model: _Model, profile: Profile, report: _Reporter,
+                  thumbnails: _Thumbnails) -> Written:
     """Plan, order and write the layers: the first share here, one layer at a time (only
     one layer's paths exist at once), and each further share in a forked worker (see
-    slicer.layers). The G-code is the same whatever the number of workers."""
+    slicer.layers), as are the ``thumbnails`` then. The G-code is the same whatever the
+    number of workers."""
     from slicer.layers import LayerRun, layer_shares, layer_work, worker_count, write_shares
 
     work = layer_work(model)
     shares = layer_shares(work, worker_count(profile, work))
+    thumbnails.start(forked=len(shares) > 1)
     run = LayerRun(model, profile)
     out = write_shares(run, shares, report)
     model.shells = model.solids = model.sections = []
@@ -245,24 +248,34 @@ def _summary(model: _Model, written: Written, p: Profile) -> dict[str, Any]:
 
 
 class _Thumbnails:
-    """The thumbnail blocks of the profile's sizes ("" for none), drawn from the solid,
-    here or in a forked worker (slicer.parallel)."""
+    """The thumbnail blocks of the profile's sizes ("" for none), drawn from the solid
+    when started: here, or in a forked worker (slicer.parallel) while this process works."""
 
-    def __init__(self, model: _Model, man: Any, p: Profile, forked: bool) -> None:
+    def __init__(self, model: _Model, man: Any, p: Profile) -> None:
+        self.draw: Callable[[], str] | None = functools.partial(_thumbnails, model, man, p)
+        self.worker: Any = None
+        self.text: str | None = None if p.thumbnails else ""
+
+    def start(self, forked: bool) -> None:
+        """Draw them now, or have a worker draw them (here where it cannot be forked);
+        nothing if they are started already."""
         from slicer.parallel import Worker
 
-        self.worker, self.text = None, None
-        if forked and p.thumbnails:
+        if self.text is not None or self.worker is not None:
+            return
+        if forked:
             try:
-                self.worker = Worker(functools.partial(_thumbnails, model, man, p), "thumbnails")
+                self.worker = Worker(self.draw, "thumbnails")
             except OSError:  # no fork: drawn here
                 pass
         if self.worker is None:
-            self.text = _thumbnails(model, man, p)
+            self.text = self.draw()
+        self.draw = None  # the solid is no longer needed here
 
     def result(self) -> str:
         from slicer.parallel import WorkerError
 
+        self.start(forked=False)
         if self.text is None:
             try:
                 self.text = self.worker.result()
