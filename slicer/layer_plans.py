@@ -63,10 +63,6 @@ def _region(contours: list[np.ndarray]) -> CrossSection:
     return CrossSection(contours, FillRule.Positive) if contours else CrossSection()
 
 
-def _contours(cs: CrossSection) -> list[np.ndarray]:
-    return [np.asarray(p, dtype=np.float64) for p in cs.to_polygons() if len(p) >= 3]
-
-
 def _plan_share(model: Any, profile: Any, begin: int, end: int) -> list[Portable]:
     """Shells and solid skins of layers [begin, end), as arrays. Identical layers
     (prismatic parts) share their shells."""
@@ -89,7 +85,7 @@ def _plan_share(model: Any, profile: Any, begin: int, end: int) -> list[Portable
     inner[begin:end] = [s.inner for s in shells]
     solids = skin_regions(inner, model.sections, profile.top_layers, profile.bottom_layers,
                           model.spacing, profile.infill_percent >= 100)
-    return [(s.loops, s.thin, _contours(s.inner), _contours(solids[i]))
+    return [(s.loops, s.thin, geo.contours(s.inner), geo.contours(solids[i]))
             for i, s in zip(range(begin, end), shells, strict=True)]
 
 
