@@ -114,8 +114,9 @@ def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progres
         written = _write_layers(model, profile, report, thumbnails)
         if written.filament_mm <= 0:
             raise SliceError("nothing to print: the model produced no extrusions")
-        summary = _summary(model, written, profile)
-        gcode = _assemble(model, written, profile, head, tail, summary, thumbnails.result())
+        drawn = thumbnails.result()
+        summary = _summary(model, written, profile, thumbnails.worker)
+        gcode = _assemble(model, written, profile, head, tail, summary, drawn)
     finally:
         thumbnails.stop()
     report("done", 1.0)
@@ -223,8 +224,12 @@ def _write_layers(model: _Model, profile: Profile, report: _Reporter,
     return out
 
 
-def _summary(model: _Model, written: Written, p: Profile) -> dict[str, Any]:
+def _summary(model: _Model, written: Written, p: Profile, drawer: Any = None
+             ) -> dict[str, Any]:
+    """The job's figures; the workers' CPU and peak memory over its phases (planning,
+    writing, and the thumbnails' ``drawer`` if one drew them)."""
     cm3 = written.filament_mm * p.filament_area / 1000.0
+    drawn = [drawer] if drawer is not None else []
     return {
         "layers": len(model.tops),
         "filament_mm": round(written.filament_mm, 2),
@@ -240,9 +245,10 @@ def _summary(model: _Model, written: Written, p: Profile) -> dict[str, Any]:
         "support_seconds": round(written.support_seconds, 1),
         "brim": bool(model.brim),
         "workers": max(written.workers, model.plan_workers),
-        "worker_peak_mb": round(max(written.worker_peak_mb, model.plan_worker_peak_mb), 1),
-        "worker_cpu_seconds": round(written.worker_cpu_seconds
-                                    + model.plan_worker_cpu_seconds, 3),
+        "worker_peak_mb": round(max(written.worker_peak_mb, model.plan_worker_peak_mb,
+                                    *(w.peak_mb for w in drawn)), 1),
+        "worker_cpu_seconds": round(written.worker_cpu_seconds + model.plan_worker_cpu_seconds
+                                    + sum(w.cpu_seconds for w in drawn), 3),
         **model.layout,
     }
 

@@ -141,6 +141,22 @@ def test_auto_plans_a_detailed_model_on_the_cores_and_a_prismatic_one_in_one_pro
         assert (placed.plan_workers > 1) == several
 
 
+def test_the_summary_counts_every_workers_cpu():
+    """Planning, writing and thumbnail workers: the summary's worker CPU is what this
+    process's reaped children used during the slice (the bench's "main cpu" is the rest)."""
+    import resource
+
+    def children_cpu() -> float:
+        usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+        return usage.ru_utime + usage.ru_stime
+
+    v, f = sphere(20.0, 5)
+    before = children_cpu()
+    summary = slice_mesh(v, f, BASE.with_overrides({"workers": "2"})).summary
+    used = children_cpu() - before
+    assert used > 0 and summary["worker_cpu_seconds"] == pytest.approx(used, abs=0.01)
+
+
 def test_a_worker_that_raises_names_the_error():
     worker = Worker(lambda: 1 / 0, "test")
     with pytest.raises(WorkerError, match="ZeroDivisionError"):
