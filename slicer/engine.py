@@ -10,6 +10,7 @@ estimated_seconds (trapezoidal motion estimate; heating time is not included), p
 
 from __future__ import annotations
 
+import functools
 import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -90,6 +91,11 @@ class _Model:
     supports: list | None = None
     brim: list = field(default_factory=list)
     first_area: Any = None
+    #: processes that planned the shells (this one included), the workers' CPU seconds and
+    #: largest peak resident memory (MB)
+    plan_workers: int = 1
+    plan_worker_cpu_seconds: float = 0.0
+    plan_worker_peak_mb: float = 0.0
 
 
 def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progress = None
@@ -99,13 +105,20 @@ def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progres
     model, man = _placed(*_checked_mesh(vertices, faces), profile)
     head, tail = _head_and_tail(profile, model.tops)  # before the heavy work: fail fast
     _plan_layers(model, man, profile, report)
-    thumbnails = _thumbnails(model, man, profile)  # drawn from the solid, while it exists
+    thumbnails = _Thumbnails(model, man, profile)  # drawn from the solid (kept till then)
     del man
-    written = _write_layers(model, profile, report)
-    if written.filament_mm <= 0:
-        raise SliceError("nothing to print: the model produced no extrusions")
-    summary = _summary(model, written, profile)
-    gcode = _assemble(model, written, profile, head, tail, summary, thumbnails)
+    try:
+        if model.plan_workers > 1:  # a model worth the cores: drawn while support is planned
+            thumbnails.start(forked=True)
+        _plan_support(model, profile, report)
+        written = _write_layers(model, profile, report, thumbnails)
+        if written.filament_mm <= 0:
+            raise SliceError("nothing to print: the model produced no extrusions")
+        drawn = thumbnails.result()
+        summary = _summary(model, written, profile, thumbnails.worker)
+        gcode = _assemble(model, written, profile, head, tail, summary, drawn)
+    finally:
+        thumbnails.stop()
     report("done", 1.0)
     return SliceResult(gcode, summary)
 
@@ -159,11 +172,9 @@ def _head_and_tail(profile: Profile, tops: np.ndarray) -> tuple[str, str]:
 
 
 def _plan_layers(model: _Model, man: Any, profile: Profile, report: _Reporter) -> None:
-    """Slice at mid-layer heights, then plan shells, skins, support and the brim."""
+    """Slice at mid-layer heights, then plan shells and skins (slicer.layer_plans)."""
     from slicer import geometry as geo
-    from slicer.brim import brim_paths, needs_brim
-    from slicer.planner import plan_shells, skin_regions
-    from slicer.support import bead_area_of, support_regions
+    from slicer.layer_plans import plan_shells_and_skins
 
     heights, res = model.heights, profile.resolution
     n = len(model.tops)
@@ -172,20 +183,17 @@ def _plan_layers(model: _Model, man: Any, profile: Profile, report: _Reporter) -
         report("slice", i / n * 0.2)
     model.widths = [profile.first_layer_line_width if i == 0 else profile.line_width
                     for i in range(n)]
-    planned: dict = {}  # identical layers (prismatic parts) share their shells
-    for i in range(n):
-        key = (geo.shape_key(model.sections[i]), model.widths[i], float(heights[i]))
-        if key not in planned:
-            planned[key] = plan_shells(model.sections[i], model.widths[i], float(heights[i]),
-                                       profile.perimeters, profile.thin_walls, res)
-        model.shells.append(planned[key])
-        report("shells", 0.2 + i / n * 0.2)
-    del planned
     model.spacing = [geo.bead_spacing(model.widths[i], float(heights[i])) for i in range(n)]
-    model.solids = skin_regions([s.inner for s in model.shells], model.sections,
-                                profile.top_layers, profile.bottom_layers, model.spacing,
-                                profile.infill_percent >= 100)
+    plan_shells_and_skins(model, profile, report)
     report("skins", 0.45)
+
+
+def _plan_support(model: _Model, profile: Profile, report: _Reporter) -> None:
+    """Plan support (from the top layer down: it needs every layer) and the brim."""
+    from slicer.brim import brim_paths, needs_brim
+    from slicer.support import bead_area_of, support_regions
+
+    heights = model.heights
     model.supports = support_regions(model.sections, heights, profile, model.widths,
                                      [bead_area_of(sh.thin) for sh in model.shells])
     report("support", 0.5)
@@ -198,14 +206,17 @@ def _plan_layers(model: _Model, man: Any, profile: Profile, report: _Reporter) -
         model.first_area = model.first_area + model.supports[0].area()
 
 
-def _write_layers(model: _Model, profile: Profile, report: _Reporter) -> Written:
+def _write_layers(model: _Model, profile: Profile, report: _Reporter,
+                  thumbnails: _Thumbnails) -> Written:
     """Plan, order and write the layers: the first share here, one layer at a time (only
     one layer's paths exist at once), and each further share in a forked worker (see
-    slicer.layers). The G-code is the same whatever the number of workers."""
+    slicer.layers), as are the ``thumbnails`` then. The G-code is the same whatever the
+    number of workers."""
     from slicer.layers import LayerRun, layer_shares, layer_work, worker_count, write_shares
 
     work = layer_work(model)
     shares = layer_shares(work, worker_count(profile, work))
+    thumbnails.start(forked=len(shares) > 1)
     run = LayerRun(model, profile)
     out = write_shares(run, shares, report)
     model.shells = model.solids = model.sections = []
@@ -213,8 +224,12 @@ def _write_layers(model: _Model, profile: Profile, report: _Reporter) -> Written
     return out
 
 
-def _summary(model: _Model, written: Written, p: Profile) -> dict[str, Any]:
+def _summary(model: _Model, written: Written, p: Profile, drawer: Any = None
+             ) -> dict[str, Any]:
+    """The job's figures; the workers' CPU and peak memory over its phases (planning,
+    writing, and the thumbnails' ``drawer`` if one drew them)."""
     cm3 = written.filament_mm * p.filament_area / 1000.0
+    drawn = [drawer] if drawer is not None else []
     return {
         "layers": len(model.tops),
         "filament_mm": round(written.filament_mm, 2),
@@ -229,11 +244,54 @@ def _summary(model: _Model, written: Written, p: Profile) -> dict[str, Any]:
         "support_cm3": round(written.support_mm * p.filament_area / 1000.0, 3),
         "support_seconds": round(written.support_seconds, 1),
         "brim": bool(model.brim),
-        "workers": written.workers,
-        "worker_peak_mb": round(written.worker_peak_mb, 1),
-        "worker_cpu_seconds": round(written.worker_cpu_seconds, 3),
+        "workers": max(written.workers, model.plan_workers),
+        "worker_peak_mb": round(max(written.worker_peak_mb, model.plan_worker_peak_mb,
+                                    *(w.peak_mb for w in drawn)), 1),
+        "worker_cpu_seconds": round(written.worker_cpu_seconds + model.plan_worker_cpu_seconds
+                                    + sum(w.cpu_seconds for w in drawn), 3),
         **model.layout,
     }
+
+
+class _Thumbnails:
+    """The thumbnail blocks of the profile's sizes ("" for none), drawn from the solid
+    when started: here, or in a forked worker (slicer.parallel) while this process works."""
+
+    def __init__(self, model: _Model, man: Any, p: Profile) -> None:
+        self.draw: Callable[[], str] | None = functools.partial(_thumbnails, model, man, p)
+        self.worker: Any = None
+        self.text: str | None = None if p.thumbnails else ""
+
+    def start(self, forked: bool) -> None:
+        """Draw them now, or have a worker draw them (here where it cannot be forked);
+        nothing if they are started already."""
+        from slicer.parallel import Worker
+
+        if self.text is not None or self.worker is not None:
+            return
+        if forked:
+            try:
+                self.worker = Worker(self.draw, "thumbnails")
+            except OSError:  # no fork: drawn here
+                pass
+        if self.worker is None:
+            self.text = self.draw()
+        self.draw = None  # the solid is no longer needed here
+
+    def result(self) -> str:
+        from slicer.parallel import WorkerError
+
+        self.start(forked=False)
+        if self.text is None:
+            try:
+                self.text = self.worker.result()
+            except WorkerError as exc:
+                raise SliceError(str(exc)) from None
+        return self.text
+
+    def stop(self) -> None:
+        if self.worker is not None:
+            self.worker.stop()
 
 
 def _thumbnails(model: _Model, man: Any, p: Profile) -> str:

@@ -19,22 +19,21 @@ from __future__ import annotations
 
 import copy
 import functools
-import gc
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from slicer.errors import SliceError
-from slicer.parallel import MAX_WORKERS, Worker, WorkerError, available_cpus, parse_workers
+from slicer.parallel import MAX_WORKERS, available_cpus, forked, parse_workers
 
 __all__ = ["LayerRun", "Written", "layer_shares", "worker_count", "write_shares"]
 
 #: "auto" forks no worker for a model with less estimated work (:func:`layer_work`, summed
-#: over the layers) than this. Measured (bench models, one process): about 18 µs of CPU
-#: per unit, and a worker costs about 0.05 s of CPU (fork, pages copied on write, its
-#: warm-up layer); 20 000 units are ~0.36 s of writing, halved on two cores. The 20 mm
-#: cube (6 200) stays in one process, the mushroom (146 000) and bunny (139 000) do not.
+#: over the layers) than this. Measured (bench models, one process): 5-17 µs of CPU per
+#: unit, and a worker costs about 0.05 s of CPU (fork, pages copied on write, its warm-up
+#: layer); 20 000 units are 0.1-0.35 s of writing, halved on two cores. The 20 mm cube
+#: (5 700) stays in one process, the mushroom (81 000) and bunny (132 000) do not.
 AUTO_MIN_WORK = 20_000.0
 #: ... and gives each worker at least half of that.
 AUTO_WORK_PER_WORKER = 10_000.0
@@ -146,37 +145,54 @@ def _layer_paths(model: Any, i: int, profile: Any, support_cache: dict) -> list:
 
 
 def layer_work(model: Any) -> np.ndarray:
-    """Per layer, a rough measure of its writing work, fitted to CPU time per layer on the
-    bench models: its loops' vertices, its support and (less) its section at bead spacing,
-    and a constant for the layer itself."""
+    """Per layer, a rough measure of its writing work (about 13 µs of CPU per unit), fitted
+    to CPU time per layer on the bench models (bunny, mushroom, sphere, torus; least squares
+    with no negative term): its loops' vertices and a constant per loop (each island is a
+    travel route), its support area at bead spacing (0.4; 0.05 where the region repeats one
+    seen before, whose paths are cached) and contours, its solid skin's area at bead
+    spacing, and a constant for the layer itself. (The fit gave support 0.2; 0.4 splits the
+    bunny's writing evenly: 0.77 s of CPU in the parent and in the worker, 0.82 / 0.66 s
+    with 0.2.)"""
+    from slicer.geometry import shape_key
+
     work = np.zeros(len(model.tops))
-    for i, section in enumerate(model.sections):
-        support = 0.0
-        if model.supports is not None and model.supports[i] is not None:
-            support = model.supports[i].area().area()
-        vertices = sum(len(p.points) for p in model.shells[i].loops)
-        work[i] = vertices + (0.15 * support + 0.05 * section.area()) / model.spacing[i] + 5
+    seen: set = set()
+    for i, shells in enumerate(model.shells):
+        s = model.spacing[i]
+        loops = shells.loops
+        work[i] = (sum(len(p.points) for p in loops) + 18.0 * len(loops)
+                   + 0.14 * model.solids[i].area() / s + 5.0)
+        support = model.supports[i] if model.supports is not None else None
+        if support is not None and not support.is_empty():
+            key = (shape_key(support.base), shape_key(support.interface))
+            weight = 0.05 if key in seen else 0.4
+            seen.add(key)
+            work[i] += (weight * support.area().area() / s
+                        + 0.9 * (support.base.num_contour() + support.interface.num_contour()))
     return work
 
 
-def worker_count(profile: Any, work: np.ndarray) -> int:
+def worker_count(profile: Any, work: np.ndarray, *, writing: bool = True,
+                 min_work: float = AUTO_MIN_WORK, per_worker: float = AUTO_WORK_PER_WORKER
+                 ) -> int:
     """The profile's ``workers``; for "auto", the CPUs this process may use (at most
-    MAX_WORKERS), fewer for a model with too little work to be worth a fork, and one with
-    aligned seams: each seam follows the one below it from the first layer up, so a worker
-    cannot know where its layers' seams are and the parent writes them all again."""
+    MAX_WORKERS), fewer for a model with less ``work`` than ``min_work`` (then one) or
+    ``per_worker`` for each, and, for ``writing`` the layers, one with aligned seams: each
+    seam follows the one below it from the first layer up, so a worker cannot know where its
+    layers' seams are and the parent writes them all again (planning them is not affected)."""
     try:
         asked = parse_workers(profile.workers)
     except ValueError as exc:
         raise SliceError(str(exc)) from None
     if asked is not None:
         return asked
-    if profile.seam_position == "aligned":
+    if writing and profile.seam_position == "aligned":
         return 1
     cpus = min(available_cpus(), MAX_WORKERS)
     total = float(work.sum())
-    if cpus <= 1 or total < AUTO_MIN_WORK:
+    if cpus <= 1 or total < min_work:
         return 1
-    return max(1, min(cpus, int(total // AUTO_WORK_PER_WORKER)))
+    return max(1, min(cpus, int(total // per_worker)))
 
 
 def layer_shares(work: np.ndarray, workers: int) -> list[tuple[int, int]]:
@@ -210,18 +226,9 @@ def write_shares(run: LayerRun, shares: list[tuple[int, int]], report: Any) -> W
     can be forked (no memory, process limit), the parent writes those shares itself."""
     n = len(run.model.tops)
     out = Written()
-    workers: list[Worker] = []
-    if len(shares) > 1:
-        # the objects that exist now are left out of garbage collection until the end: a
-        # collection would touch every one of them, copying the pages the workers share
-        gc.freeze()
-    try:
-        for begin, end in shares[1:]:
-            try:
-                workers.append(Worker(functools.partial(_write_share_in_worker, run, begin,
-                                                        end), f"layers {begin}-{end - 1}"))
-            except OSError:
-                break
+    jobs = [(functools.partial(_write_share_in_worker, run, begin, end),
+             f"layers {begin}-{end - 1}") for begin, end in shares[1:]]
+    with forked(jobs) as workers:
         for i in range(*shares[0]):
             out.add(run.layer(i))
             _free_layer(run.model, i)
@@ -230,12 +237,6 @@ def write_shares(run: LayerRun, shares: list[tuple[int, int]], report: Any) -> W
             codes, states = workers[k].result() if k < len(workers) else ([], [])
             _take_over(run, out, begin, end, codes, states)
             report("gcode", 0.5 + end / n * 0.5)
-    except WorkerError as exc:
-        raise SliceError(str(exc)) from None
-    finally:
-        for worker in workers:
-            worker.stop()
-        gc.unfreeze()
     out.workers = 1 + len(workers)
     out.worker_cpu_seconds = sum(w.cpu_seconds for w in workers)
     out.worker_peak_mb = max((w.peak_mb for w in workers), default=0.0)

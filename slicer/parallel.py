@@ -12,13 +12,16 @@ comes when the child exits however it exits. Workers die with the parent (Linux
 
 from __future__ import annotations
 
+import gc
 import os
 import pickle
 import signal
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import Any
 
-__all__ = ["MAX_WORKERS", "Worker", "WorkerError", "available_cpus", "parse_workers"]
+__all__ = ["MAX_WORKERS", "Worker", "WorkerError", "available_cpus", "forked",
+           "parse_workers"]
 
 #: At most this many processes (the parent included) work on one slice.
 MAX_WORKERS = 8
@@ -136,3 +139,31 @@ class Worker:
                 name = str(sig)
             return f"was killed by {name}"
         return f"exited with status {os.WEXITSTATUS(status)}"
+
+
+@contextmanager
+def forked(jobs: list[tuple[Callable[[], Any], str]]) -> Iterator[list[Worker]]:
+    """A :class:`Worker` for each ``(fn, name)`` of ``jobs`` in order, as many as can be
+    forked (none after a fork fails: no memory, process limit; the caller does the rest
+    itself). A WorkerError becomes a SliceError; on the way out every worker is stopped.
+    While they run, the objects that exist now are left out of garbage collection: a
+    collection would touch every one of them, copying the pages the workers share."""
+    from slicer.errors import SliceError
+
+    workers: list[Worker] = []
+    if jobs:
+        gc.freeze()
+    try:
+        for fn, name in jobs:
+            try:
+                workers.append(Worker(fn, name))
+            except OSError:
+                break
+        yield workers
+    except WorkerError as exc:
+        raise SliceError(str(exc)) from None
+    finally:
+        for worker in workers:
+            worker.stop()
+        if jobs:
+            gc.unfreeze()

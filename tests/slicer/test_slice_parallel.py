@@ -13,7 +13,7 @@ from slice_checks import mesh_of, sphere
 from support_checks import BUNNY, mushroom, rotated_bunny, t_bracket
 
 from slicer.engine import SliceError, slice_mesh
-from slicer.parallel import Worker, WorkerError
+from slicer.parallel import Worker, WorkerError, available_cpus
 from slicer.profile import Profile, ProfileError, load_profile
 
 BASE = Profile.for_printer(nozzle_diameter=0.4, build_volume=(200, 200, 180))
@@ -89,6 +89,72 @@ def test_a_killed_worker_is_a_slice_error_and_leaves_no_process():
                    progress=kill_a_worker)
     assert killed
     assert not _children() - before
+
+
+def test_a_killed_planning_worker_is_a_slice_error_and_leaves_no_process():
+    """The shells are planned on the workers before the layers are written: a worker killed
+    then (a 20k-triangle sphere: a tenth of a second of planning each) is a one-line
+    SliceError as well."""
+    v, f = sphere(20.0, 5)
+    killed: list[int] = []
+    before = _children()
+
+    def kill_a_planner(stage: str, fraction: float) -> None:
+        if stage == "shells" and not killed:
+            for pid in _children() - before:
+                os.kill(pid, signal.SIGKILL)
+                killed.append(pid)
+
+    with pytest.raises(SliceError, match="planning layers .* killed by SIGKILL") as err:
+        slice_mesh(v, f, BASE.with_overrides({"workers": "2"}), progress=kill_a_planner)
+    assert killed and "\n" not in str(err.value)
+    assert not _children() - before
+
+
+def test_shells_planned_on_workers_are_those_planned_in_one_process():
+    """Each layer's shells and solid skin, planned by any process, are the same arrays."""
+    from slicer import engine
+    from slicer.geometry import shape_key
+
+    v, f = mushroom()
+    planned = {}
+    for workers in ("1", "3"):
+        profile = BASE.with_overrides({"workers": workers, "support": "auto"})
+        model, man = engine._placed(*engine._checked_mesh(v, f), profile)
+        engine._plan_layers(model, man, profile, engine._Reporter(None))  # shells, skins
+        assert model.plan_workers == int(workers)
+        planned[workers] = [
+            ([p.points.tobytes() for p in sh.loops + sh.thin], shape_key(sh.inner),
+             shape_key(solid)) for sh, solid in zip(model.shells, model.solids, strict=True)]
+    assert len(planned["1"]) >= 100 and planned["3"] == planned["1"]
+
+
+@pytest.mark.skipif(available_cpus() < 2, reason="one CPU: auto never forks")
+def test_auto_plans_a_detailed_model_on_the_cores_and_a_prismatic_one_in_one_process():
+    from slicer import engine
+
+    for model, several in ((lambda: sphere(20.0, 5), True), (mushroom, False)):
+        v, f = model()
+        profile = BASE.with_overrides({"support": "auto"})
+        placed, man = engine._placed(*engine._checked_mesh(v, f), profile)
+        engine._plan_layers(placed, man, profile, engine._Reporter(None))
+        assert (placed.plan_workers > 1) == several
+
+
+def test_the_summary_counts_every_workers_cpu():
+    """Planning, writing and thumbnail workers: the summary's worker CPU is what this
+    process's reaped children used during the slice (the bench's "main cpu" is the rest)."""
+    import resource
+
+    def children_cpu() -> float:
+        usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+        return usage.ru_utime + usage.ru_stime
+
+    v, f = sphere(20.0, 5)
+    before = children_cpu()
+    summary = slice_mesh(v, f, BASE.with_overrides({"workers": "2"})).summary
+    used = children_cpu() - before
+    assert used > 0 and summary["worker_cpu_seconds"] == pytest.approx(used, abs=0.01)
 
 
 def test_a_worker_that_raises_names_the_error():
