@@ -11,7 +11,7 @@ Conventions used throughout repair:
   ``scipy.sparse.csgraph.connected_components`` gives), so any two ways of building the
   same partition give the same labels.
 
-Everything is vectorised numpy/scipy. ``trimesh.grouping`` / ``trimesh.graph`` were
+Everything is vectorised numpy. ``trimesh.grouping`` / ``trimesh.graph`` were
 measured against it on a 1M-face torus: they are no faster (edge ids and face grouping
 within noise, components and the exact weld slower) and number edges and groups in hash
 order, where the repair's results depend on this module's defined orders. Units: mm.
@@ -284,13 +284,32 @@ def count_duplicate_faces(faces: np.ndarray) -> int:
 
 def connected_labels(n: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Component label (int64, 0..k-1, in order of each component's lowest node) of the
-    nodes ``0..n-1`` of the undirected graph with edges ``a[i] -- b[i]``."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
+    nodes ``0..n-1`` of the undirected graph with edges ``a[i] -- b[i]``.
 
-    a = np.asarray(a, dtype=np.int64)
-    graph = coo_matrix((np.ones(len(a), dtype=np.int8), (a, np.asarray(b))), shape=(n, n))
-    return connected_components(graph, directed=False)[1].astype(np.int64)
+    Hooking and pointer jumping in numpy: each round hooks the root of every edge's
+    larger end onto the smaller end's root, then compresses every node to its root, and
+    drops the edges whose ends now share one. A root is always its component's lowest
+    node, so the labels are those of ``scipy.sparse.csgraph.connected_components`` --
+    without importing scipy.sparse (~0.5 s of a command-line repair's start-up).
+    """
+    parent = np.arange(n, dtype=np.int64)
+    a = np.asarray(a, dtype=np.int64).reshape(-1)
+    b = np.asarray(b, dtype=np.int64).reshape(-1)
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    linked = lo != hi
+    lo, hi = lo[linked], hi[linked]
+    while len(lo):
+        np.minimum.at(parent, hi, lo)  # hi is a root here: it now points lower
+        while True:
+            jumped = parent[parent]
+            if np.array_equal(jumped, parent):
+                break
+            parent = jumped
+        ra, rb = parent[lo], parent[hi]
+        apart = ra != rb
+        lo, hi = np.minimum(ra[apart], rb[apart]), np.maximum(ra[apart], rb[apart])
+    roots = parent == np.arange(n)
+    return (np.cumsum(roots) - 1)[parent]
 
 
 def vertex_components(n_vertices: int, faces: np.ndarray) -> np.ndarray:
