@@ -71,7 +71,7 @@ from repair.report import (
 from repair.rounding import RoundedInput, round_input
 from repair.scan import ScanCleaned, scan_cleanup
 from repair.stitch import stitch_cracks
-from repair.topology import edge_components
+from repair.topology import edge_components, edge_topology
 from repair.union import union_of_shells
 
 __all__ = ["RepairError", "RepairResult", "repair_file", "repair_mesh"]
@@ -240,12 +240,15 @@ def _solidify(
         )
     work_v, work_f, scan = _scan_cleanup(cleaned, eps, clean)
     clock.lap("scan_cleanup", 0.21)
-    stitched_f, stitched = stitch_cracks(work_v, work_f, STITCH_GAMMA * eps)
+    # One sort of the edges serves both stages while stitching changes no face.
+    topology = edge_topology(work_f)
+    stitched_f, stitched = stitch_cracks(work_v, work_f, STITCH_GAMMA * eps, topology)
     clock.lap("stitch", 0.22)
     # A cleaned scan's holes are all closable when small against their shell, however
     # much of its edges are boundary (the scan's holes are many).
     lidded_v, lidded_f, holes = close_small_holes(
-        work_v, stitched_f, max_boundary_fraction=1.0 if scan else MAX_BOUNDARY_FRACTION
+        work_v, stitched_f, max_boundary_fraction=1.0 if scan else MAX_BOUNDARY_FRACTION,
+        topology=topology,
     )
     clock.lap("holes", 0.25)
     pairs = carry_input_pairs(rounded.vertices, rounded.faces, rounded.pairs, lidded_v, lidded_f)
