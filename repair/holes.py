@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from repair.closure import Lid, loop_lid, loop_planarity
-from repair.topology import edge_components, edge_ids, half_edges
+from repair.topology import EdgeTopology, edge_topology, half_edges
 
 __all__ = [
     "MAX_BOUNDARY_FRACTION",
@@ -105,20 +105,24 @@ def boundary_loops(faces: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
     other, as many edges in as out not met) give no loop: such a hole is left to the
     sheet thickening.
     """
-    loops, labels, _ = _traced_loops(np.asarray(faces, dtype=np.int64))
+    f = np.asarray(faces, dtype=np.int64)
+    loops, labels, _ = _traced_loops(f, edge_topology(f))
     return loops, labels
 
 
-def _traced_loops(f: np.ndarray) -> tuple[list[np.ndarray], np.ndarray, list[np.ndarray]]:
-    """:func:`boundary_loops`, plus each loop's rim faces (one per loop edge)."""
+def _traced_loops(
+    f: np.ndarray, topology: EdgeTopology
+) -> tuple[list[np.ndarray], np.ndarray, list[np.ndarray]]:
+    """:func:`boundary_loops`, plus each loop's rim faces (one per loop edge);
+    ``topology``: that of ``f``."""
     if len(f) == 0:
         return [], np.zeros(0, dtype=np.int64), []
     he = half_edges(f)  # (3m, 2) a->b
-    eid, cnt = edge_ids(f)
+    eid, cnt = topology.eid, topology.counts
     bnd = np.flatnonzero(cnt[eid] == 1)
     if len(bnd) == 0:
         return [], np.zeros(0, dtype=np.int64), []
-    comp = edge_components(f, eid)
+    comp = topology.shells
     # A lid edge runs b->a for the rim's a->b.
     src, dst = he[bnd, 1], he[bnd, 0]
     succ = _lid_successors(f, he, eid, cnt, bnd, src, dst)
@@ -212,12 +216,12 @@ def _simple_loops(walk: list[int], edges: list[int]) -> list[list[int]]:
 
 
 def _shells(
-    v: np.ndarray, f: np.ndarray, max_boundary_fraction: float
+    v: np.ndarray, f: np.ndarray, max_boundary_fraction: float, topology: EdgeTopology
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per face: edge-connected component and the use count of each of its 3 edges
-    (m, 3); per component: "almost closed" flag and bounding-box diagonal (mm)."""
-    eid, cnt = edge_ids(f)
-    comp = edge_components(f, eid)
+    (m, 3); per component: "almost closed" flag and bounding-box diagonal (mm).
+    ``topology``: that of ``f``."""
+    eid, cnt, comp = topology.eid, topology.counts, topology.shells
     n = int(comp.max()) + 1
     # Each undirected edge belongs to one component (its faces are edge-connected).
     edge_comp = np.empty(len(cnt), dtype=np.int64)
@@ -240,6 +244,7 @@ def flap_faces(
     faces: np.ndarray,
     *,
     max_boundary_fraction: float = MAX_BOUNDARY_FRACTION,
+    topology: EdgeTopology | None = None,
 ) -> np.ndarray:
     """Mask of the *flaps* of almost-closed shells: faces with an open edge and an edge
     shared by more than two faces (a triangle dangling off, or folded over, an edge of
@@ -247,13 +252,14 @@ def flap_faces(
 
     Such a flap keeps the hole next to it from being a simple loop; removing it lets the
     hole be closed. Flaps of shells that are not almost closed are not flagged (those
-    are sheets, and sheets are thickened).
+    are sheets, and sheets are thickened). ``topology``: that of ``faces``, if known.
     """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
     if len(f) == 0:
         return np.zeros(0, dtype=bool)
-    comp, use, almost_closed, _ = _shells(v, f, max_boundary_fraction)
+    topo = topology if topology is not None and topology.of(f) else edge_topology(f)
+    comp, use, almost_closed, _ = _shells(v, f, max_boundary_fraction, topo)
     flap = (use == 1).any(axis=1) & (use > 2).any(axis=1) & almost_closed[comp]
     if not flap.any():
         return flap
@@ -268,6 +274,7 @@ def close_small_holes(
     *,
     max_boundary_fraction: float = MAX_BOUNDARY_FRACTION,
     max_perimeter_fraction: float = MAX_PERIMETER_FRACTION,
+    topology: EdgeTopology | None = None,
 ) -> tuple[np.ndarray, np.ndarray, HolesClosed]:
     """Close the holes of shells that a lid makes solid (Bøhn & Wozny's shell closure).
 
@@ -286,18 +293,22 @@ def close_small_holes(
     are removed first, and stay removed only when their shell had its holes closed.
     Vertices are kept (same indices; fan centres are appended); faces keep their order
     except that the flaps kept move after the others; lid faces are appended.
+    ``topology``: the :func:`repair.topology.edge_topology` of ``faces``, if known.
     """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
-    if len(f) == 0 or not np.any(edge_ids(f)[1] == 1):
+    topo = topology if topology is not None and topology.of(f) else edge_topology(f)
+    if len(f) == 0 or topo.boundary == 0:
         return v, f, HolesClosed()  # no open edge: nothing to close
-    flaps = flap_faces(v, f, max_boundary_fraction=max_boundary_fraction)
+    flaps = flap_faces(v, f, max_boundary_fraction=max_boundary_fraction, topology=topo)
     flap_f = f[flaps]
     f = f[~flaps]
-    loops, labels, rims = _traced_loops(f)
+    if len(flap_f):
+        topo = edge_topology(f)
+    loops, labels, rims = _traced_loops(f, topo)
     if not loops:
         return v, np.vstack([f, flap_f]), HolesClosed()
-    comp, use, almost_closed, diag = _shells(v, f, max_boundary_fraction)
+    comp, use, almost_closed, diag = _shells(v, f, max_boundary_fraction, topo)
     # Lids only where they close the shell: every boundary edge of it is on a closable
     # hole. Closing some holes of a shell that stays open would not make it solid (it is
     # still a sheet, and is thickened), the lids would only add surface.

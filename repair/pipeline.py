@@ -48,6 +48,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from repair.budget import Meshed, run_within_budget
 from repair.clean import Cleaned, clean_checked
@@ -69,9 +70,9 @@ from repair.report import (
     repair_report,
 )
 from repair.rounding import RoundedInput, round_input
-from repair.scan import ScanCleaned, scan_cleanup
+from repair.scan import scan_cleanup
 from repair.stitch import stitch_cracks
-from repair.topology import edge_components
+from repair.topology import edge_components, edge_topology
 from repair.union import union_of_shells
 
 __all__ = ["RepairError", "RepairResult", "repair_file", "repair_mesh"]
@@ -130,6 +131,18 @@ def repair_mesh(
     says so. The fallback is also used when the exact repair cannot make the model
     printable.
     """
+    # One BLAS thread: the repair's BLAS calls are vector-sized (dot products, (n, 3) @
+    # (3,) products), where waking OpenBLAS's threads costs far more than it saves
+    # (np.dot of 10k doubles: 6 ms instead of 6 us on a busy machine), and one thread
+    # sums in one order on any machine. Parallel work is done by forked workers.
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _repair_mesh(vertices, faces, epsilon, progress, clean, surface, time_budget)
+
+
+def _repair_mesh(
+    vertices: np.ndarray, faces: np.ndarray, epsilon: float, progress: Progress, clean: str,
+    surface: str, time_budget: float | None,
+) -> RepairResult:
     eps = _checked_epsilon(epsilon)
     if clean not in CLEAN_MODES:
         raise RepairError(f"clean must be one of {', '.join(CLEAN_MODES)}, got {clean!r}")
@@ -238,14 +251,17 @@ def _solidify(
         raise RepairError(
             f"nothing printable: all {len(rounded.faces)} triangles collapse to a single point"
         )
-    work_v, work_f, scan = _scan_cleanup(cleaned, eps, clean)
+    # One sort of the edges serves the next stages while they change no face.
+    topology = edge_topology(cleaned.faces)
+    work_v, work_f, scan = scan_cleanup(cleaned.vertices, cleaned.faces, eps, clean, topology)
     clock.lap("scan_cleanup", 0.21)
-    stitched_f, stitched = stitch_cracks(work_v, work_f, STITCH_GAMMA * eps)
+    stitched_f, stitched = stitch_cracks(work_v, work_f, STITCH_GAMMA * eps, topology)
     clock.lap("stitch", 0.22)
     # A cleaned scan's holes are all closable when small against their shell, however
     # much of its edges are boundary (the scan's holes are many).
     lidded_v, lidded_f, holes = close_small_holes(
-        work_v, stitched_f, max_boundary_fraction=1.0 if scan else MAX_BOUNDARY_FRACTION
+        work_v, stitched_f, max_boundary_fraction=1.0 if scan else MAX_BOUNDARY_FRACTION,
+        topology=topology,
     )
     clock.lap("holes", 0.25)
     pairs = carry_input_pairs(rounded.vertices, rounded.faces, rounded.pairs, lidded_v, lidded_f)
@@ -278,13 +294,6 @@ def _solidify(
     )  # fmt: skip
     clock.lap("deviation", 0.95)
     return out
-
-
-def _scan_cleanup(
-    cleaned: Cleaned, eps: float, clean: str
-) -> tuple[np.ndarray, np.ndarray, ScanCleaned | None]:
-    """The cleaned input, cleaned as a scan when asked or when it looks like one."""
-    return scan_cleanup(cleaned.vertices, cleaned.faces, eps, clean)
 
 
 def _union_path(

@@ -32,7 +32,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from repair.topology import connected_labels, edge_components, edge_ids, half_edges
+from repair.topology import (
+    EdgeTopology,
+    connected_labels,
+    edge_components,
+    edge_ids,
+    half_edges,
+)
 
 __all__ = ["SPECK_AREA", "ScanCleaned", "clean_scan", "looks_like_scan", "scan_cleanup"]
 
@@ -97,8 +103,11 @@ class _Edges:
     h2: np.ndarray
 
     @staticmethod
-    def of(f: np.ndarray) -> _Edges:
-        eid, cnt = edge_ids(f)
+    def of(f: np.ndarray, topology: EdgeTopology | None = None) -> _Edges:
+        if topology is not None and topology.of(f):
+            eid, cnt = topology.eid, topology.counts
+        else:
+            eid, cnt = edge_ids(f)
         he = half_edges(f)
         ends = np.empty((len(cnt), 2), dtype=np.int64)
         ends[eid] = np.sort(he, axis=1)
@@ -345,15 +354,17 @@ def clean_scan(
 
 
 def scan_cleanup(
-    vertices: np.ndarray, faces: np.ndarray, eps: float, mode: str
+    vertices: np.ndarray, faces: np.ndarray, eps: float, mode: str,
+    topology: EdgeTopology | None = None,
 ) -> tuple[np.ndarray, np.ndarray, ScanCleaned | None]:
     """The mesh cleaned as a scan when ``mode`` is "scan", or is "auto" and it looks like
-    one (:func:`looks_like_scan`); else as it was, and None."""
+    one (:func:`looks_like_scan`); else as it was, and None. ``topology``: the
+    :func:`repair.topology.edge_topology` of ``faces``, if known."""
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
     if mode == "none" or len(f) == 0 or (mode == "auto" and len(f) < SCAN_MIN_FACES):
         return v, f, None
-    e = _Edges.of(f)
+    e = _Edges.of(f, topology)
     normals, area = _normals(v, f)
     why = "asked (clean = scan)" if mode == "scan" else _scan_signs(v, f, e, eps, normals, area)
     if not why:

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from repair.topology import connected_labels, edge_components, edge_ids, edge_stats, half_edges
+from repair.topology import EdgeTopology, connected_labels, edge_topology, half_edges
 
 __all__ = ["Stitched", "stitch_cracks"]
 
@@ -58,15 +58,18 @@ class Stitched:
         }
 
 
-def _boundary(f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Boundary half-edge ids (used by one face only) and each face's patch label."""
-    eid, cnt = edge_ids(f)
-    return np.flatnonzero(cnt[eid] == 1), edge_components(f, eid)
+def _boundary(f: np.ndarray, topology: EdgeTopology) -> tuple[np.ndarray, np.ndarray]:
+    """Boundary half-edge ids (used by one face only) and each face's patch label
+    (``topology``: that of ``f`` when it describes them)."""
+    t = topology if topology.of(f) else edge_topology(f)
+    return np.flatnonzero(t.counts[t.eid] == 1), t.shells
 
 
-def _snap(v: np.ndarray, f: np.ndarray, gamma: float) -> tuple[np.ndarray, int]:
+def _snap(
+    v: np.ndarray, f: np.ndarray, gamma: float, topology: EdgeTopology
+) -> tuple[np.ndarray, int]:
     """Faces with mutually nearest boundary vertices of different patches merged."""
-    bnd, patch = _boundary(f)
+    bnd, patch = _boundary(f, topology)
     he = half_edges(f)
     bv, first = np.unique(he[bnd, 0], return_index=True)
     if len(bv) < 2:
@@ -96,12 +99,12 @@ def _snap(v: np.ndarray, f: np.ndarray, gamma: float) -> tuple[np.ndarray, int]:
 
 
 def _split_candidates(
-    v: np.ndarray, f: np.ndarray, gamma: float
+    v: np.ndarray, f: np.ndarray, gamma: float, topology: EdgeTopology
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(half-edge, vertex, t)``: boundary vertices within γ of the inside of a boundary
     edge of another patch (each vertex with its nearest such edge; ``t`` in (0, 1) the
     position along the half-edge)."""
-    bnd, patch = _boundary(f)
+    bnd, patch = _boundary(f, topology)
     he = half_edges(f)
     bv, first = np.unique(he[bnd, 0], return_index=True)
     none = np.zeros(0, dtype=np.int64)
@@ -160,7 +163,8 @@ def _split_faces(f: np.ndarray, h: np.ndarray, p: np.ndarray, t: np.ndarray) -> 
 
 
 def stitch_cracks(
-    vertices: np.ndarray, faces: np.ndarray, gamma: float
+    vertices: np.ndarray, faces: np.ndarray, gamma: float,
+    topology: EdgeTopology | None = None,
 ) -> tuple[np.ndarray, Stitched]:
     """Stitch the boundaries of different patches that lie within ``gamma`` mm of each
     other. Returns the new faces (on the same vertices; no vertex moves, merged ones
@@ -170,20 +174,24 @@ def stitch_cracks(
     f = np.asarray(faces, dtype=np.int64)
     if len(f) == 0 or gamma <= 0:
         return f, Stitched(gamma=float(gamma))
-    b0, nonmanifold, misoriented, _, _ = edge_stats(f)
+    topo = topology if topology is not None and topology.of(f) else edge_topology(f)
+    b0, nonmanifold, misoriented = topo.boundary, topo.nonmanifold, topo.misoriented
     if b0 == 0:
         return f, Stitched(gamma=float(gamma))
     original = f
-    f, snapped = _snap(v, f, gamma)
+    f, snapped = _snap(v, f, gamma, topo)
     inserted = 0
     for _ in range(_SPLIT_ROUNDS):
-        h, p, t = _split_candidates(v, f, gamma)
+        h, p, t = _split_candidates(v, f, gamma, topo)
         if len(h) == 0:
             break
         n = len(f)
         f = _split_faces(f, h, p, t)
         inserted += len(f) - n
-    b1, nonmanifold_after, misoriented_after, _, _ = edge_stats(f)
+    after = topo if topo.of(f) else edge_topology(f)
+    b1, nonmanifold_after, misoriented_after = (
+        after.boundary, after.nonmanifold, after.misoriented
+    )
     if nonmanifold_after > nonmanifold or misoriented_after > misoriented or b1 >= b0:
         # Not a crack between consistent patches (crossing triangles of a soup, patches
         # facing the same way): stitching would make the surface worse; leave it.

@@ -220,9 +220,6 @@ def fit_surface(points: np.ndarray, centroids: np.ndarray, normals: np.ndarray,
     if np.linalg.eigh(np.cov((p - c).T))[0][0] ** 0.5 < accept / 3 and np.abs(
             (p - c) @ np.linalg.eigh(np.cov((p - c).T))[1][:, 0]).max() <= accept:
         return None
-    # scipy.optimize takes ~1 s to import: only a region worth fitting pays for it
-    from scipy.optimize import least_squares
-
     # fit a few hundred vertices first: a region that is no such surface fails cheaply
     few = p[np.linspace(0, len(p) - 1, min(len(p), SUBSAMPLE)).astype(int)]
     for kind in (k for k in KINDS if k in kinds):
@@ -231,6 +228,9 @@ def fit_surface(points: np.ndarray, centroids: np.ndarray, normals: np.ndarray,
             if not _sane(guess, extent * 10) or np.median(
                     np.abs(guess.distance(few))) > GUESS_SHARE * extent:
                 continue  # the normals' guess is far off: not this kind of surface
+            # scipy.optimize takes ~1 s to import: only a guess worth refining pays for it
+            from scipy.optimize import least_squares
+
             x = _pack(guess)
             for pts in (few, p) if len(p) > len(few) else (p,):
                 sol = least_squares(lambda x, k=kind, q=pts: _unpack(k, x).distance(q), x,

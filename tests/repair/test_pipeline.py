@@ -410,3 +410,23 @@ def test_input_pairs_carried_past_cleaning_and_lids_are_those_a_whole_test_finds
     carried = carry_input_pairs(v, f, pairs_in, cv, cf)
     assert len(carried) > 0
     assert np.array_equal(carried, intersecting_face_pairs(cv, cf))
+
+
+def test_the_repair_runs_blas_on_one_thread_and_gives_the_threads_back():
+    """Inside repair_mesh (seen from its progress callback) BLAS has one thread; after it,
+    as many as before (two here, whatever the machine)."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    def blas_threads() -> list[int]:
+        return [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+
+    inside: list[list[int]] = []
+    v, f = concat(box(), box((0.5, 0.3, 0.2), (1.5, 1.3, 1.2)))
+    with threadpool_limits(limits=2, user_api="blas"):
+        before = blas_threads()
+        out = repair_mesh(v, f, EPS, progress=lambda stage, x: inside.append(blas_threads()))
+        after = blas_threads()
+    assert before and all(t == 2 for t in before)
+    assert check_printable(out.vertices, out.faces, as_float32=True).ok
+    assert inside and all(t == [1] * len(before) for t in inside)
+    assert after == before

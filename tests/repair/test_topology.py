@@ -7,6 +7,7 @@ import trimesh
 from mesh_helpers import box, concat
 
 from repair.topology import (
+    connected_labels,
     count_duplicate_faces,
     edge_components,
     edge_ids,
@@ -81,3 +82,35 @@ def test_weld_merges_exactly_equal_points_only_and_treats_signed_zeros_as_one():
     assert len(uv) == 2
     assert uf[0, 0] == uf[0, 1] == uf[1, 0] == uf[1, 2] != uf[0, 2]
     assert np.array_equal(uv[uf[:, 2]][0], [1e-300, 0, 0])
+
+
+def test_connected_labels_are_scipys_on_meshes_paths_and_random_graphs():
+    """The numpy labelling gives scipy's labels (lowest node first) on the graphs the
+    repair builds -- a mesh's face graph, in its own and in a shuffled numbering -- and on
+    long paths numbered at random, random sparse graphs, self-loops and isolated nodes."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    def scipys(n, a, b):
+        g = coo_matrix((np.ones(len(a), dtype=np.int8), (a, b)), shape=(n, n))
+        return connected_components(g, directed=False)[1]
+
+    rng = np.random.default_rng(7)
+    sphere = trimesh.creation.icosphere(subdivisions=4)
+    faces = concat(box(), box((5.0, 0.0, 0.0)), (sphere.vertices, sphere.faces))[1]
+    eid, _ = edge_ids(faces)
+    face_of = np.repeat(np.arange(len(faces)), 3)
+    graphs = [(len(faces), face_of, len(faces) + eid)]  # bipartite face-edge graph
+    perm = rng.permutation(len(faces))
+    graphs.append((len(faces), perm[face_of[:-3]], perm[face_of[3:]]))
+    path = rng.permutation(5000)
+    graphs.append((5000, path[:-1], path[1:]))
+    graphs.append((3000, rng.integers(0, 3000, 2500), rng.integers(0, 3000, 2500)))
+    graphs.append((10, np.array([3, 4, 4]), np.array([3, 9, 4])))  # self-loops
+    graphs.append((4, np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)))
+    graphs.append((0, np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)))
+    for n, a, b in graphs:
+        n = max(n, int(max(a.max(initial=-1), b.max(initial=-1))) + 1)
+        got = connected_labels(n, a, b)
+        assert got.dtype == np.int64
+        assert np.array_equal(got, scipys(n, a, b))
