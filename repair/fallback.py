@@ -52,7 +52,7 @@ from repair.topology import (
     edge_ids,
     paired_half_edges,
 )
-from repair.union import manifold_union
+from repair.union import manifold_union, speck_volume
 from repair.wires import cylinders
 
 __all__ = [
@@ -170,7 +170,8 @@ def fallback_repair(
     split = split_exact_shells(v, f, pairs)
     pv, pf = minkowski_pieces(v, f[split.offending], segments, eps)
     kv, kf = _knot_blocks(v, f, split.knots, eps)
-    fused = manifold_union([(v, split.exact_faces), (pv, pf), (kv, kf)])
+    fused = manifold_union([(v, split.exact_faces), (pv, pf), (kv, kf)],
+                           min_volume=speck_volume(eps))  # fmt: skip
     if fused is None:
         raise _failed(reason, "manifold3d rejected a part")
     fused, cavities = _without_cavities(*fused)

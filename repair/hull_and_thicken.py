@@ -23,7 +23,7 @@ from repair.meshes import concat_meshes, surface_area
 from repair.provenance import carry_input_pairs
 from repair.report import RepairTally
 from repair.thicken import region_prisms, sheet_slabs
-from repair.union import manifold_union
+from repair.union import manifold_union, speck_volume, without_specks
 from repair.wires import cylinders, visible_segments
 
 __all__ = ["MAX_THICKEN_ROUNDS", "hull_again", "hull_and_thicken"]
@@ -77,9 +77,10 @@ def hull_and_thicken(
             if len(vis):
                 extra.append(cylinders(vis, eps))
         if not extra:
-            sv, sf = drop_unreferenced(rv, split.solid_faces)
+            # Specks: outer-hull shells of a mend's crumbs (see without_specks).
+            sv, sf = without_specks(*drop_unreferenced(rv, split.solid_faces), speck_volume(eps))
             return sv, sf, first_poly, first_hull_birth
-        fused = manifold_union([(rv, split.solid_faces), *extra])
+        fused = manifold_union([(rv, split.solid_faces), *extra], min_volume=speck_volume(eps))
         if fused is not None:
             sv, sf = fused
             return sv, sf, first_poly, first_hull_birth

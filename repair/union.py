@@ -22,7 +22,13 @@ from repair.meshes import shell_volumes
 from repair.rows import unique_ints
 from repair.topology import edge_components, edge_stats, weld_exact
 
-__all__ = ["ShellUnion", "manifold_union", "union_of_shells"]
+__all__ = ["ShellUnion", "manifold_union", "speck_volume", "union_of_shells", "without_specks"]
+
+
+def speck_volume(epsilon: float) -> float:
+    """The volume (mm³) below which a shell of a thickened union is a speck: a cube of
+    1 % of eps on a side, far below what a nozzle of diameter eps can print."""
+    return (0.01 * epsilon) ** 3
 
 
 @dataclass(frozen=True)
@@ -122,7 +128,8 @@ def union_of_shells(
 
 
 def manifold_union(
-    parts: list[tuple[np.ndarray, np.ndarray]], *, collapse: bool = True
+    parts: list[tuple[np.ndarray, np.ndarray]], *, collapse: bool = True,
+    min_volume: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """Union of closed oriented pieces -- the solid outer hull first (welded here), then
     sheet slabs, ledge prisms and wire cylinders (each already an indexed closed solid)
@@ -130,7 +137,9 @@ def manifold_union(
     is verified (and resolved exactly if need be) by the caller's float32 check.
     ``collapse``: simplify away slivers and sub-ulp features (moves the surface by up to
     2^-17 of the part's size); off, the faces the union did not cut stay as they were,
-    and the result keeps manifold3d's float64 coordinates for the caller to round."""
+    and the result keeps manifold3d's float64 coordinates for the caller to round.
+    ``min_volume`` (mm³): shells of the result enclosing less than that, solid or
+    cavity, are left out (see :func:`without_specks`)."""
     solids = []
     try:
         for i, (v, f) in enumerate(parts):
@@ -155,7 +164,30 @@ def manifold_union(
     rv, rf = _arrays_of(res)
     if len(rf) == 0:
         return None
-    return weld_exact(rv, rf)
+    return without_specks(*weld_exact(rv, rf), min_volume)
+
+
+def without_specks(
+    v: np.ndarray, f: np.ndarray, min_volume: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(v, f)`` without its edge-connected shells of |volume| below ``min_volume`` (mm³).
+
+    A union of many overlapping eps-blocks leaves specks where their corners nearly
+    meet: islands of 1e-10..1e-7 mm³ in the cavities between blocks, and inverted
+    slivers on the surface, which rounding to float32 turns into separate outer
+    components. No printer can print or leave empty anything that small. A shell
+    nested in another encloses less than it, so a dropped shell takes whatever lies
+    inside it along. ``min_volume`` 0 keeps everything."""
+    if min_volume <= 0 or len(f) == 0:
+        return v, f
+    labels = edge_components(f)
+    n = int(labels.max()) + 1
+    if n == 1:
+        return v, f
+    keep = np.abs(shell_volumes(v, f, labels, n)) >= min_volume
+    if keep.all() or not keep.any():
+        return v, f
+    return drop_unreferenced(v, f[keep[labels]])
 
 
 def _sum_of(solids: list):

@@ -88,3 +88,19 @@ def test_face_blocks_are_convex_eps_thick_solids_within_eps_half_of_their_face()
         assert np.allclose(winding_numbers(corners, faces, probes), [1, 1, 0, 0], atol=1e-6)
         base = np.array([a, b, c, a, b, c, a, b, b, c, c, a])
         assert np.allclose(np.linalg.norm(corners - base, axis=1), EPS / 2)
+
+
+def test_region_prism_of_a_face_cut_into_slivers_has_only_the_faces_corners():
+    # A triangle cut, as the arrangement cuts one, into 40 slivers fanning out from its
+    # apex to points along its base: the pieces' cut points on the base are collinear,
+    # and the prism over their union is the triangle's, with its 3 corners top and bottom.
+    k = 40
+    base = np.column_stack([np.linspace(0.0, 3.0, k + 1), np.zeros(k + 1), np.zeros(k + 1)])
+    v = np.vstack([base, [[1.0, 2.0, 0.0]]])
+    f = np.column_stack([np.arange(k), np.arange(1, k + 1), np.full(k, k + 1)])
+    n = np.tile([0.0, 0.0, 1.0], (k, 1))
+    pv, pf = region_prisms(v, f, np.zeros(k, dtype=int), n, EPS, grow=0.0)
+    pr = check_printable(pv, pf)
+    assert pr.ok, pr.failures()
+    assert len(pv) == 6
+    assert signed_volume(pv, pf) == pytest.approx(3.0 * EPS, rel=1e-6)
