@@ -98,10 +98,15 @@ def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progres
     report = _Reporter(progress)
     model, man = _placed(*_checked_mesh(vertices, faces), profile)
     head, tail = _head_and_tail(profile, model.tops)  # before the heavy work: fail fast
-    _plan_layers(model, man, profile, report)
-    thumbnails = _thumbnails(model, man, profile)  # drawn from the solid, while it exists
-    del man
-    written = _write_layers(model, profile, report)
+    thumbs = _thumbnails(model, man, profile)  # drawn from the solid, beside the planning
+    try:
+        _plan_layers(model, man, profile, report)
+        del man
+        written = _write_layers(model, profile, report)
+        thumbnails = thumbs.result()
+    finally:
+        thumbs.stop()
+    written.worker_cpu_seconds += thumbs.cpu_seconds
     if written.filament_mm <= 0:
         raise SliceError("nothing to print: the model produced no extrusions")
     summary = _summary(model, written, profile)
@@ -236,13 +241,14 @@ def _summary(model: _Model, written: Written, p: Profile) -> dict[str, Any]:
     }
 
 
-def _thumbnails(model: _Model, man: Any, p: Profile) -> str:
-    """The thumbnail blocks of the profile's sizes ("" for none), drawn from the solid."""
+def _thumbnails(model: _Model, man: Any, p: Profile):
+    """The thumbnail blocks of the profile's sizes being drawn from the solid (a
+    slicer.thumbnail.ThumbnailJob: in a child beside the planning where it may fork)."""
     from slicer.profile import thumbnail_sizes
-    from slicer.thumbnail import thumbnail_blocks
+    from slicer.thumbnail import ThumbnailJob
 
-    sizes = thumbnail_sizes(p.thumbnails)
-    return thumbnail_blocks(model.vertices, model.faces, sizes, solid=man) if sizes else ""
+    return ThumbnailJob(model.vertices, model.faces, thumbnail_sizes(p.thumbnails), man,
+                        p.workers)
 
 
 def _assemble(model: _Model, written: Written, p: Profile, head: str, tail: str,

@@ -29,6 +29,7 @@ Block format (what Prusa firmware, OctoPrint and the Klipper UIs read)::
 from __future__ import annotations
 
 import base64
+import functools
 import math
 import struct
 import zlib
@@ -281,3 +282,60 @@ def thumbnail_blocks(vertices: np.ndarray, faces: np.ndarray, sizes: list[tuple[
         lines = "".join(f"; {data[i:i + LINE]}\n" for i in range(0, len(data), LINE))
         parts.append(f";\n; thumbnail begin {w}x{h} {len(data)}\n{lines}; thumbnail end\n;\n")
     return "".join(parts)
+
+
+class ThumbnailJob:
+    """The thumbnail blocks being drawn. Where the slice may use more than one process
+    (``workers`` not "1") and this one may run on more than one CPU, they are drawn in a
+    forked child (the solid inherited, nothing pickled on the way in) beside the slicer's
+    planning, which otherwise leaves the second core idle: Pillow's import and the drawing
+    were ~35 ms of a small model's serial time. Else, or where no child can be forked, they
+    are drawn here and now. :meth:`result` gives the text (SliceError if the child failed);
+    :meth:`stop` ends and reaps a child still running (call it on every way out)."""
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray, sizes: list[tuple[int, int]],
+                 solid=None, workers: str = "1") -> None:
+        self.cpu_seconds = 0.0  #: the child's, once reaped
+        self._worker = None
+        self._text = ""
+        if not sizes:
+            return
+        draw = functools.partial(thumbnail_blocks, vertices, faces, sizes, solid)
+        if _may_fork(workers):
+            from slicer.parallel import Worker
+
+            try:
+                self._worker = Worker(draw, "thumbnails")
+                return
+            except OSError:  # no memory or process left for a child: draw them here
+                pass
+        self._text = draw()
+
+    def result(self) -> str:
+        if self._worker is not None:
+            from slicer.errors import SliceError
+            from slicer.parallel import WorkerError
+
+            worker, self._worker = self._worker, None
+            try:
+                self._text = worker.result()
+            except WorkerError as exc:
+                raise SliceError(str(exc)) from None
+            finally:
+                self.cpu_seconds = worker.cpu_seconds
+        return self._text
+
+    def stop(self) -> None:
+        if self._worker is not None:
+            self._worker.stop()
+            self.cpu_seconds = self._worker.cpu_seconds
+            self._worker = None
+
+
+def _may_fork(workers: str) -> bool:
+    from slicer.parallel import available_cpus, parse_workers
+
+    try:
+        return parse_workers(workers) != 1 and available_cpus() > 1
+    except ValueError:  # refused with its own message when the layers' workers are chosen
+        return False

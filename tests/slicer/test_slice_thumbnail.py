@@ -156,3 +156,28 @@ def test_the_png_writer_round_trips_through_pillow_pixel_for_pixel():
         assert np.array_equal(np.asarray(img), pixels)
     with pytest.raises(ValueError, match="RGBA"):
         png_rgba(b"\0" * 10, 2, 2)
+
+
+def test_thumbnails_drawn_in_a_child_are_those_drawn_here_and_its_failure_is_one_line():
+    """With workers other than 1, slice_mesh has the thumbnails drawn in a forked child
+    beside its planning: the same text as drawn in this process; a child that fails gives a
+    SliceError naming it, and stop() leaves no child behind."""
+    from slicer.errors import SliceError
+    from slicer.parallel import available_cpus
+    from slicer.thumbnail import ThumbnailJob, thumbnail_blocks
+
+    v, f = sphere(radius=8.0, subdivisions=3)
+    sizes = [(16, 16), (220, 124)]
+    here = ThumbnailJob(v, f, sizes, None, "1")
+    assert here.result() == thumbnail_blocks(v, f, sizes) and here.cpu_seconds == 0.0
+    child = ThumbnailJob(v, f, sizes, None, "auto")
+    assert child.result() == here.result()
+    if available_cpus() == 1:
+        return  # nowhere to fork to: drawn here, as above
+    assert child.cpu_seconds > 0, "drawn in a child, whose CPU time is counted"
+    broken = ThumbnailJob(v, f, sizes, "not a solid", "2")
+    try:
+        with pytest.raises(SliceError, match="thumbnails failed: AttributeError"):
+            broken.result()
+    finally:
+        broken.stop()
