@@ -106,7 +106,6 @@ def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progres
         thumbnails = thumbs.result()
     finally:
         thumbs.stop()
-    written.worker_cpu_seconds += thumbs.cpu_seconds
     if written.filament_mm <= 0:
         raise SliceError("nothing to print: the model produced no extrusions")
     summary = _summary(model, written, profile)

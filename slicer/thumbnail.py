@@ -295,7 +295,7 @@ class ThumbnailJob:
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray, sizes: list[tuple[int, int]],
                  solid=None, workers: str = "1") -> None:
-        self.cpu_seconds = 0.0  #: the child's, once reaped
+        self.cpu_seconds = 0.0  #: the child's, once reaped (not in the slice's summary)
         self._worker = None
         self._text = ""
         if not sizes:

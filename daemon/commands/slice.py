@@ -6,6 +6,7 @@ import argparse
 import gc
 import json
 import os
+import resource
 import sys
 import time
 
@@ -172,6 +173,8 @@ def _run(args: argparse.Namespace) -> int:
         print(file=sys.stderr)
     summary["output"] = str(args.output)
     summary["wall_seconds"] = round(time.perf_counter() - t0, 3)
+    own = resource.getrusage(resource.RUSAGE_SELF)  # this process alone, start-up included
+    summary["main_cpu_seconds"] = round(own.ru_utime + own.ru_stime, 3)
     if args.json:
         print(json.dumps(summary, indent=2, sort_keys=True))
     else:
