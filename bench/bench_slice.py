@@ -26,8 +26,8 @@ after; PrusaSlicer's threads are included), "slice s" (embedded only) the CLI's 
 after its imports. Peak memory is the child's ru_maxrss (from os.wait4: the largest of the
 slicer process and the workers it reaped), so the figures include the interpreter and
 imported libraries; "wkr MB" is the largest worker's own (from the slice's summary).
-"main cpu" is the CPU of the slicer's main process alone (its own getrusage, the
-``main_cpu_seconds`` of ``--json``; its workers and the thumbnail child left out): on an
+"main cpu" is the CPU of the slicer's main process alone, exit included (cpu s less the
+``child_cpu_seconds`` of ``--json``: its layer workers and thumbnail child): on an
 idle machine with a core per process its wall time is about that, since the workers'
 shares are sized to end with the main process's own; on a busy shared machine the wall
 times say little and this is the figure to compare with "emb-1proc"'s cpu. Linux counts
@@ -174,8 +174,8 @@ def embedded(stl: Path, gcode: Path, overrides: dict) -> dict:
         return {"error": err.strip().splitlines()[-1] if err.strip() else f"exit {code}"}
     summary = json.loads(out)
     return {"slice_s": summary["wall_seconds"], "wall_s": wall, "cpu_s": cpu, "peak_mb": mb,
-            "main_cpu_s": summary.get("main_cpu_seconds",
-                                      cpu - summary.get("worker_cpu_seconds", 0.0)),
+            "main_cpu_s": cpu - summary.get("child_cpu_seconds",
+                                            summary.get("worker_cpu_seconds", 0.0)),
             "summary": summary}
 
 

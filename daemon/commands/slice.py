@@ -174,7 +174,9 @@ def _run(args: argparse.Namespace) -> int:
     summary["output"] = str(args.output)
     summary["wall_seconds"] = round(time.perf_counter() - t0, 3)
     own = resource.getrusage(resource.RUSAGE_SELF)  # this process alone, start-up included
+    forked = resource.getrusage(resource.RUSAGE_CHILDREN)  # its workers, thumbnail child
     summary["main_cpu_seconds"] = round(own.ru_utime + own.ru_stime, 3)
+    summary["child_cpu_seconds"] = round(forked.ru_utime + forked.ru_stime, 3)
     if args.json:
         print(json.dumps(summary, indent=2, sort_keys=True))
     else:

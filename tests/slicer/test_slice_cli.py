@@ -39,6 +39,7 @@ def test_slices_an_stl_with_flags_and_profile(tmp_path):
     # process and the children it forked used, as this process's rusage counts them
     used = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
     assert 0 < summary["main_cpu_seconds"] <= used + 0.001
+    assert 0 <= summary["child_cpu_seconds"] <= used - summary["main_cpu_seconds"] + 0.002
 
 
 def test_errors_are_one_line(tmp_path):
