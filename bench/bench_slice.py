@@ -10,7 +10,10 @@ Run: .venv/bin/python bench/bench_slice.py [--repeat N] [--only mushroom,bunny]
 
 The embedded slicer runs twice per round: "embedded" on the machine's cores (profile
 ``workers = auto``: forked workers write the layers; "procs" says how many processes did)
-and "emb-1proc" on one process (``workers = 1``); the G-code is the same.
+and "emb-1proc" on one process (``workers = 1``); the G-code is the same. "floor" is what
+no slice can avoid, measured in the same rounds: the interpreter importing numpy and
+manifold3d (``python -c "import numpy, manifold3d"``, same environment), so the share of
+a small model's time that is start-up shows.
 
 Every slice is a whole process, as a user runs it: the embedded slicer is ``preflight slice
 IN -o OUT --json`` (python -m daemon.cli: interpreter start-up, imports, load, slice,
@@ -23,7 +26,8 @@ after; PrusaSlicer's threads are included), "slice s" (embedded only) the CLI's 
 after its imports. Peak memory is the child's ru_maxrss (from os.wait4: the largest of the
 slicer process and the workers it reaped), so the figures include the interpreter and
 imported libraries; "wkr MB" is the largest worker's own (from the slice's summary).
-"main cpu" is the CPU of the slicer's main process alone (cpu s less its workers'): on an
+"main cpu" is the CPU of the slicer's main process alone, exit included (cpu s less the
+``child_cpu_seconds`` of ``--json``: its layer workers and thumbnail child): on an
 idle machine with a core per process its wall time is about that, since the workers'
 shares are sized to end with the main process's own; on a busy shared machine the wall
 times say little and this is the figure to compare with "emb-1proc"'s cpu. Linux counts
@@ -170,7 +174,19 @@ def embedded(stl: Path, gcode: Path, overrides: dict) -> dict:
         return {"error": err.strip().splitlines()[-1] if err.strip() else f"exit {code}"}
     summary = json.loads(out)
     return {"slice_s": summary["wall_seconds"], "wall_s": wall, "cpu_s": cpu, "peak_mb": mb,
-            "main_cpu_s": cpu - summary.get("worker_cpu_seconds", 0.0), "summary": summary}
+            "main_cpu_s": cpu - summary.get("child_cpu_seconds",
+                                            summary.get("worker_cpu_seconds", 0.0)),
+            "summary": summary}
+
+
+def floor() -> dict:
+    """The start-up no slice can avoid: this interpreter importing numpy and manifold3d, as
+    a whole process in the same environment as ``embedded``'s."""
+    wall, mb, code, _, err, cpu = run_child([sys.executable, "-c", "import numpy, manifold3d"],
+                                            env=_installed_env())
+    if code != 0:
+        return {"error": err.strip().splitlines()[-1] if err.strip() else f"exit {code}"}
+    return {"wall_s": wall, "cpu_s": cpu, "peak_mb": mb}
 
 
 def external(name: str, stl: Path, gcode: Path, overrides: dict, summarise: bool = True
@@ -258,7 +274,9 @@ def timed_runs(models: dict, tools: list[str], repeat: int, folder: Path
                 done = runs.setdefault((mname, tool), [])
                 if done and "error" in done[0]:
                     continue
-                if tool in EMBEDDED_TOOLS:
+                if tool == "floor":
+                    done.append(floor())
+                elif tool in EMBEDDED_TOOLS:
                     done.append(embedded(stl, gcode, EMBEDDED_TOOLS[tool]))
                 else:
                     done.append(external(tool, stl, gcode, {}, summarise=r == 0))
@@ -281,6 +299,11 @@ def print_table(models: dict, tools: list[str], runs: dict) -> None:
             if "error" in rs[0]:
                 print(f"{mname:12s} {tris:7d} {tool:9s} error: {rs[0]['error']}")
                 continue
+            if tool == "floor":
+                print(f"{mname:12s} {tris:7d} {tool:9s} {'':8s} {_median(rs, 'wall_s'):8.3f} "
+                      f"{_median(rs, 'cpu_s'):7.3f} {'':8s} {max(r['peak_mb'] for r in rs):8.1f}"
+                      "  (python -c 'import numpy, manifold3d')")
+                continue
             s = rs[0]["summary"]
             est = s.get("estimated_seconds")
             print(f"{mname:12s} {tris:7d} {tool:9s} {_median(rs, 'slice_s'):8.3f} "
@@ -297,7 +320,8 @@ def print_ratios(models: dict, runs: dict) -> None:
     machine's cores ÷ on one process."""
     pairs = (("embedded", "prusa", "embedded ÷ prusa-slicer (target ≤ 0.5)"),
              ("emb-1proc", "prusa", "embedded on one process ÷ prusa-slicer"),
-             ("embedded", "emb-1proc", "embedded on the cores ÷ on one process"))
+             ("embedded", "emb-1proc", "embedded on the cores ÷ on one process"),
+             ("floor", "prusa", "start-up floor (numpy + manifold3d imports) ÷ prusa-slicer"))
     print("whole processes, per interleaved pair: median, range (each pair)")
     for mine, theirs, title in pairs:
         shown = False
@@ -313,7 +337,7 @@ def print_ratios(models: dict, runs: dict) -> None:
                 print(f"  {mname:12s} {label:4s} median {statistics.median(ratios):5.2f}  "
                       f"range {ratios[0]:.2f}-{ratios[-1]:.2f}  "
                       f"({' '.join(f'{r:.2f}' for r in ratios)})")
-            if theirs == "prusa":
+            if theirs == "prusa" and mine != "floor":
                 print(f"  {mname:12s} peak {max(e['peak_mb'] for e in emb):.0f} MB (largest "
                       f"process) vs {max(x['peak_mb'] for x in ext):.0f} MB")
 
@@ -322,7 +346,7 @@ def print_accuracy(models: dict, tools: list[str], folder: Path) -> None:
     print("volume accuracy, sphere at 100 % infill (extruded ÷ mesh volume):")
     stl, vol, _ = models["sphere 82k"]
     over = {"infill_percent": 100, "skirts": 0}
-    for tool in tools:
+    for tool in [t for t in tools if t != "floor"]:
         gcode = folder / f"acc.{tool}.gcode"
         r = embedded(stl, gcode, over | EMBEDDED_TOOLS[tool]) if tool in EMBEDDED_TOOLS \
             else external(tool, stl, gcode, over)
@@ -347,7 +371,7 @@ def main() -> int:
     from slicer import adapters
 
     have = adapters.available()
-    tools = ["embedded", "emb-1proc"] + [t for t in ("prusa", "cura") if have[t]]
+    tools = ["embedded", "emb-1proc", "floor"] + [t for t in ("prusa", "cura") if have[t]]
     missing = [t for t in ("prusa", "cura") if not have[t]]
     print(f"slicers: {', '.join(tools)}"
           + (f" (not installed: {', '.join(missing)})" if missing else ""))

@@ -10,7 +10,6 @@ estimated_seconds (trapezoidal motion estimate; heating time is not included), p
 
 from __future__ import annotations
 
-import functools
 import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -104,21 +103,19 @@ def slice_mesh(vertices: Any, faces: Any, profile: Profile, *, progress: Progres
     report = _Reporter(progress)
     model, man = _placed(*_checked_mesh(vertices, faces), profile)
     head, tail = _head_and_tail(profile, model.tops)  # before the heavy work: fail fast
-    _plan_layers(model, man, profile, report)
-    thumbnails = _Thumbnails(model, man, profile)  # drawn from the solid (kept till then)
-    del man
+    thumbs = _thumbnails(model, man, profile)  # drawn from the solid, beside the planning
     try:
-        if model.plan_workers > 1:  # a model worth the cores: drawn while support is planned
-            thumbnails.start(forked=True)
+        _plan_layers(model, man, profile, report)
+        del man
         _plan_support(model, profile, report)
-        written = _write_layers(model, profile, report, thumbnails)
-        if written.filament_mm <= 0:
-            raise SliceError("nothing to print: the model produced no extrusions")
-        drawn = thumbnails.result()
-        summary = _summary(model, written, profile, thumbnails.worker)
-        gcode = _assemble(model, written, profile, head, tail, summary, drawn)
+        written = _write_layers(model, profile, report)
+        thumbnails = thumbs.result()
     finally:
-        thumbnails.stop()
+        thumbs.stop()
+    if written.filament_mm <= 0:
+        raise SliceError("nothing to print: the model produced no extrusions")
+    summary = _summary(model, written, profile)
+    gcode = _assemble(model, written, profile, head, tail, summary, thumbnails)
     report("done", 1.0)
     return SliceResult(gcode, summary)
 
@@ -206,17 +203,14 @@ def _plan_support(model: _Model, profile: Profile, report: _Reporter) -> None:
         model.first_area = model.first_area + model.supports[0].area()
 
 
-def _write_layers(model: _Model, profile: Profile, report: _Reporter,
-                  thumbnails: _Thumbnails) -> Written:
+def _write_layers(model: _Model, profile: Profile, report: _Reporter) -> Written:
     """Plan, order and write the layers: the first share here, one layer at a time (only
     one layer's paths exist at once), and each further share in a forked worker (see
-    slicer.layers), as are the ``thumbnails`` then. The G-code is the same whatever the
-    number of workers."""
+    slicer.layers). The G-code is the same whatever the number of workers."""
     from slicer.layers import LayerRun, layer_shares, layer_work, worker_count, write_shares
 
     work = layer_work(model)
     shares = layer_shares(work, worker_count(profile, work))
-    thumbnails.start(forked=len(shares) > 1)
     run = LayerRun(model, profile)
     out = write_shares(run, shares, report)
     model.shells = model.solids = model.sections = []
@@ -224,12 +218,10 @@ def _write_layers(model: _Model, profile: Profile, report: _Reporter,
     return out
 
 
-def _summary(model: _Model, written: Written, p: Profile, drawer: Any = None
-             ) -> dict[str, Any]:
-    """The job's figures; the workers' CPU and peak memory over its phases (planning,
-    writing, and the thumbnails' ``drawer`` if one drew them)."""
+def _summary(model: _Model, written: Written, p: Profile) -> dict[str, Any]:
+    """The job's figures; the workers' CPU and peak memory over the planning and writing
+    phases (the thumbnails' child is left out: its share varies from run to run)."""
     cm3 = written.filament_mm * p.filament_area / 1000.0
-    drawn = [drawer] if drawer is not None else []
     return {
         "layers": len(model.tops),
         "filament_mm": round(written.filament_mm, 2),
@@ -245,62 +237,21 @@ def _summary(model: _Model, written: Written, p: Profile, drawer: Any = None
         "support_seconds": round(written.support_seconds, 1),
         "brim": bool(model.brim),
         "workers": max(written.workers, model.plan_workers),
-        "worker_peak_mb": round(max(written.worker_peak_mb, model.plan_worker_peak_mb,
-                                    *(w.peak_mb for w in drawn)), 1),
-        "worker_cpu_seconds": round(written.worker_cpu_seconds + model.plan_worker_cpu_seconds
-                                    + sum(w.cpu_seconds for w in drawn), 3),
+        "worker_peak_mb": round(max(written.worker_peak_mb, model.plan_worker_peak_mb), 1),
+        "worker_cpu_seconds": round(written.worker_cpu_seconds + model.plan_worker_cpu_seconds,
+                                    3),
         **model.layout,
     }
 
 
-class _Thumbnails:
-    """The thumbnail blocks of the profile's sizes ("" for none), drawn from the solid
-    when started: here, or in a forked worker (slicer.parallel) while this process works."""
-
-    def __init__(self, model: _Model, man: Any, p: Profile) -> None:
-        self.draw: Callable[[], str] | None = functools.partial(_thumbnails, model, man, p)
-        self.worker: Any = None
-        self.text: str | None = None if p.thumbnails else ""
-
-    def start(self, forked: bool) -> None:
-        """Draw them now, or have a worker draw them (here where it cannot be forked);
-        nothing if they are started already."""
-        from slicer.parallel import Worker
-
-        if self.text is not None or self.worker is not None:
-            return
-        if forked:
-            try:
-                self.worker = Worker(self.draw, "thumbnails")
-            except OSError:  # no fork: drawn here
-                pass
-        if self.worker is None:
-            self.text = self.draw()
-        self.draw = None  # the solid is no longer needed here
-
-    def result(self) -> str:
-        from slicer.parallel import WorkerError
-
-        self.start(forked=False)
-        if self.text is None:
-            try:
-                self.text = self.worker.result()
-            except WorkerError as exc:
-                raise SliceError(str(exc)) from None
-        return self.text
-
-    def stop(self) -> None:
-        if self.worker is not None:
-            self.worker.stop()
-
-
-def _thumbnails(model: _Model, man: Any, p: Profile) -> str:
-    """The thumbnail blocks of the profile's sizes ("" for none), drawn from the solid."""
+def _thumbnails(model: _Model, man: Any, p: Profile):
+    """The thumbnail blocks of the profile's sizes being drawn from the solid (a
+    slicer.thumbnail.ThumbnailJob: in a child beside the planning where it may fork)."""
     from slicer.profile import thumbnail_sizes
-    from slicer.thumbnail import thumbnail_blocks
+    from slicer.thumbnail import ThumbnailJob
 
-    sizes = thumbnail_sizes(p.thumbnails)
-    return thumbnail_blocks(model.vertices, model.faces, sizes, solid=man) if sizes else ""
+    return ThumbnailJob(model.vertices, model.faces, thumbnail_sizes(p.thumbnails), man,
+                        p.workers)
 
 
 def _assemble(model: _Model, written: Written, p: Profile, head: str, tail: str,

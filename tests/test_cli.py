@@ -35,3 +35,19 @@ def test_example_config_prints_and_writes_the_shipped_file(tmp_path):
     out = run_cli("example-config", "--output", str(tmp_path / "p.toml"))
     assert out.returncode == 0, out.stderr
     assert (tmp_path / "p.toml").read_text() == shipped
+
+
+def test_a_sub_command_builds_only_its_own_module():
+    """``preflight slice ...`` registers daemon/commands/slice.py alone (start-up cost on a
+    small model); a word that names a module but no command still gets the full list."""
+    probe = ("import sys\nfrom daemon import cli\ntry:\n    cli.main(sys.argv[1:])\n"
+             "except SystemExit:\n    pass\n"
+             "print(sorted(m for m in sys.modules if m.startswith('daemon.commands.')))")
+    out = subprocess.run([sys.executable, "-c", probe, "slice", "--help"], capture_output=True,
+                         text=True, cwd=ROOT, check=True).stdout
+    assert "usage: preflight slice" in out and "--workers" in out
+    assert out.strip().splitlines()[-1] == "['daemon.commands.slice']"
+    bad = subprocess.run([sys.executable, "-m", "daemon.cli", "daemon"], capture_output=True,
+                         text=True, cwd=ROOT)
+    assert bad.returncode == 2
+    assert "'slice'" in bad.stderr and "'run'" in bad.stderr

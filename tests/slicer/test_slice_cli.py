@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import resource
 import subprocess
 import sys
 
@@ -21,8 +22,10 @@ def test_slices_an_stl_with_flags_and_profile(tmp_path):
     prof = tmp_path / "p.toml"
     prof.write_text("skirts = 0\nfan_speed = 50\n")
     out = tmp_path / "part.gcode"
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     res = run(str(stl), "-o", str(out), "--nozzle", "0.6", "--infill", "40",
               "--bed", "150,150,100", "--profile", str(prof), "--json")
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     assert res.returncode == 0, res.stderr
     summary = json.loads(res.stdout)
     rep = replay(out.read_text())
@@ -32,6 +35,11 @@ def test_slices_an_stl_with_flags_and_profile(tmp_path):
     centre = rep.end[ext, :2].mean(axis=0)
     assert abs(centre[0] - 75) < 1 and abs(centre[1] - 75) < 1
     assert max(s for _, s in rep.fan) == round(255 * 0.5)
+    # the process's own CPU, start-up included (the bench's "main cpu"): part of what the
+    # process and the children it forked used, as this process's rusage counts them
+    used = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
+    assert 0 < summary["main_cpu_seconds"] <= used + 0.001
+    assert 0 <= summary["child_cpu_seconds"] <= used - summary["main_cpu_seconds"] + 0.002
 
 
 def test_errors_are_one_line(tmp_path):

@@ -140,3 +140,44 @@ def test_a_hole_shows_what_is_behind_it_and_an_open_mesh_still_gets_a_picture():
     keep = ~np.all(v[f][:, :, 2] > 19.999, axis=1)  # the lid removed: not a closed solid
     open_box = _alpha(v, f[keep], 64, 64)
     assert (open_box == _alpha(v, f, 64, 64)).mean() > 0.98
+
+
+def test_the_png_writer_round_trips_through_pillow_pixel_for_pixel():
+    """Thumbnails are encoded by slicer.thumbnail.png_rgba (not Pillow's PNG plugin): any
+    RGBA picture, odd sizes included, decodes to exactly its pixels; a wrong size is refused."""
+    from slicer.thumbnail import png_rgba
+
+    rng = np.random.default_rng(7)
+    for width, height in [(1, 1), (16, 16), (37, 5), (220, 124)]:
+        pixels = rng.integers(0, 256, (height, width, 4), dtype=np.uint8)
+        pixels[: height // 2, :, 3] = 0  # transparent rows, as around a model
+        img = Image.open(io.BytesIO(png_rgba(pixels.tobytes(), width, height)))
+        assert img.format == "PNG" and img.mode == "RGBA" and img.size == (width, height)
+        assert np.array_equal(np.asarray(img), pixels)
+    with pytest.raises(ValueError, match="RGBA"):
+        png_rgba(b"\0" * 10, 2, 2)
+
+
+def test_thumbnails_drawn_in_a_child_are_those_drawn_here_and_its_failure_is_one_line():
+    """With workers other than 1, slice_mesh has the thumbnails drawn in a forked child
+    beside its planning: the same text as drawn in this process; a child that fails gives a
+    SliceError naming it, and stop() leaves no child behind."""
+    from slicer.errors import SliceError
+    from slicer.parallel import available_cpus
+    from slicer.thumbnail import ThumbnailJob, thumbnail_blocks
+
+    v, f = sphere(radius=8.0, subdivisions=3)
+    sizes = [(16, 16), (220, 124)]
+    here = ThumbnailJob(v, f, sizes, None, "1")
+    assert here.result() == thumbnail_blocks(v, f, sizes) and here.cpu_seconds == 0.0
+    child = ThumbnailJob(v, f, sizes, None, "auto")
+    assert child.result() == here.result()
+    if available_cpus() == 1:
+        return  # nowhere to fork to: drawn here, as above
+    assert child.cpu_seconds > 0, "drawn in a child, whose CPU time is counted"
+    broken = ThumbnailJob(v, f, sizes, "not a solid", "2")
+    try:
+        with pytest.raises(SliceError, match="thumbnails failed: AttributeError"):
+            broken.result()
+    finally:
+        broken.stop()
