@@ -94,7 +94,12 @@ def round_finding_crossings(
             grid = FaceGrid(out, f)
             region = grid.near(np.flatnonzero(changed)) if np.any(changed) else region[:0]
     for attempt in range(max_tries + 1):
-        deg = degenerate_mask(out, f[region])
+        # Exact and face by face: only the moved faces can have become (non)degenerate.
+        is_deg = np.zeros(len(f), dtype=bool)
+        is_deg[deg_faces] = True
+        deg = is_deg[region]
+        moved_here = changed[region]
+        deg[moved_here] = degenerate_mask(out, f[region[moved_here]])
         found = _pairs_with_changed(out, f, region[~deg], changed)
         # Keep what involves no moved face; take the rest from this test.
         pairs = np.vstack([pairs[~changed[pairs].any(axis=1)], found[changed[found].any(axis=1)]])
