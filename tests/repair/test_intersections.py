@@ -12,9 +12,7 @@ from repair.clean import degenerate_mask
 from repair.intersections import intersecting_face_pairs, intersecting_pairs_with
 from repair.io import load_mesh
 
-CORPUS = Path("/work/shared/corpus")
-if not CORPUS.is_dir():
-    CORPUS = Path(__file__).resolve().parents[3] / "shared" / "corpus"
+CORPUS = Path(__file__).resolve().parents[2] / ".." / "shared" / "corpus"
 
 
 def _real_crossing_mesh() -> tuple[np.ndarray, np.ndarray]:
