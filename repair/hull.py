@@ -101,7 +101,10 @@ def _remesh(
         vv, ff, birth, _ = _remesh_all(sv, sf)
         return vv, ff, faces[birth]
 
-    sizes = [len(g_) for g_ in groups]
+    # libigl's time grows with a group's faces and, about as much each, its crossing
+    # pairs (coplanar ones cost more): share the groups out by both.
+    n_pairs = np.bincount(lab[local[:, 0]], minlength=len(groups))
+    sizes = [len(g_) + int(n_pairs[lab[np.searchsorted(hit, g_[0])]]) for g_ in groups]
     workers = cpu_workers() if len(hit) >= PARALLEL_MIN_ARRANGED else 1
     parts = map_forked(arrange, groups, balanced_shares(sizes, workers))
     # New vertices after the input's, each part's after the last; faces by birth.

@@ -13,7 +13,7 @@ import numpy as np
 
 from repair.rows import unique_rows
 
-__all__ = ["PARALLEL_MIN_FACES", "intersecting_face_pairs"]
+__all__ = ["PARALLEL_MIN_FACES", "intersecting_face_pairs", "intersecting_pairs_with"]
 
 
 #: Meshes with at least this many faces are tested in slabs, one per CPU (forked workers).
@@ -44,6 +44,67 @@ def intersecting_face_pairs(vertices: np.ndarray, faces: np.ndarray) -> np.ndarr
     if len(pairs) == 0:
         return np.zeros((0, 2), dtype=np.int64)
     return unique_rows(np.sort(pairs, axis=1))
+
+
+def intersecting_pairs_with(
+    vertices: np.ndarray, faces: np.ndarray, which: np.ndarray, others: np.ndarray
+) -> np.ndarray:
+    """The pairs (k, 2) that :func:`intersecting_face_pairs` finds among the faces
+    ``which`` and ``others`` (indices into ``faces``, disjoint) that hold a face of
+    ``which``: sorted (i < j), unique, as indices into ``faces``.
+
+    Only those pairs are tested: ``which`` and the faces of ``others`` that have a corner
+    at a corner of one of them in one self-intersection test (shared corners read as
+    adjacency there), ``which`` against the rest of ``others`` -- faces with no corner
+    at theirs, so any contact is an intersection -- by libigl's ``intersect_other`` on
+    the same exact predicates, testing no pair of two ``others``. Where few faces changed
+    among many near them, that spares testing all the pairs among the unchanged.
+    """
+    f = np.ascontiguousarray(faces, dtype=np.int64)
+    which = np.asarray(which, dtype=np.int64)
+    others = np.asarray(others, dtype=np.int64)
+    if len(which) == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    # libigl's self test reads two corners at one point as shared even under two
+    # indices: faces are paired by the points of their corners.
+    used, corner = np.unique(np.r_[f[which], f[others]].reshape(-1), return_inverse=True)
+    bits = (np.asarray(vertices, dtype=np.float64)[used] + 0.0).view(np.int64)  # -0 is 0
+    point = unique_rows(bits, return_inverse=True)[1][corner].reshape(-1, 3)
+    on_which = np.zeros(len(used), dtype=bool)
+    on_which[point[: len(which)].reshape(-1)] = True
+    touching = on_which[point[len(which) :]].any(axis=1)
+    # In index order: libigl's verdict on two faces sharing an edge can depend on
+    # which of them comes first, so keep the order a test of the whole region has.
+    near = np.sort(np.r_[which, others[touching]])
+    found = [near[intersecting_face_pairs(vertices, f[near])]]
+    apart = others[~touching]
+    if len(apart):
+        found.append(_pairs_between(vertices, f, which, apart))
+    pairs = np.sort(np.vstack(found), axis=1)
+    in_which = np.zeros(len(f), dtype=bool)
+    in_which[which] = True
+    pairs = pairs[in_which[pairs].any(axis=1)]
+    return unique_rows(pairs) if len(pairs) else np.zeros((0, 2), dtype=np.int64)
+
+
+def _pairs_between(v: np.ndarray, f: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Pairs (face of ``a``, face of ``b``) that meet at all (libigl ``intersect_other``,
+    CGAL's exact ``do_intersect``), as indices into ``f``; each side is given only the
+    vertices it uses."""
+    import igl.copyleft.cgal as cgal
+
+    va, fa = _compact(v, f[a])
+    vb, fb = _compact(v, f[b])
+    hits = cgal.intersect_other(va, fa, vb, fb, detect_only=True)[0]
+    hits = np.asarray(hits, dtype=np.int64).reshape(-1, 2)
+    return np.stack([a[hits[:, 0]], b[hits[:, 1]]], axis=1)
+
+
+def _compact(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The vertices ``f`` uses (same coordinates) and ``f`` re-indexed into them."""
+    used, inverse = np.unique(f.reshape(-1), return_inverse=True)
+    verts = np.ascontiguousarray(np.asarray(v, dtype=np.float64)[used])
+    return verts, np.ascontiguousarray(inverse.reshape(-1, 3), dtype=np.int64)
 
 
 def _pairs(v: np.ndarray, f: np.ndarray) -> np.ndarray:

@@ -20,7 +20,7 @@ import numpy as np
 from repair.check import Printability, check_printable_pairs, round_to_float32
 from repair.clean import degenerate_mask
 from repair.face_grid import FaceGrid
-from repair.intersections import intersecting_face_pairs
+from repair.intersections import intersecting_face_pairs, intersecting_pairs_with
 from repair.rows import unique_rows
 
 __all__ = [
@@ -94,10 +94,13 @@ def round_finding_crossings(
             grid = FaceGrid(out, f)
             region = grid.near(np.flatnonzero(changed)) if np.any(changed) else region[:0]
     for attempt in range(max_tries + 1):
-        fr = f[region]
-        deg = degenerate_mask(out, fr)
-        ok = np.flatnonzero(~deg)
-        found = region[ok[intersecting_face_pairs(out, fr[ok])]]
+        # Exact and face by face: only the moved faces can have become (non)degenerate.
+        is_deg = np.zeros(len(f), dtype=bool)
+        is_deg[deg_faces] = True
+        deg = is_deg[region]
+        moved_here = changed[region]
+        deg[moved_here] = degenerate_mask(out, f[region[moved_here]])
+        found = _pairs_with_changed(out, f, region[~deg], changed)
         # Keep what involves no moved face; take the rest from this test.
         pairs = np.vstack([pairs[~changed[pairs].any(axis=1)], found[changed[found].any(axis=1)]])
         pairs = unique_rows(np.sort(pairs, axis=1)) if len(pairs) else pairs
@@ -133,12 +136,25 @@ def crossings_after_change(
     if len(which) == 0:
         return kept
     region = FaceGrid(v, f).near(which)
-    fr = f[region]
-    ok = np.flatnonzero(~degenerate_mask(v, fr))
-    found = region[ok[intersecting_face_pairs(v, fr[ok])]]
-    found = found[changed[found].any(axis=1)]
+    region = region[~degenerate_mask(v, f[region])]
+    found = _pairs_with_changed(v, f, region, changed)
     both = np.vstack([np.asarray(kept, dtype=np.int64).reshape(-1, 2), found])
     return unique_rows(np.sort(both, axis=1)) if len(both) else both
+
+
+def _pairs_with_changed(
+    v: np.ndarray, f: np.ndarray, region: np.ndarray, changed: np.ndarray
+) -> np.ndarray:
+    """The crossing pairs among the faces ``region`` (non-degenerate) that hold a face
+    marked in ``changed``, as a test of the whole region finds them (i < j, unique). Where
+    the changed faces are a small part of the region, only their pairs are tested
+    (:func:`repair.intersections.intersecting_pairs_with`), not all those among the
+    unchanged faces around them."""
+    moved = changed[region]
+    if np.count_nonzero(moved) * 4 > len(region):
+        found = region[intersecting_face_pairs(v, f[region])]
+        return found[changed[found].any(axis=1)]
+    return intersecting_pairs_with(v, f, region[moved], region[~moved])
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,57 @@
+"""repair.intersections: the pairs of a few changed faces, tested against the faces
+around them only, are exactly those a test of the whole region finds."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from repair.clean import degenerate_mask
+from repair.intersections import intersecting_face_pairs, intersecting_pairs_with
+from repair.io import load_mesh
+
+CORPUS = Path(__file__).resolve().parents[2] / ".." / "shared" / "corpus"
+
+
+def _real_crossing_mesh() -> tuple[np.ndarray, np.ndarray]:
+    path = CORPUS / "mikedh_soup.stl"
+    if not path.exists():
+        pytest.skip(f"corpus file missing: {path}")
+    m = load_mesh(path)
+    v, f = np.asarray(m.vertices, dtype=np.float64), np.asarray(m.faces, dtype=np.int64)
+    return v, f[~degenerate_mask(v, f)]
+
+
+def _region_test(v: np.ndarray, f: np.ndarray, which: np.ndarray) -> np.ndarray:
+    """The reference: every pair of the whole mesh, kept where it holds a face of which."""
+    found = intersecting_face_pairs(v, f)
+    return found[np.isin(found, which).any(axis=1)]
+
+
+@pytest.mark.parametrize("count", [1, 7, 60])
+def test_pairs_of_changed_faces_are_those_of_a_whole_test(count: int):
+    v, f = _real_crossing_mesh()
+    reference = intersecting_face_pairs(v, f)
+    assert len(reference) > 100  # a real soup of crossing parts
+    rng = np.random.default_rng(count)
+    # Changed faces picked among crossing ones and among the rest.
+    which = np.unique(np.r_[rng.choice(np.unique(reference), count), rng.choice(len(f), count)])
+    others = np.setdiff1d(np.arange(len(f)), which)
+    got = intersecting_pairs_with(v, f, which, others)
+    expected = _region_test(v, f, which)
+    assert len(expected) > 0
+    np.testing.assert_array_equal(got, expected)
+
+
+def test_corners_at_one_point_under_two_indices_read_as_shared():
+    # Each face gets its own copies of its corners: adjacency is by position only, as
+    # libigl's self test reads it, so neighbours that only share an edge do not pair.
+    v, f = _real_crossing_mesh()
+    v_split, f_split = v[f.reshape(-1)], np.arange(3 * len(f)).reshape(-1, 3)
+    which = np.arange(0, len(f), 97)
+    others = np.setdiff1d(np.arange(len(f)), which)
+    got = intersecting_pairs_with(v_split, f_split, which, others)
+    np.testing.assert_array_equal(got, _region_test(v_split, f_split, which))
+    np.testing.assert_array_equal(got, _region_test(v, f, which))
