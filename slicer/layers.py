@@ -167,7 +167,8 @@ def layer_work(model: Any) -> np.ndarray:
             key = (shape_key(support.base), shape_key(support.interface))
             weight = 0.05 if key in seen else 0.4
             seen.add(key)
-            work[i] += (weight * support.area().area() / s
+            area = support.base.area() + support.interface.area()  # disjoint: no union
+            work[i] += (weight * area / s
                         + 0.9 * (support.base.num_contour() + support.interface.num_contour()))
     return work
 
