@@ -113,14 +113,13 @@ def plan_shells_and_skins(model: Any, profile: Any, report: Any) -> None:
              f"planning layers {begin}-{end - 1}") for begin, end in shares[1:]]
     with forked(jobs) as workers:
         report("shells", 0.2)
-        results = [_plan_share(model, profile, *shares[0])]
+        template = _template(model, profile)
+        # its own layers are adopted before waiting: the workers finish meanwhile
+        _adopt(model, 0, _plan_share(model, profile, *shares[0]), template)
         for k, (begin, end) in enumerate(shares[1:]):
-            results.append(workers[k].result() if k < len(workers)
-                           else _plan_share(model, profile, begin, end))
+            _adopt(model, begin, workers[k].result() if k < len(workers)
+                   else _plan_share(model, profile, begin, end), template)
             report("shells", 0.2 + end / n * 0.25)
-    template = _template(model, profile)
-    for (begin, _), planned in zip(shares, results, strict=True):
-        _adopt(model, begin, planned, template)
     model.plan_workers = 1 + len(workers)
     model.plan_worker_cpu_seconds = sum(w.cpu_seconds for w in workers)
     model.plan_worker_peak_mb = max((w.peak_mb for w in workers), default=0.0)
