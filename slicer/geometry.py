@@ -212,12 +212,14 @@ class EdgeSet:
         ay, by, ax, dx, dy = self._rows
         step = max(1, chunk // m)
         for i0 in range(0, len(pts), step):
-            px = pts[i0:i0 + step, 0][:, None]
-            py = pts[i0:i0 + step, 1][:, None]
-            straddle = (ay > py) != (by > py)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                x_cross = ax + (py - ay) * dx / dy
-            out[i0:i0 + step] = (np.count_nonzero(straddle & (px < x_cross), axis=1) % 2) == 1
+            px = pts[i0:i0 + step, 0]
+            py = pts[i0:i0 + step, 1]
+            # a point's level crosses few edges: where its ray meets an edge is computed for
+            # those pairs alone (the same arithmetic per pair as on the whole table)
+            row, col = np.nonzero((ay > py[:, None]) != (by > py[:, None]))
+            x_cross = ax[0, col] + (py[row] - ay[0, col]) * dx[0, col] / dy[0, col]
+            crossings = np.bincount(row[px[row] < x_cross], minlength=len(px))
+            out[i0:i0 + step] = (crossings % 2) == 1
         return out
 
 
