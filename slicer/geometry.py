@@ -189,13 +189,20 @@ class EdgeSet:
             return out
         origin, edge_side, at, bt = self._sides
         p, q = p - origin, q - origin
-        one_n = np.ones(n)
         u = q - p
         # cross(q - p, y - p) = ux·yy − uy·yx + (uy·px − ux·py), for y = a and y = b
-        seg_side = np.stack([u[:, 0], -u[:, 1], u[:, 1] * p[:, 0] - u[:, 0] * p[:, 1]], axis=1)
-        pt = np.stack([p[:, 1], p[:, 0], one_n], axis=1)
-        qt = np.stack([q[:, 1], q[:, 0], one_n], axis=1)
+        seg_side = np.empty((n, 3))
+        seg_side[:, 0] = u[:, 0]
+        np.negative(u[:, 1], out=seg_side[:, 1])
+        seg_side[:, 2] = u[:, 1] * p[:, 0] - u[:, 0] * p[:, 1]
+        pt, qt = np.ones((n, 3)), np.ones((n, 3))  # the rows (y, x, 1) of both ends
+        pt[:, :2] = p[:, ::-1]
+        qt[:, :2] = q[:, ::-1]
         step = max(1, chunk // m)
+        if step >= n:  # one chunk (the usual case): no slicing
+            hit = (seg_side @ at) * (seg_side @ bt) < 0
+            hit &= (pt @ edge_side) * (qt @ edge_side) < 0
+            return hit.any(axis=1)
         for i0 in range(0, n, step):
             rows = slice(i0, i0 + step)
             hit = (seg_side[rows] @ at) * (seg_side[rows] @ bt) < 0
@@ -212,12 +219,14 @@ class EdgeSet:
         ay, by, ax, dx, dy = self._rows
         step = max(1, chunk // m)
         for i0 in range(0, len(pts), step):
-            px = pts[i0:i0 + step, 0][:, None]
-            py = pts[i0:i0 + step, 1][:, None]
-            straddle = (ay > py) != (by > py)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                x_cross = ax + (py - ay) * dx / dy
-            out[i0:i0 + step] = (np.count_nonzero(straddle & (px < x_cross), axis=1) % 2) == 1
+            px = pts[i0:i0 + step, 0]
+            py = pts[i0:i0 + step, 1]
+            # a point's level crosses few edges: where its ray meets an edge is computed for
+            # those pairs alone (the same arithmetic per pair as on the whole table)
+            row, col = np.nonzero((ay > py[:, None]) != (by > py[:, None]))
+            x_cross = ax[0, col] + (py[row] - ay[0, col]) * dx[0, col] / dy[0, col]
+            crossings = np.bincount(row[px[row] < x_cross], minlength=len(px))
+            out[i0:i0 + step] = (crossings % 2) == 1
         return out
 
 

@@ -39,13 +39,18 @@ def _nearest_neighbour(
     gap, dy = np.empty(len(pts)), np.empty(len(pts))  # reused: no allocation per step
     out: list[tuple[np.ndarray, Path]] = []
     x, y = float(pos[0]), float(pos[1])
+    table = _gap_table(px, py, len(paths)) if aligner is None else None
+    here = -1  # the candidate point the nozzle stands on (-1: none, or no table)
     for _ in range(len(paths)):
-        np.subtract(px, x, out=gap)
-        np.multiply(gap, gap, out=gap)
-        np.subtract(py, y, out=dy)
-        np.multiply(dy, dy, out=dy)
-        gap += dy
-        gap += dead
+        if here < 0:
+            np.subtract(px, x, out=gap)
+            np.multiply(gap, gap, out=gap)
+            np.subtract(py, y, out=dy)
+            np.multiply(dy, dy, out=dy)
+            gap += dy
+            gap += dead
+        else:
+            np.add(table[here], dead, out=gap)
         j = int(gap.argmin())
         i = int(pid[j])
         dead[begins[i]:ends[i]] = np.inf
@@ -62,7 +67,22 @@ def _nearest_neighbour(
             out.append((p.points if k == 0 else p.points[::-1], p))
         last = out[-1][0][-1]
         x, y = float(last[0]), float(last[1])
+        if table is not None:  # a path ends on one of its own candidates: its row is known
+            here = int(begins[i]) + (k if p.closed else 1 - min(k, 1))
     return out, np.array([x, y])
+
+
+def _gap_table(px: np.ndarray, py: np.ndarray, n_paths: int) -> np.ndarray | None:
+    """The squared distances between all candidate points (the same arithmetic as one step of
+    the search), when the table costs less than the steps it saves (few points per path)."""
+    if len(px) ** 2 > 300 * n_paths:
+        return None
+    table = np.subtract(px[None, :], px[:, None])
+    np.multiply(table, table, out=table)
+    dy = np.subtract(py[None, :], py[:, None])
+    np.multiply(dy, dy, out=dy)
+    table += dy
+    return table
 
 
 def _only_path(p: Path, pos: np.ndarray, rear_seam: bool, aligner

@@ -26,6 +26,7 @@ from manifold3d import CrossSection, JoinType
 from slicer.geometry import EdgeSet, contours, polygon_edges
 
 MAX_NODES = 120
+PLANS_KEPT = 16  # travel plans a router keeps for layers that repeat
 
 
 @dataclass
@@ -111,6 +112,7 @@ class TravelRouter:
         tau = spacing / 4
         fence = contours(section.offset(-tau, JoinType.Miter).simplify(tau))
         self._fence = EdgeSet(*polygon_edges(fence))
+        self._plans: dict[tuple[bytes, bytes, bytes], TravelPlan] = {}
 
     def _all_islands(self) -> list[_Island]:
         if self._islands is None:
@@ -179,7 +181,21 @@ class TravelRouter:
         return nodes[path] if path else None
 
     def plan(self, prev: np.ndarray, starts: np.ndarray, moving: np.ndarray) -> TravelPlan:
-        """Routes for the travels prev[i] → starts[i] (only where ``moving``)."""
+        """Routes for the travels prev[i] → starts[i] (only where ``moving``). The router
+        serves a run of layers with the same section, and these repeat their travels (a
+        prismatic part's layers alternate a few infill patterns): a plan is a pure function
+        of the travels, so the same travels get the plan found before (read-only)."""
+        key = (np.ascontiguousarray(prev, dtype=np.float64).tobytes(),
+               np.ascontiguousarray(starts, dtype=np.float64).tobytes(),
+               np.ascontiguousarray(moving, dtype=bool).tobytes())
+        found = self._plans.get(key)
+        if found is None:
+            if len(self._plans) >= PLANS_KEPT:
+                self._plans.clear()
+            found = self._plans[key] = self._plan(prev, starts, moving)
+        return found
+
+    def _plan(self, prev: np.ndarray, starts: np.ndarray, moving: np.ndarray) -> TravelPlan:
         m = len(prev)
         length = np.hypot(*(starts - prev).T)
         leaves = np.zeros(m, dtype=bool)
