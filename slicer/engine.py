@@ -83,6 +83,8 @@ class _Model:
     tops: np.ndarray
     heights: np.ndarray
     sections: list = field(default_factory=list)
+    #: per layer, a number naming its section's exact shape (geometry.shape_ids)
+    section_ids: list[int] = field(default_factory=list)
     widths: list[float] = field(default_factory=list)
     shells: list = field(default_factory=list)
     spacing: list[float] = field(default_factory=list)
@@ -178,6 +180,7 @@ def _plan_layers(model: _Model, man: Any, profile: Profile, report: _Reporter) -
     for i, z in enumerate(model.tops - heights / 2):
         model.sections.append(man.slice(float(z)).simplify(res))
         report("slice", i / n * 0.2)
+    model.section_ids = geo.shape_ids(model.sections)
     model.widths = [profile.first_layer_line_width if i == 0 else profile.line_width
                     for i in range(n)]
     model.spacing = [geo.bead_spacing(model.widths[i], float(heights[i])) for i in range(n)]
@@ -192,7 +195,8 @@ def _plan_support(model: _Model, profile: Profile, report: _Reporter) -> None:
 
     heights = model.heights
     model.supports = support_regions(model.sections, heights, profile, model.widths,
-                                     [bead_area_of(sh.thin) for sh in model.shells])
+                                     [bead_area_of(sh.thin) for sh in model.shells],
+                                     model.section_ids)
     report("support", 0.5)
     model.first_area = model.sections[0]
     if needs_brim(profile, model.sections[0], float(model.tops[-1])):
@@ -209,9 +213,9 @@ def _write_layers(model: _Model, profile: Profile, report: _Reporter) -> Written
     slicer.layers). The G-code is the same whatever the number of workers."""
     from slicer.layers import LayerRun, layer_shares, layer_work, worker_count, write_shares
 
-    work = layer_work(model)
-    shares = layer_shares(work, worker_count(profile, work))
     run = LayerRun(model, profile)
+    work = layer_work(model, run.keys)
+    shares = layer_shares(work, worker_count(profile, work))
     out = write_shares(run, shares, report)
     model.shells = model.solids = model.sections = []
     model.first_area = None

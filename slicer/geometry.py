@@ -81,6 +81,13 @@ def shape_key(cs) -> tuple[bytes, ...]:
     return tuple(np.asarray(p).tobytes() for p in cs.to_polygons())
 
 
+def shape_ids(sections: list) -> list[int]:
+    """Per CrossSection, a small number naming its exact shape (equal shapes, equal
+    numbers, in order of first appearance): layers compare by it without their contours."""
+    ids: dict[tuple[bytes, ...], int] = {}
+    return [ids.setdefault(shape_key(cs), len(ids)) for cs in sections]
+
+
 def polygon_edges(polys: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """All edges of closed polygons as two (E, 2) arrays of start and end points."""
     if not polys:

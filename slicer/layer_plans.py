@@ -41,19 +41,21 @@ PLAN_WORK_PER_WORKER = 5_000.0
 Portable = tuple[list, list, list[np.ndarray], list[np.ndarray]]
 
 
-def plan_work(sections: list, perimeters: int, spacing: list[float]) -> np.ndarray:
+def plan_work(sections: list, perimeters: int, spacing: list[float],
+              ids: list[int] | None = None) -> np.ndarray:
     """Per layer, its expected planning work before anything is planned (15-21 µs of CPU
     per unit on the bench models): PLAN_UNIT for each vertex of its perimeter loops (about
     the section's, per loop) and of its area at bead spacing; a layer like one below it
-    (prismatic parts) costs next to nothing: its plan is shared."""
-    from slicer.geometry import shape_key
+    (prismatic parts) costs next to nothing: its plan is shared. ``ids``: the sections'
+    geometry.shape_ids, where already known."""
+    from slicer.geometry import shape_ids
 
+    ids = shape_ids(sections) if ids is None else ids
     seen: set = set()
     work = np.full(len(sections), 5.0)
     for i, section in enumerate(sections):
-        key = shape_key(section)
-        if key not in seen:
-            seen.add(key)
+        if ids[i] not in seen:
+            seen.add(ids[i])
             work[i] += PLAN_UNIT * (section.num_vert() * max(perimeters, 1)
                                     + 0.05 * section.area() / spacing[i])
     return work
@@ -74,7 +76,7 @@ def _plan_share(model: Any, profile: Any, begin: int, end: int) -> list[Portable
     shells = []
     for i in range(begin, end):
         h = float(model.heights[i])
-        key = (geo.shape_key(model.sections[i]), model.widths[i], h)
+        key = (model.section_ids[i], model.widths[i], h)
         if key not in planned:
             planned[key] = plan_shells(model.sections[i], model.widths[i], h,
                                        profile.perimeters, profile.thin_walls,
@@ -104,7 +106,7 @@ def plan_shells_and_skins(model: Any, profile: Any, report: Any) -> None:
     from slicer.layers import layer_shares, worker_count
 
     n = len(model.tops)
-    work = plan_work(model.sections, profile.perimeters, model.spacing)
+    work = plan_work(model.sections, profile.perimeters, model.spacing, model.section_ids)
     shares = layer_shares(work, worker_count(profile, work, writing=False,
                                              min_work=PLAN_MIN_WORK,
                                              per_worker=PLAN_WORK_PER_WORKER))

@@ -116,10 +116,21 @@ def _perimeter(cs: CrossSection) -> float:
 
 
 def overhangs(sections: list[CrossSection], heights: np.ndarray, angle: float,
-              spacing: float, min_area: float) -> list[CrossSection]:
-    """Per layer, the area that needs support (layer 0 stands on the bed: empty)."""
+              spacing: float, min_area: float, ids: list[int] | None = None
+              ) -> list[CrossSection]:
+    """Per layer, the area that needs support (layer 0 stands on the bed: empty).
+    ``ids``: the sections' geometry.shape_ids, where known: a layer whose section, the one
+    below and height repeat an earlier layer's has that layer's overhang (the same function
+    of the same shapes; prismatic parts repeat most of their layers)."""
     out = [CrossSection()]
+    seen: dict[tuple, CrossSection] = {}
     for i in range(1, len(sections)):
-        out.append(needs_support(sections[i], sections[i - 1], float(heights[i]), angle,
-                                 spacing, min_area))
+        key = (ids[i], ids[i - 1], float(heights[i])) if ids is not None else None
+        found = seen.get(key) if key is not None else None
+        if found is None:
+            found = needs_support(sections[i], sections[i - 1], float(heights[i]), angle,
+                                  spacing, min_area)
+            if key is not None:
+                seen[key] = found
+        out.append(found)
     return out

@@ -73,25 +73,26 @@ def bead_area_of(paths: list[Path]) -> CrossSection:
 
 
 def support_regions(sections: list[CrossSection], heights: np.ndarray, profile: Profile,
-                    widths: list[float], printed: list[CrossSection] | None = None
-                    ) -> list[SupportLayer] | None:
+                    widths: list[float], printed: list[CrossSection] | None = None,
+                    ids: list[int] | None = None) -> list[SupportLayer] | None:
     """Support of every layer, or None when the model needs none (or support is off).
     ``printed``: per layer, part beads that stand out of the section (thin-wall ends), which
-    the support keeps its XY gap from as well."""
+    the support keeps its XY gap from as well. ``ids``: the sections' geometry.shape_ids,
+    where known (repeated layers are then worked out once)."""
     p = profile
     if p.support == "off":
         return None
     n = len(sections)
     min_area = 0.0 if p.support == "everywhere" else p.support_min_area
     s = bead_spacing(p.line_width, p.layer_height)
-    need = overhangs(sections, heights, p.support_angle, s, min_area)
+    need = overhangs(sections, heights, p.support_angle, s, min_area, ids)
     if all(o.is_empty() for o in need):
         return None
     tol = support_tolerance(p)
     # grow each overhang by half a line so the support reaches under its edge beads
     need = [o if o.is_empty() else o.offset(p.line_width / 2, MITER).simplify(tol)
             for o in need]
-    regions = _columns(sections, need, p, widths, printed)
+    regions = _columns(sections, need, p, widths, printed, ids)
     if p.support == "buildplate":
         below = CrossSection()
         for i in range(len(sections)):
@@ -119,24 +120,39 @@ def support_tolerance(profile: Profile) -> float:
 
 
 def _columns(sections: list[CrossSection], need: list[CrossSection], p: Profile,
-             widths: list[float], printed: list[CrossSection] | None) -> list[CrossSection]:
+             widths: list[float], printed: list[CrossSection] | None,
+             ids: list[int] | None = None) -> list[CrossSection]:
     """Per layer, the support columns (before the interface split): the overhangs carried
     down, top to bottom, clear of the part by the XY gap and of the part below by the Z gap.
     Slivers are left in: support_paths' outline, half a bead in, drops whatever is narrower
-    than a bead, so opening the region here (as before) changed no path."""
+    than a bead, so opening the region here (as before) changed no path. With the sections'
+    ``ids``, a section just cut out of the columns is not cut out again on the layers below
+    that repeat it (a column down a prism's side): the same shape again changes nothing but
+    rounding, which made every layer's column differ from the one above by ~1e-7 mm."""
     n = len(sections)
     tol = support_tolerance(p)
     regions: list[CrossSection] = [CrossSection()] * n
     carried = CrossSection()
+    cut_out = None  # the shape last cut out of ``carried``, nothing added to it since
+    version = 0  # counts the changes of ``carried``
+    done: dict[tuple, CrossSection] = {}  # a layer like one above: the same region
     for i in range(n - 1, -1, -1):
         if i + 2 < n and not need[i + 2].is_empty():
             carried = (carried + need[i + 2]).simplify(tol)
+            cut_out, version = None, version + 1
         if carried.is_empty():
             continue
         box = carried.bounds()
-        if _overlap(box, sections[i].bounds(), 0.0):
+        if _overlap(box, sections[i].bounds(), 0.0) and (ids is None or ids[i] != cut_out):
             carried = carried - sections[i]  # the column stands on the part here
+            cut_out, version = (ids[i] if ids is not None else None), version + 1
             if carried.is_empty():
+                continue
+        key = None
+        if ids is not None and (printed is None or printed[i].is_empty()):
+            key = (version, ids[i], ids[i - 1] if i > 0 else -1)
+            if key in done:
+                regions[i] = done[key]
                 continue
         part = sections[i]
         if printed is not None and not printed[i].is_empty():
@@ -149,6 +165,8 @@ def _columns(sections: list[CrossSection], need: list[CrossSection], p: Profile,
         region = CrossSection.batch_boolean([carried, *cut], OpType.Subtract) if cut \
             else carried
         regions[i] = region
+        if key is not None:
+            done[key] = region
     return regions
 
 
