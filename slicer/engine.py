@@ -211,11 +211,18 @@ def _write_layers(model: _Model, profile: Profile, report: _Reporter) -> Written
     """Plan, order and write the layers: the first share here, one layer at a time (only
     one layer's paths exist at once), and each further share in a forked worker (see
     slicer.layers). The G-code is the same whatever the number of workers."""
-    from slicer.layers import LayerRun, layer_shares, layer_work, worker_count, write_shares
+    from slicer.layers import (
+        WRITE_WORKER_OVERHEAD,
+        LayerRun,
+        layer_shares,
+        layer_work,
+        worker_count,
+        write_shares,
+    )
 
     run = LayerRun(model, profile)
     work = layer_work(model, run.keys)
-    shares = layer_shares(work, worker_count(profile, work))
+    shares = layer_shares(work, worker_count(profile, work), WRITE_WORKER_OVERHEAD)
     out = write_shares(run, shares, report)
     model.shells = model.solids = model.sections = []
     model.first_area = None

@@ -31,12 +31,17 @@ __all__ = ["LayerRun", "Written", "layer_shares", "worker_count", "write_shares"
 
 #: "auto" forks no worker for a model with less estimated work (:func:`layer_work`, summed
 #: over the layers) than this. Measured (bench models, one process): 5-17 µs of CPU per
-#: unit, and a worker costs about 0.05 s of CPU (fork, pages copied on write, its warm-up
-#: layer); 20 000 units are 0.1-0.35 s of writing, halved on two cores. The 20 mm cube
-#: (5 700) stays in one process, the mushroom (81 000) and bunny (132 000) do not.
-AUTO_MIN_WORK = 20_000.0
+#: unit, and a worker costs about 0.02 s of CPU (fork, pages copied on write, its warm-up
+#: layer, its G-code sent back); 12 000 units are 0.06-0.2 s of writing, halved on two
+#: cores. The 20 mm cube (5 700) stays in one process; the mushroom (19 600: most of its
+#: layers repeat) writes 54 ms in the parent and 56 ms in a worker instead of 72-85 ms in
+#: one process; the bunny (154 000) forks too.
+AUTO_MIN_WORK = 12_000.0
 #: ... and gives each worker at least half of that.
-AUTO_WORK_PER_WORKER = 10_000.0
+AUTO_WORK_PER_WORKER = 6_000.0
+#: A writing worker's work besides its layers (:func:`layer_shares`), in layer_work units:
+#: fork, pages copied on write, its warm-up layer, its G-code sent back.
+WRITE_WORKER_OVERHEAD = 2_000.0
 #: LayerRun keeps the G-code of this many layers last written, to repeat them
 REPEATS_KEPT = 8
 #: ... and the writing work of such a repeated layer (:func:`layer_work`): measured 0.09 ms
@@ -167,23 +172,30 @@ class LayerRun:
 def layer_keys(model: Any, profile: Any) -> list[int | None]:
     """Per layer, a number naming everything its G-code is made of besides the state it
     starts from (equal numbers, equal layers), None for the layers never compared (the
-    skirt's and the brim's). A layer's paths (_layer_paths) are its shells (a function of
-    its section, line width and height), its infill (of its shells, its solid skin, the
-    sections below and above it, and its index's parity: the alternating direction), and
-    its support; its text depends also on its index's place (fan off on the first layers)
-    and, with a Z lift, its height above the bed."""
+    skirt's and the brim's, and those like no other layer). A layer's paths (_layer_paths)
+    are its shells (a function of its section, line width and height), its infill (of its
+    shells, its solid skin, the sections below and above it, and its index's parity: the
+    alternating direction), and its support; its text depends also on its index's place
+    (fan off on the first layers) and, with a Z lift, its height above the bed."""
+    from collections import Counter
+
     from slicer.geometry import shape_key
 
     ids = model.section_ids
     n = len(model.tops)
     lift = profile.retract_lift > 0
+    first = max(profile.skirt_height, 1)
+    plain = [(ids[i - 1], ids[i], ids[i + 1] if i + 1 < n else -1, model.widths[i],
+              float(model.heights[i]), i % 2, i >= profile.disable_fan_first_layers,
+              float(model.tops[i]) if lift else None) for i in range(first, n)]
+    twice = {key for key, count in Counter(plain).items() if count > 1}
     named: dict[tuple, int] = {}
     keys: list[int | None] = [None] * n
-    for i in range(max(profile.skirt_height, 1), n):
+    for i, key in enumerate(plain, start=first):
+        if key not in twice:
+            continue  # no other layer is like it: its regions need no comparing
         support = model.supports[i] if model.supports is not None else None
-        key = (ids[i - 1], ids[i], ids[i + 1] if i + 1 < n else -1, model.widths[i],
-               float(model.heights[i]), i % 2, i >= profile.disable_fan_first_layers,
-               float(model.tops[i]) if lift else None, shape_key(model.solids[i]),
+        key = (*key, shape_key(model.solids[i]),
                None if support is None else (shape_key(support.base),
                                              shape_key(support.interface), support.sheath))
         keys[i] = named.setdefault(key, len(named))
@@ -274,15 +286,19 @@ def worker_count(profile: Any, work: np.ndarray, *, writing: bool = True,
     return max(1, min(cpus, int(total // per_worker)))
 
 
-def layer_shares(work: np.ndarray, workers: int) -> list[tuple[int, int]]:
+def layer_shares(work: np.ndarray, workers: int, overhead: float = 0.0
+                 ) -> list[tuple[int, int]]:
     """The layers cut into at most ``workers`` contiguous [begin, end) shares of about
-    equal ``work``; every share after the first has a layer before it (the warm-up)."""
+    equal ``work``, each worker's ``overhead`` (work it does besides its layers) counted in;
+    every share after the first has a layer before it (the warm-up)."""
     n = len(work)
     workers = max(1, min(workers, n // 2))
     if workers == 1:
         return [(0, n)]
     done = np.cumsum(work)
-    cuts = np.searchsorted(done, done[-1] * np.arange(1, workers) / workers) + 1
+    first = (done[-1] + (workers - 1) * overhead) / workers  # the parent's share
+    marks = np.arange(1, workers) * first - np.arange(workers - 1) * overhead
+    cuts = np.searchsorted(done, marks) + 1
     bounds = [0, *sorted({int(c) for c in cuts if 0 < c < n}), n]
     return list(zip(bounds[:-1], bounds[1:], strict=False))
 

@@ -100,3 +100,12 @@ def test_overhangs_of_repeated_layers_are_those_found_afresh(model):
     found = overhangs(sections, heights, 55.0, s, 1.0, shape_ids(sections))
     fresh = overhangs(sections, heights, 55.0, s, 1.0)
     assert [shape_key(a) for a in found] == [shape_key(b) for b in fresh]
+
+
+def test_a_workers_overhead_moves_layers_to_the_parent():
+    work = np.full(100, 10.0)
+    assert layers.layer_shares(work, 2) == [(0, 50), (50, 100)]
+    (a, b), (c, d) = layers.layer_shares(work, 2, overhead=200.0)
+    assert b - a == 60 and d - c == 40  # 600 = 400 + 200 of the worker's own
+    shares = layers.layer_shares(work, 3, overhead=100.0)
+    assert [e - s for s, e in shares] == [40, 30, 30]
