@@ -86,17 +86,32 @@ def _plan_share(model: Any, profile: Any, begin: int, end: int) -> list[Portable
     inner = [empty] * n  # the other layers' regions are not needed: skins look at sections
     inner[begin:end] = [s.inner for s in shells]
     solids = skin_regions(inner, model.sections, profile.top_layers, profile.bottom_layers,
-                          model.spacing, profile.infill_percent >= 100)
-    return [(s.loops, s.thin, geo.contours(s.inner), geo.contours(solids[i]))
+                          model.spacing, profile.infill_percent >= 100, model.section_ids)
+    outlines: dict[int, list[np.ndarray]] = {}  # a region shared by layers, outlined once
+
+    def outline(region: CrossSection) -> list[np.ndarray]:
+        if id(region) not in outlines:
+            outlines[id(region)] = geo.contours(region)
+        return outlines[id(region)]
+
+    return [(s.loops, s.thin, outline(s.inner), outline(solids[i]))
             for i, s in zip(range(begin, end), shells, strict=True)]
 
 
 def _adopt(model: Any, begin: int, planned: list[Portable], template: Any) -> None:
-    """Put a share's planned layers into the model, regions rebuilt from their contours."""
+    """Put a share's planned layers into the model, regions rebuilt from their contours
+    (once for contours shared by layers: the same list, pickled once)."""
+    built: dict[int, tuple[list, CrossSection]] = {}
+
+    def region(contours: list[np.ndarray]) -> CrossSection:
+        if id(contours) not in built:  # the list is kept with it: its id is not reused
+            built[id(contours)] = (contours, _region(contours))
+        return built[id(contours)][1]
+
     for k, (loops, thin, inner, solid) in enumerate(planned):
         model.shells[begin + k] = dataclasses.replace(template, loops=loops, thin=thin,
-                                                      inner=_region(inner))
-        model.solids[begin + k] = _region(solid)
+                                                      inner=region(inner))
+        model.solids[begin + k] = region(solid)
 
 
 def plan_shells_and_skins(model: Any, profile: Any, report: Any) -> None:

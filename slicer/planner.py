@@ -230,13 +230,17 @@ def _min_thin_area(spacing: float) -> float:
 
 def skin_regions(
     inner: list[CrossSection], sections: list[CrossSection], top: int, bottom: int,
-    spacing: list[float], all_solid: bool,
+    spacing: list[float], all_solid: bool, ids: list[int] | None = None,
 ) -> list[CrossSection]:
     """Solid part of each layer's infill region: what is not covered by the ``top`` layers
-    above and the ``bottom`` layers below (outside the model counts as uncovered)."""
+    above and the ``bottom`` layers below (outside the model counts as uncovered).
+    ``ids``: the sections' geometry.shape_ids, where known: a layer whose infill region
+    (the same object) and sections from ``bottom`` below to ``top`` above repeat an earlier
+    layer's has that layer's skin (a prism's layers)."""
     n = len(inner)
     out: list[CrossSection] = []
     common = _RunIntersections(sections)
+    seen: dict[tuple, CrossSection] = {}
     for i in range(n):
         r = inner[i]
         if r.is_empty() or all_solid:
@@ -248,20 +252,29 @@ def skin_regions(
         if top + bottom == 0:  # no top or bottom layers asked for
             out.append(CrossSection())
             continue
-        # the layer's own section joins the run: it holds ``r``, so it covers nothing less,
-        # and one run of consecutive layers costs fewer intersections than two
-        solid = r - common.of(i - bottom, i + top + 1)
-        if solid.is_empty():
-            out.append(solid)
+        key = (id(r), spacing[i], tuple(ids[i - bottom:i + top + 1])) if ids else None
+        if key in seen:
+            out.append(seen[key])
             continue
-        s = spacing[i]
-        # drop slivers, then grow a little into the sparse region to anchor the skin
-        solid = solid.offset(-s / 2, MITER)
-        if solid.is_empty():
-            out.append(solid)
-            continue
-        out.append(solid.offset(1.5 * s, MITER) ^ r)
+        out.append(_skin(r, common.of(i - bottom, i + top + 1), spacing[i]))
+        if key is not None:
+            seen[key] = out[-1]
     return out
+
+
+def _skin(r: CrossSection, covered: CrossSection, s: float) -> CrossSection:
+    """The solid skin of infill region ``r`` where the layers around cover only
+    ``covered``."""
+    # the layer's own section joins the run: it holds ``r``, so it covers nothing less,
+    # and one run of consecutive layers costs fewer intersections than two
+    solid = r - covered
+    if solid.is_empty():
+        return solid
+    # drop slivers, then grow a little into the sparse region to anchor the skin
+    solid = solid.offset(-s / 2, MITER)
+    if solid.is_empty():
+        return solid
+    return solid.offset(1.5 * s, MITER) ^ r
 
 
 class _RunIntersections:

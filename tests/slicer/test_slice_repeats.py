@@ -109,3 +109,25 @@ def test_a_workers_overhead_moves_layers_to_the_parent():
     assert b - a == 60 and d - c == 40  # 600 = 400 + 200 of the worker's own
     shares = layers.layer_shares(work, 3, overhead=100.0)
     assert [e - s for s, e in shares] == [40, 30, 30]
+
+
+@pytest.mark.parametrize("model", [mushroom, t_bracket, lambda: ramp(60.0)])
+def test_skins_of_repeated_layers_are_those_found_afresh(model):
+    from slicer.geometry import bead_spacing
+    from slicer.planner import plan_shells, skin_regions
+
+    sections, heights, widths = _sections(model)
+    ids = shape_ids(sections)
+    planned: dict = {}  # equal layers share their infill region, as layer_plans plans them
+    inner = []
+    for i, section in enumerate(sections):
+        key = (ids[i], widths[i], float(heights[i]))
+        if key not in planned:
+            planned[key] = plan_shells(section, widths[i], float(heights[i]), BASE.perimeters,
+                                       BASE.thin_walls, BASE.resolution).inner
+        inner.append(planned[key])
+    spacing = [bead_spacing(w, float(h)) for w, h in zip(widths, heights, strict=True)]
+    found = skin_regions(inner, sections, 4, 3, spacing, False, ids)
+    fresh = skin_regions(inner, sections, 4, 3, spacing, False)
+    assert [shape_key(a) for a in found] == [shape_key(b) for b in fresh]
+    assert any(not a.is_empty() for a in found)
