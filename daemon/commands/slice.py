@@ -38,7 +38,7 @@ def register(subparsers) -> None:
     p.add_argument("--slicer", choices=("embedded", "cura", "prusa"), default="embedded",
                    help="slicing engine (cura/prusa need CuraEngine/prusa-slicer installed)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, quick_exit=True)
 
 
 def _parse_bed(text: str) -> tuple[float, float, float]:
