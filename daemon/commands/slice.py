@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import gc
-import json
 import os
 import resource
 import sys
@@ -178,6 +177,8 @@ def _run(args: argparse.Namespace) -> int:
     summary["main_cpu_seconds"] = round(own.ru_utime + own.ru_stime, 3)
     summary["child_cpu_seconds"] = round(forked.ru_utime + forked.ru_stime, 3)
     if args.json:
+        import json  # here: only --json pays for its import
+
         print(json.dumps(summary, indent=2, sort_keys=True))
     else:
         est = summary.get("estimated_seconds") or 0
