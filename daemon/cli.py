@@ -110,8 +110,9 @@ def script() -> None:
     code, args = _dispatch(None)
     if getattr(args, "quick_exit", False):
         try:
-            sys.stdout.flush()
-            sys.stderr.flush()
+            for stream in (sys.stdout, sys.stderr):
+                if stream is not None:  # None: started with that descriptor closed
+                    stream.flush()
         except (OSError, ValueError):  # a closed or broken pipe: the usual exit reports it
             sys.exit(code)
         os._exit(code)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import gc
 import json
+import os
 import subprocess
 import sys
 
@@ -24,7 +25,8 @@ PROBE = (
 def test_a_slice_skips_the_teardown_with_its_output_complete(tmp_path):
     """``slice`` ends with os._exit (no atexit handler runs) after flushing stdout, which is
     a file here (block-buffered): the JSON summary is whole and the G-code on disk; a failed
-    slice's one-line error is flushed too. Other commands exit as usual."""
+    slice's one-line error is flushed too, and a run started without a stdout ends as well.
+    Other commands exit as usual."""
     stl = tmp_path / "part.stl"
     trimesh.creation.cylinder(radius=6, height=3, sections=48).export(stl)
     out, log = tmp_path / "part.gcode", tmp_path / "summary.json"
@@ -42,6 +44,11 @@ def test_a_slice_skips_the_teardown_with_its_output_complete(tmp_path):
                           "-o", str(out)], capture_output=True, text=True, timeout=300)
     assert bad.returncode == 1 and bad.stderr.startswith("preflight: no such file")
     assert "TEARDOWN" not in bad.stderr
+    out.unlink()
+    closed = subprocess.run([sys.executable, "-m", "daemon", "slice", str(stl), "-o", str(out)],
+                            preexec_fn=lambda: os.close(1), stderr=subprocess.PIPE, text=True,
+                            timeout=300)  # started without a stdout: sys.stdout is None
+    assert closed.returncode == 0 and closed.stderr == "" and out.stat().st_size > 0
     other = subprocess.run([sys.executable, "-c", PROBE, "example-config"],
                            capture_output=True, text=True, timeout=300)
     assert other.returncode == 0 and "TEARDOWN" in other.stderr
