@@ -1,5 +1,3 @@
-import sys
+from daemon.cli import script
 
-from daemon.cli import main
-
-sys.exit(main())
+script()

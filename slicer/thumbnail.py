@@ -28,11 +28,9 @@ Block format (what Prusa firmware, OctoPrint and the Klipper UIs read)::
 
 from __future__ import annotations
 
-import base64
 import functools
 import math
 import struct
-import zlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -234,6 +232,8 @@ def _draw(stack: _Stack, width: int, height: int) -> bytes:
 
 
 def _chunk(kind: bytes, data: bytes) -> bytes:
+    import zlib  # here, like base64 below: the drawing is mostly done in a forked child
+
     return (struct.pack(">I", len(data)) + kind + data
             + struct.pack(">I", zlib.crc32(kind + data)))
 
@@ -248,6 +248,8 @@ def png_rgba(pixels: bytes, width: int, height: int) -> bytes:
         raise ValueError(f"{len(pixels)} bytes are not {width}x{height} RGBA pixels")
     rows = np.zeros((height, stride + 1), dtype=np.uint8)  # each row: filter byte 0, pixels
     rows[:, 1:] = np.frombuffer(pixels, dtype=np.uint8).reshape(height, stride)
+    import zlib
+
     header = struct.pack(">IIBBBBB", width, height, 8, 6, 0, 0, 0)  # 8 bits, RGBA
     return (b"\x89PNG\r\n\x1a\n" + _chunk(b"IHDR", header)
             + _chunk(b"IDAT", zlib.compress(rows.tobytes(), 9)) + _chunk(b"IEND", b""))
@@ -273,6 +275,8 @@ def thumbnail_blocks(vertices: np.ndarray, faces: np.ndarray, sizes: list[tuple[
     """G-code comment blocks with one PNG thumbnail per (width, height), smallest first.
     ``solid``: the mesh's manifold3d Manifold when the caller has it (the slicer does),
     which saves building it again (about a microsecond a triangle)."""
+    import base64
+
     if not sizes:
         return ""
     sizes = sorted(sizes)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import gc
-import json
 import os
 import resource
 import sys
@@ -38,7 +37,7 @@ def register(subparsers) -> None:
     p.add_argument("--slicer", choices=("embedded", "cura", "prusa"), default="embedded",
                    help="slicing engine (cura/prusa need CuraEngine/prusa-slicer installed)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, quick_exit=True)
 
 
 def _parse_bed(text: str) -> tuple[float, float, float]:
@@ -178,6 +177,8 @@ def _run(args: argparse.Namespace) -> int:
     summary["main_cpu_seconds"] = round(own.ru_utime + own.ru_stime, 3)
     summary["child_cpu_seconds"] = round(forked.ru_utime + forked.ru_stime, 3)
     if args.json:
+        import json  # here: only --json pays for its import
+
         print(json.dumps(summary, indent=2, sort_keys=True))
     else:
         est = summary.get("estimated_seconds") or 0

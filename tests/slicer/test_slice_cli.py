@@ -80,12 +80,13 @@ def test_a_mushroom_is_supported_by_default_and_the_summary_says_so(tmp_path):
 def test_slicing_an_stl_loads_only_what_slicing_needs(tmp_path):
     """Start-up is part of every `preflight slice`: a run without a profile file, on an
     STL, imports neither the web stack, trimesh, scipy, the journal, the daemon's config,
-    the TOML parser, the G-code lexer, pkgutil nor the other mesh formats' readers."""
+    the TOML parser, the G-code lexer, pkgutil, the other mesh formats' readers nor shutil
+    (argparse's default terminal sizing)."""
     stl = tmp_path / "part.stl"
     trimesh.creation.box((10, 10, 4)).export(stl)
     unwanted = ["aiohttp", "trimesh", "scipy", "sqlite3", "asyncio", "daemon.config",
                 "tomllib", "printer.gcode", "pkgutil", "zipfile", "repair.io.threemf",
-                "repair.io.ply", "repair.io.obj", "repair.io.step"]
+                "repair.io.ply", "repair.io.obj", "repair.io.step", "shutil"]
     probe = (
         "import sys\n"
         "from daemon.cli import main\n"
