@@ -9,11 +9,10 @@ import numpy as np
 from broken_models import uv_sphere
 from mesh_helpers import box, signed_volume
 from sheet_measures import covered_fraction, wall_thickness
+from test_sheets import _repaired
 
 from repair.check import check_printable
 from repair.clean import drop_unreferenced
-from repair.io import load_mesh, write_stl
-from repair.pipeline import repair_file
 from repair.sheet_level_set import _split_edges, sheet_level_set
 from repair.thicken import sheet_slabs
 from repair.topology import edge_stats
@@ -53,13 +52,7 @@ def test_level_set_vertices_lie_about_half_eps_from_the_sheet():
 
 def test_wrinkled_sheet_repairs_eps_thick_and_covered(tmp_path):
     v, f = _wrinkled_bowl()
-    src, dst = tmp_path / "bowl.stl", tmp_path / "out.stl"
-    write_stl(src, v, f)
-    report = repair_file(src, dst, epsilon=EPS)
-    w = load_mesh(dst)
-    ov, of = np.asarray(w.vertices, float), np.asarray(w.faces, np.int64)
-    verdict = check_printable(ov, of)
-    assert verdict.ok, verdict.failures()
+    ov, of, report = _repaired(v, f, tmp_path)  # asserts the written file is printable
     thickness = wall_thickness(v, f, ov, of, rim_margin=EPS)
     assert len(thickness) > 200
     assert thickness.min() >= 0.95 * EPS
