@@ -51,6 +51,8 @@ LEVEL_SET_MIN_BLOCKS = 64
 #: Grid points the level set may sample per block it saves: one costs ~1/1000 of a
 #: block's share of the union, and of rounding and mending its facets afterwards.
 LEVEL_SET_POINTS_PER_BLOCK = 250
+#: And never more than this many (~100 MB of samples and distances).
+LEVEL_SET_MAX_POINTS = 2_000_000
 
 
 def orient_patches(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -202,7 +204,8 @@ def sheet_slabs(
 
         v = np.asarray(vertices, dtype=np.float64)
         used = v[np.unique(np.asarray(faces, dtype=np.int64))]
-        if level_set_points(used, epsilon) <= LEVEL_SET_POINTS_PER_BLOCK * n_blocks:
+        budget = min(LEVEL_SET_POINTS_PER_BLOCK * n_blocks, LEVEL_SET_MAX_POINTS)
+        if level_set_points(used, epsilon) <= budget:
             solid = sheet_level_set(v, faces, epsilon)
             if solid is not None:
                 return solid
