@@ -1,0 +1,99 @@
+"""The exact self-intersection test started in the background: every slab in a forked
+child, so the caller's process is free for other work until it asks for the result.
+
+:func:`repair.intersections.intersecting_face_pairs` tests slab 0 in the calling process
+and the others in forked children; :func:`start_face_pairs` forks all of them (the
+same slabs, the same libigl test, so the same pairs) and returns at once. A check of a
+large mesh then computes its edge census -- and a caller its speculative next stage --
+on the second CPU while CGAL runs. Units mm; vertices float64 (n, 3), faces int64 (m, 3).
+"""
+
+from __future__ import annotations
+
+import io
+import os
+
+import numpy as np
+
+from repair.intersections import (
+    PARALLEL_MIN_FACES,
+    _pairs,
+    face_slabs,
+    intersecting_face_pairs,
+)
+from repair.rows import unique_rows
+from repair.workers import _reap, cpu_workers, die_with_parent, write_arrays
+
+__all__ = ["PendingPairs", "start_face_pairs"]
+
+
+class PendingPairs:
+    """:func:`intersecting_face_pairs` of a mesh, being computed; :meth:`result` waits for
+    it. A child that fails (a native crash included) has its slab tested again here."""
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray) -> None:
+        self._v, self._f = vertices, faces
+        self._children: list[tuple[int, int, np.ndarray]] = []
+        self._pairs: np.ndarray | None = None
+
+    @property
+    def running(self) -> bool:
+        """True while forked children test the pairs (the caller is free meanwhile)."""
+        return bool(self._children)
+
+    def result(self) -> np.ndarray:
+        """Unordered pairs (k, 2) of intersecting faces: sorted (i < j), unique."""
+        if self._pairs is None:
+            self._pairs = self._collect() if self._children else intersecting_face_pairs(
+                self._v, self._f
+            )
+        return self._pairs
+
+    def _start(self, slabs: list[np.ndarray]) -> None:
+        for idx in slabs:
+            r, w = os.pipe()
+            pid = os.fork()
+            if pid == 0:  # child: test the slab, write the pairs, leave without cleanup
+                code = 1
+                try:
+                    die_with_parent()
+                    os.close(r)
+                    write_arrays(w, {"pairs": idx[_pairs(self._v, self._f[idx])]})
+                    code = 0
+                finally:
+                    os._exit(code)
+            os.close(w)
+            self._children.append((pid, r, idx))
+
+    def _collect(self) -> np.ndarray:
+        found = []
+        for pid, r, idx in self._children:
+            with os.fdopen(r, "rb") as pipe:
+                data = pipe.read()
+            _reap(pid)
+            try:  # a cut-off archive (the child died) does not load
+                got = np.load(io.BytesIO(data))["pairs"]
+            except (OSError, ValueError, KeyError, EOFError):
+                got = idx[_pairs(self._v, self._f[idx])]
+            found.append(np.asarray(got, dtype=np.int64).reshape(-1, 2))
+        self._children = []
+        pairs = np.vstack(found)
+        if len(pairs) == 0:
+            return np.zeros((0, 2), dtype=np.int64)
+        return unique_rows(np.sort(pairs, axis=1))
+
+
+def start_face_pairs(vertices: np.ndarray, faces: np.ndarray) -> PendingPairs:
+    """Start :func:`repair.intersections.intersecting_face_pairs` on ``(vertices, faces)``:
+    on a mesh large enough to be tested in slabs, each slab in its own forked child,
+    started now; otherwise the test runs when :meth:`PendingPairs.result` is asked."""
+    v = np.ascontiguousarray(vertices, dtype=np.float64)
+    f = np.ascontiguousarray(faces, dtype=np.int64)
+    pending = PendingPairs(v, f)
+    workers = cpu_workers()
+    if len(f) < PARALLEL_MIN_FACES or workers < 2:
+        return pending
+    import igl.copyleft.cgal  # noqa: F401 -- imported once here, not once per child
+
+    pending._start(face_slabs(v, f, workers))
+    return pending
