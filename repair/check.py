@@ -299,6 +299,10 @@ def _verdict(
     meanwhile: Callable[[], object] | None = None,
 ) -> tuple[Printability, np.ndarray]:
     m = len(f)
+    # Started before the faces are known proper and distinct, as they mostly are: a large
+    # mesh's test then runs in children beside that work too, and starts again without
+    # the faces it must not see when there are any.
+    early = start_face_pairs(v, f) if known_pairs is None else None
     degenerate, volume = _degeneracy_and_volume(v, f)
     n_degenerate = int(np.count_nonzero(degenerate))
     n_duplicate = count_duplicate_faces(f)
@@ -314,11 +318,14 @@ def _verdict(
     else:
         # The exact intersection test needs proper triangles, each vertex triple once.
         keep = np.flatnonzero(~degenerate)
-        fk = f[keep]
-        if n_duplicate:
-            keep = keep[unique_faces(fk)]
+        pending = early
+        if n_degenerate or n_duplicate:
+            early.cancel()
             fk = f[keep]
-        pending = start_face_pairs(v, fk)  # in forked children on a large mesh
+            if n_duplicate:
+                keep = keep[unique_faces(fk)]
+                fk = f[keep]
+            pending = start_face_pairs(v, fk)  # in forked children on a large mesh
     # The edge census (and ``meanwhile``) run here while the children test the pairs.
     boundary, nonmanifold, misoriented, components, labels = edge_stats(f)
     if pending is not None:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import io
 import os
+import signal
 
 import numpy as np
 
@@ -48,6 +49,20 @@ class PendingPairs:
                 self._v, self._f
             )
         return self._pairs
+
+    def cancel(self) -> None:
+        """Stop the children (their result is not wanted): killed and reaped here."""
+        for pid, r, _ in self._children:
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+            os.close(r)
+            try:
+                os.waitpid(pid, 0)
+            except ChildProcessError:
+                pass
+        self._children = []
 
     def _start(self, slabs: list[np.ndarray]) -> None:
         for idx in slabs:

@@ -67,3 +67,13 @@ def test_surface_found_beside_the_check_is_what_the_stage_finds_after_it():
     assert np.array_equal(result.faces, after.faces)
     assert result.report["surface"] == after.to_dict()
     assert check_printable(result.vertices, result.faces, as_float32=True).ok
+
+
+def test_a_test_started_on_faces_the_check_must_not_test_starts_again_without_them():
+    v, f = concat(sphere(5, 10.0), sphere(5, 8.0, centre=(6.0, 1.0, 0.5)))
+    proper = intersecting_face_pairs(v, f)
+    # A copy of face 0 and a face with a repeated corner: the test must not see them.
+    with_bad = np.vstack([f, f[:1], [[f[1, 0], f[1, 0], f[1, 1]]]])
+    verdict, pairs = check_printable_pairs(v, with_bad)
+    assert verdict.duplicate_faces == 1 and verdict.degenerate_faces == 1
+    assert np.array_equal(np.sort(pairs, axis=1), proper) and len(proper) > 100
