@@ -25,7 +25,12 @@ from repair.intersections import (
 from repair.rows import unique_rows
 from repair.workers import _reap, cpu_workers, die_with_parent, write_arrays
 
-__all__ = ["PendingPairs", "start_face_pairs"]
+__all__ = ["BACKGROUND_MIN_FACES", "PendingPairs", "start_face_pairs"]
+
+#: Meshes with at least this many faces are tested in the background (one more fork than
+#: :func:`intersecting_face_pairs` makes; on a smaller mesh the work it frees the caller
+#: for is small too, and the fork's CPU time is not).
+BACKGROUND_MIN_FACES = max(PARALLEL_MIN_FACES, 50_000)
 
 
 class PendingPairs:
@@ -100,13 +105,13 @@ class PendingPairs:
 
 def start_face_pairs(vertices: np.ndarray, faces: np.ndarray) -> PendingPairs:
     """Start :func:`repair.intersections.intersecting_face_pairs` on ``(vertices, faces)``:
-    on a mesh large enough to be tested in slabs, each slab in its own forked child,
+    on a mesh of :data:`BACKGROUND_MIN_FACES` or more, each slab in its own forked child,
     started now; otherwise the test runs when :meth:`PendingPairs.result` is asked."""
     v = np.ascontiguousarray(vertices, dtype=np.float64)
     f = np.ascontiguousarray(faces, dtype=np.int64)
     pending = PendingPairs(v, f)
     workers = cpu_workers()
-    if len(f) < PARALLEL_MIN_FACES or workers < 2:
+    if len(f) < BACKGROUND_MIN_FACES or workers < 2:
         return pending
     import igl.copyleft.cgal  # noqa: F401 -- imported once here, not once per child
 
