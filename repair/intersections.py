@@ -139,7 +139,7 @@ def _pairs_in_slabs(v: np.ndarray, f: np.ndarray, k: int) -> np.ndarray:
 def face_slabs(v: np.ndarray, f: np.ndarray, k: int) -> list[np.ndarray]:
     """The faces (indices into ``f``) of each of ``k`` slabs along the longest axis, as
     :func:`_pairs_in_slabs` tests them."""
-    x = v[f][:, :, int(np.argmax(np.ptp(v, axis=0)))]
+    x = v[:, int(np.argmax(np.ptp(v, axis=0)))][f]
     lo, hi = x.min(axis=1), x.max(axis=1)
     edges = np.r_[-np.inf, _even_cuts(lo, hi, k), np.inf]
     return [np.flatnonzero((lo < edges[i + 1]) & (hi >= edges[i])) for i in range(k)]

@@ -57,6 +57,7 @@ from repair.deviation import max_deviation
 from repair.errors import RepairError
 from repair.fallback import fallback_repair
 from repair.finish import finish
+from repair.forked import Forked
 from repair.hairline import without_hairline_gaps
 from repair.holes import MAX_BOUNDARY_FRACTION, HolesClosed, close_small_holes
 from repair.hull_and_thicken import hull_and_thicken
@@ -152,7 +153,7 @@ def _repair_mesh(
         return RepairResult(*_repair(v_in, f_in, eps, progress, clean, surface=surface))
     # The check runs here, once for both paths: a printable input needs no budget (and
     # no child), and a fallback does not check the input again.
-    checked = _checked_input(v_in, f_in, progress, eps, surface)
+    checked = _checked_input(v_in, f_in, progress, eps, surface, clean)
     if checked[1].verdict.ok and clean != "scan":
         return RepairResult(*_repair(v_in, f_in, eps, progress, clean, checked=checked,
                                      surface=surface))
@@ -168,26 +169,35 @@ _Checked = tuple[StageClock, RoundedInput, list | None]
 
 
 def _checked_input(
-    v_in: np.ndarray, f_in: np.ndarray, progress: Progress, eps: float, surface: str
+    v_in: np.ndarray, f_in: np.ndarray, progress: Progress, eps: float, surface: str,
+    clean: str,
 ) -> _Checked:
     """Stage 1 (``check_input``) on a new stage clock; with the surface features of the
-    input as it would come out unchanged (or None), found while the exact intersection
-    test ran in forked children, when everything else said it was printable."""
+    input as it comes out unchanged (or None), found in a forked child while the exact
+    intersection test ran in others, when everything else said it was printable."""
     clock = StageClock(progress)
-    ahead: list = []
+    ahead: list[Forked] = []
 
-    def surface_ahead() -> None:
+    def features() -> list | None:
         from repair.surface.stage import features_of
 
         try:
-            ahead.append(features_of(v32, f_in, eps, surface))
+            return features_of(v32, f_in, eps, surface)
         except Exception:  # noqa: BLE001 -- the surface stage itself reports the failure
-            pass
+            return None
 
     v32 = round_to_float32(v_in) if surface != "off" else None  # what round_input makes
-    rounded = round_input(v_in, f_in, surface_ahead if surface != "off" else None)
+    # Found in a child of its own: the parent's share of the check is the longest here.
+    rounded = round_input(v_in, f_in,
+                          (lambda: ahead.append(Forked(features))) if surface != "off" else None)
+    found = None
+    for job in ahead:
+        if rounded.verdict.ok and clean != "scan":  # the input comes out unchanged
+            found = job.result()
+        else:
+            job.cancel()
     clock.lap("check_input", 0.1)
-    return clock, rounded, ahead[0] if ahead else None
+    return clock, rounded, found
 
 
 def _repair(
@@ -196,7 +206,7 @@ def _repair(
 ) -> Meshed:
     """:func:`repair_mesh` of a checked input; ``fallback``: why the fallback replaces
     the exact repair (which then does not run); ``checked``: stage 1, if it ran."""
-    clock, rounded, ahead = checked or _checked_input(v_in, f_in, progress, eps, surface)
+    clock, rounded, ahead = checked or _checked_input(v_in, f_in, progress, eps, surface, clean)
     if checked and fallback:
         clock.lap("exact_repair", 0.2)  # the time the exact repair was given
     if rounded.verdict.ok and clean != "scan":
