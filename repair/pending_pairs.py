@@ -10,12 +10,9 @@ on the second CPU while CGAL runs. Units mm; vertices float64 (n, 3), faces int6
 
 from __future__ import annotations
 
-import io
-import os
-import signal
-
 import numpy as np
 
+from repair.forked import Forked
 from repair.intersections import (
     PARALLEL_MIN_FACES,
     _pairs,
@@ -23,7 +20,7 @@ from repair.intersections import (
     intersecting_face_pairs,
 )
 from repair.rows import unique_rows
-from repair.workers import _reap, cpu_workers, die_with_parent, write_arrays
+from repair.workers import cpu_workers
 
 __all__ = ["BACKGROUND_MIN_FACES", "PendingPairs", "start_face_pairs"]
 
@@ -39,7 +36,7 @@ class PendingPairs:
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray) -> None:
         self._v, self._f = vertices, faces
-        self._children: list[tuple[int, int, np.ndarray]] = []
+        self._children: list[Forked] = []
         self._pairs: np.ndarray | None = None
 
     @property
@@ -56,46 +53,17 @@ class PendingPairs:
         return self._pairs
 
     def cancel(self) -> None:
-        """Stop the children (their result is not wanted): killed and reaped here."""
-        for pid, r, _ in self._children:
-            try:
-                os.kill(pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
-            os.close(r)
-            try:
-                os.waitpid(pid, 0)
-            except ChildProcessError:
-                pass
+        """Stop the children (their result is not wanted): killed and reaped."""
+        for child in self._children:
+            child.cancel()
         self._children = []
 
     def _start(self, slabs: list[np.ndarray]) -> None:
-        for idx in slabs:
-            r, w = os.pipe()
-            pid = os.fork()
-            if pid == 0:  # child: test the slab, write the pairs, leave without cleanup
-                code = 1
-                try:
-                    die_with_parent()
-                    os.close(r)
-                    write_arrays(w, {"pairs": idx[_pairs(self._v, self._f[idx])]})
-                    code = 0
-                finally:
-                    os._exit(code)
-            os.close(w)
-            self._children.append((pid, r, idx))
+        v, f = self._v, self._f
+        self._children = [Forked(lambda idx=idx: idx[_pairs(v, f[idx])]) for idx in slabs]
 
     def _collect(self) -> np.ndarray:
-        found = []
-        for pid, r, idx in self._children:
-            with os.fdopen(r, "rb") as pipe:
-                data = pipe.read()
-            _reap(pid)
-            try:  # a cut-off archive (the child died) does not load
-                got = np.load(io.BytesIO(data))["pairs"]
-            except (OSError, ValueError, KeyError, EOFError):
-                got = idx[_pairs(self._v, self._f[idx])]
-            found.append(np.asarray(got, dtype=np.int64).reshape(-1, 2))
+        found = [np.asarray(c.result(), dtype=np.int64).reshape(-1, 2) for c in self._children]
         self._children = []
         pairs = np.vstack(found)
         if len(pairs) == 0:
