@@ -275,10 +275,12 @@ def _run_one(tool: str, spec: str, q) -> None:
 
             with tempfile.TemporaryDirectory() as tmp:
                 src, dst = os.path.join(tmp, "in.stl"), os.path.join(tmp, "out.stl")
+                rep = os.path.join(tmp, "report.json")
                 write_stl(src, v, f)
                 t0, c0 = time.perf_counter(), _cpu_s()
                 proc = subprocess.run(
-                    [sys.executable, "-m", "daemon.cli", "repair", src, "-o", dst],
+                    [sys.executable, "-m", "daemon.cli", "repair", src, "-o", dst,
+                     "--report", rep],
                     capture_output=True, text=True, cwd=ROOT,
                 )  # fmt: skip
                 dt, dc = time.perf_counter() - t0, _cpu_s() - c0
@@ -290,8 +292,10 @@ def _run_one(tool: str, spec: str, q) -> None:
 
                 out = load_mesh(dst)
                 ok = check_printable(out.vertices, out.faces).ok
+                stages = json.loads(Path(rep).read_text()).get("stages", {})
                 q.put({"tris": int(len(f)), "out": out.triangles, "s": dt, "cpu": dc,
-                       "peak_mb": None, "ok": ok})  # fmt: skip
+                       "peak_mb": None, "ok": ok, "stages": stages,
+                       "load": os.getloadavg()[0]})  # fmt: skip
             return
         extra = {}
         if tool in ("preflight", "fallback"):
@@ -470,7 +474,11 @@ def _print_family_and_outliers(results: dict[str, dict[str, dict]],
     cli = results.get("cli:clean_500k", {}).get("preflight")
     if cli and "s" in cli:
         print(f"preflight  clean 500k whole process (preflight repair IN -o OUT): "
-              f"{cli['s']:.2f}s wall, {cli['cpu']:.2f}s CPU incl. children (target 2.5 s)")
+              f"{cli['s']:.2f}s wall, {cli['cpu']:.2f}s CPU incl. children (target 2.5 s; "
+              f"load average {cli.get('load', float('nan')):.1f})")
+        phases = ", ".join(f"{k} {t:.2f}" for k, t in cli.get("stages", {}).items())
+        if phases:  # wall seconds of the process's stages (start-up is the rest)
+            print(f"preflight  clean 500k phases (s wall): {phases}")
 
 
 def _print_fallback(results: dict[str, dict[str, dict]], specs: list[str], timeout: float

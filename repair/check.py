@@ -25,12 +25,13 @@ All work is vectorised numpy except the exact intersection test (C++).
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from repair.intersections import intersecting_face_pairs
+from repair.pending_pairs import start_face_pairs
 from repair.topology import count_duplicate_faces, edge_stats, unique_faces, weld_exact
 from repair.winding import misnested_shells
 
@@ -230,10 +231,17 @@ def check_printable_pairs(
     faces: np.ndarray,
     *,
     as_float32: bool = False,
+    meanwhile: Callable[[], object] | None = None,
 ) -> tuple[Printability, np.ndarray]:
     """:func:`check_printable`, also returning the intersecting face pairs (k, 2) as
     indices into ``faces`` (into the welded faces when ``as_float32``), so that a repair
-    loop does not test them twice."""
+    loop does not test them twice.
+
+    ``meanwhile``: called (its value ignored) while the exact intersection test runs,
+    when everything else already says the mesh is a closed, edge-manifold, oriented
+    surface without degenerate or duplicate faces, and the test runs in forked children
+    (a large mesh, more than one CPU): work that would follow a printable verdict then
+    runs beside the test instead of after it."""
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces)
     if v.ndim != 2 or (v.size and v.shape[1] != 3):
@@ -256,7 +264,7 @@ def check_printable_pairs(
     m = len(f)
     if m == 0:
         return _empty_verdict(as_float32), np.zeros((0, 2), dtype=np.int64)
-    return _verdict(v, f, as_float32)
+    return _verdict(v, f, as_float32, meanwhile=meanwhile)
 
 
 def _empty_verdict(as_float32: bool) -> Printability:
@@ -287,14 +295,19 @@ def verdict_given_pairs(
 
 
 def _verdict(
-    v: np.ndarray, f: np.ndarray, as_float32: bool, known_pairs: np.ndarray | None = None
+    v: np.ndarray, f: np.ndarray, as_float32: bool, known_pairs: np.ndarray | None = None,
+    meanwhile: Callable[[], object] | None = None,
 ) -> tuple[Printability, np.ndarray]:
     m = len(f)
-    boundary, nonmanifold, misoriented, components, labels = edge_stats(f)
+    # Started before the faces are known proper and distinct, as they mostly are: a large
+    # mesh's test then runs in children beside that work too, and starts again without
+    # the faces it must not see when there are any.
+    early = start_face_pairs(v, f) if known_pairs is None else None
     degenerate, volume = _degeneracy_and_volume(v, f)
     n_degenerate = int(np.count_nonzero(degenerate))
     n_duplicate = count_duplicate_faces(f)
 
+    pending = None
     if known_pairs is not None:
         pairs = known_pairs
         if n_duplicate:  # the test is pairwise: keep the pairs one test of the first copies finds
@@ -305,11 +318,22 @@ def _verdict(
     else:
         # The exact intersection test needs proper triangles, each vertex triple once.
         keep = np.flatnonzero(~degenerate)
-        fk = f[keep]
-        if n_duplicate:
-            keep = keep[unique_faces(fk)]
+        pending = early
+        if n_degenerate or n_duplicate:
+            early.cancel()
             fk = f[keep]
-        pairs = keep[intersecting_face_pairs(v, fk)]
+            if n_duplicate:
+                keep = keep[unique_faces(fk)]
+                fk = f[keep]
+            pending = start_face_pairs(v, fk)  # in forked children on a large mesh
+    # The edge census (and ``meanwhile``) run here while the children test the pairs.
+    boundary, nonmanifold, misoriented, components, labels = edge_stats(f)
+    if pending is not None:
+        if meanwhile is not None and pending.running and n_degenerate == n_duplicate == 0 and (
+            boundary == nonmanifold == misoriented == 0
+        ):
+            meanwhile()
+        pairs = keep[pending.result()]
 
     solid_so_far = (
         boundary == 0 and nonmanifold == 0 and misoriented == 0

@@ -127,18 +127,22 @@ def _pairs_in_slabs(v: np.ndarray, f: np.ndarray, k: int) -> np.ndarray:
     """
     from repair.workers import map_forked
 
-    p = v[f]
-    axis = int(np.argmax(np.ptp(v, axis=0)))
-    x = p[:, :, axis]
-    lo, hi = x.min(axis=1), x.max(axis=1)
-    edges = np.r_[-np.inf, _even_cuts(lo, hi, k), np.inf]
-    slabs = [np.flatnonzero((lo < edges[i + 1]) & (hi >= edges[i])) for i in range(k)]
+    slabs = face_slabs(v, f, k)
 
     def test(idx: np.ndarray) -> tuple[np.ndarray]:
         return (idx[_pairs(v, f[idx])],)
 
     found = map_forked(test, slabs, [[i] for i in range(k)])
     return np.vstack([r[0].reshape(-1, 2) for r in found])
+
+
+def face_slabs(v: np.ndarray, f: np.ndarray, k: int) -> list[np.ndarray]:
+    """The faces (indices into ``f``) of each of ``k`` slabs along the longest axis, as
+    :func:`_pairs_in_slabs` tests them."""
+    x = v[:, int(np.argmax(np.ptp(v, axis=0)))][f]
+    lo, hi = x.min(axis=1), x.max(axis=1)
+    edges = np.r_[-np.inf, _even_cuts(lo, hi, k), np.inf]
+    return [np.flatnonzero((lo < edges[i + 1]) & (hi >= edges[i])) for i in range(k)]
 
 
 def _even_cuts(lo: np.ndarray, hi: np.ndarray, k: int) -> np.ndarray:

@@ -51,11 +51,13 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from repair.budget import Meshed, run_within_budget
+from repair.check import round_to_float32
 from repair.clean import Cleaned, clean_checked
 from repair.deviation import max_deviation
 from repair.errors import RepairError
 from repair.fallback import fallback_repair
 from repair.finish import finish
+from repair.forked import Forked
 from repair.hairline import without_hairline_gaps
 from repair.holes import MAX_BOUNDARY_FRACTION, HolesClosed, close_small_holes
 from repair.hull_and_thicken import hull_and_thicken
@@ -151,7 +153,7 @@ def _repair_mesh(
         return RepairResult(*_repair(v_in, f_in, eps, progress, clean, surface=surface))
     # The check runs here, once for both paths: a printable input needs no budget (and
     # no child), and a fallback does not check the input again.
-    checked = _checked_input(v_in, f_in, progress)
+    checked = _checked_input(v_in, f_in, progress, eps, surface, clean)
     if checked[1].verdict.ok and clean != "scan":
         return RepairResult(*_repair(v_in, f_in, eps, progress, clean, checked=checked,
                                      surface=surface))
@@ -163,24 +165,48 @@ def _repair_mesh(
     return RepairResult(*meshed)
 
 
+_Checked = tuple[StageClock, RoundedInput, list | None]
+
+
 def _checked_input(
-    v_in: np.ndarray, f_in: np.ndarray, progress: Progress
-) -> tuple[StageClock, RoundedInput]:
-    """Stage 1 (``check_input``) on a new stage clock."""
+    v_in: np.ndarray, f_in: np.ndarray, progress: Progress, eps: float, surface: str,
+    clean: str,
+) -> _Checked:
+    """Stage 1 (``check_input``) on a new stage clock; with the surface features of the
+    input as it comes out unchanged (or None), found in a forked child while the exact
+    intersection test ran in others, when everything else said it was printable."""
     clock = StageClock(progress)
-    rounded = round_input(v_in, f_in)
+    ahead: list[Forked] = []
+
+    def features() -> list | None:
+        from repair.surface.stage import features_of
+
+        try:
+            return features_of(v32, f_in, eps, surface)
+        except Exception:  # noqa: BLE001 -- the surface stage itself reports the failure
+            return None
+
+    v32 = round_to_float32(v_in) if surface != "off" else None  # what round_input makes
+    # Found in a child of its own: the parent's share of the check is the longest here.
+    rounded = round_input(v_in, f_in,
+                          (lambda: ahead.append(Forked(features))) if surface != "off" else None)
+    found = None
+    for job in ahead:
+        if rounded.verdict.ok and clean != "scan":  # the input comes out unchanged
+            found = job.result()
+        else:
+            job.cancel()
     clock.lap("check_input", 0.1)
-    return clock, rounded
+    return clock, rounded, found
 
 
 def _repair(
     v_in: np.ndarray, f_in: np.ndarray, eps: float, progress: Progress, clean: str,
-    fallback: str | None = None, checked: tuple[StageClock, RoundedInput] | None = None,
-    surface: str = "off",
+    fallback: str | None = None, checked: _Checked | None = None, surface: str = "off",
 ) -> Meshed:
     """:func:`repair_mesh` of a checked input; ``fallback``: why the fallback replaces
     the exact repair (which then does not run); ``checked``: stage 1, if it ran."""
-    clock, rounded = checked or _checked_input(v_in, f_in, progress)
+    clock, rounded, ahead = checked or _checked_input(v_in, f_in, progress, eps, surface, clean)
     if checked and fallback:
         clock.lap("exact_repair", 0.2)  # the time the exact repair was given
     if rounded.verdict.ok and clean != "scan":
@@ -191,16 +217,19 @@ def _repair(
         clock.lap("clean", 0.2)
         out = _solidify(rounded, cleaned, eps, clock, clean, fallback)
     if surface != "off":
-        out = _surface(out, eps, surface, clock)
+        same = out.vertices is rounded.vertices and out.faces is rounded.faces
+        out = _surface(out, eps, surface, clock, ahead if same else None)
     before = input_report(rounded.verdict, len(rounded.vertices))
     return out.vertices, out.faces, repair_report(before, out, eps, clock)
 
 
-def _surface(out: RepairOutcome, eps: float, surface: str, clock: StageClock) -> RepairOutcome:
+def _surface(
+    out: RepairOutcome, eps: float, surface: str, clock: StageClock, found: list | None
+) -> RepairOutcome:
     from repair.surface.stage import surface_stage
 
     try:
-        out = surface_stage(out, eps, surface)
+        out = surface_stage(out, eps, surface, found)
     except ValueError as exc:
         raise RepairError(str(exc)) from None
     clock.lap("surface", 0.95)

@@ -13,6 +13,7 @@ Units are mm; vertices float64 (n, 3), faces int64 (m, 3).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -177,12 +178,15 @@ class RoundedInput:
                 p.shells)  # fmt: skip
 
 
-def round_input(vertices: np.ndarray, faces: np.ndarray) -> RoundedInput:
+def round_input(
+    vertices: np.ndarray, faces: np.ndarray, meanwhile: Callable[[], object] | None = None
+) -> RoundedInput:
     """Round the input to float32 and check it. Solid parts come out on their rounded
     corners either way; rounding the input first (as an STL input already is) keeps the
-    arrangement from having to round twice."""
+    arrangement from having to round twice. ``meanwhile``: as in
+    :func:`repair.check.check_printable_pairs`."""
     v32 = round_to_float32(vertices)
     moved = v32 - vertices
     rounding = float(np.sqrt(np.max(np.einsum("ij,ij->i", moved, moved))))
-    verdict, pairs = check_printable_pairs(v32, faces, as_float32=True)
+    verdict, pairs = check_printable_pairs(v32, faces, as_float32=True, meanwhile=meanwhile)
     return RoundedInput(v32, faces, rounding, verdict, pairs)

@@ -225,18 +225,21 @@ def _refine_group(found: list, fids: list[int], state, planes: np.ndarray, tol: 
 
 
 def refine_surfaces(vertices: np.ndarray, faces: np.ndarray, *, epsilon: float,
-                    mode: str = "holes", tolerance: float | None = None) -> SurfaceResult:
+                    mode: str = "holes", tolerance: float | None = None,
+                    found: list[tuple[Surface, np.ndarray]] | None = None) -> SurfaceResult:
     """FIA + VTA on a closed mesh: features of ``mode``'s kinds refined to ``tolerance``
     (default :func:`surface_tolerance` of ``epsilon``); the mesh is returned unchanged when
     none is found. A feature whose refinement would leave a printable input unprintable
     (the exact check on float32 coordinates) is undone. Raises ValueError for an unknown
-    mode."""
+    mode. ``found``: :func:`find_features` of these very arrays at this tolerance and
+    mode's kinds, when already computed (e.g. while the input check ran)."""
     if mode not in MODES:
         raise ValueError(f"surface mode must be one of {', '.join(MODES)}, not {mode!r}")
     tol = surface_tolerance(epsilon) if tolerance is None else float(tolerance)
     v0 = np.asarray(vertices, dtype=float)
     f0 = np.asarray(faces, dtype=np.int64)
-    found = find_features(v0, f0, tolerance=tol, kinds=MODES[mode])
+    if found is None:
+        found = find_features(v0, f0, tolerance=tol, kinds=MODES[mode])
     if not found:
         return SurfaceResult(v0, f0, (), tol, mode, len(f0))
     labels = np.full(len(f0), -1, dtype=np.int64)

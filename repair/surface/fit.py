@@ -217,8 +217,8 @@ def fit_surface(points: np.ndarray, centroids: np.ndarray, normals: np.ndarray,
         return None
     # a plane (every vertex within ``accept`` of the best plane) is not a curved feature
     c = p.mean(0)
-    if np.linalg.eigh(np.cov((p - c).T))[0][0] ** 0.5 < accept / 3 and np.abs(
-            (p - c) @ np.linalg.eigh(np.cov((p - c).T))[1][:, 0]).max() <= accept:
+    spread, directions = np.linalg.eigh(np.cov((p - c).T))
+    if spread[0] ** 0.5 < accept / 3 and np.abs((p - c) @ directions[:, 0]).max() <= accept:
         return None
     # fit a few hundred vertices first: a region that is no such surface fails cheaply
     few = p[np.linspace(0, len(p) - 1, min(len(p), SUBSAMPLE)).astype(int)]

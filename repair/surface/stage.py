@@ -4,21 +4,27 @@ from __future__ import annotations
 
 import dataclasses
 
+import numpy as np
+
 from repair.check import check_printable, round_to_float32
 from repair.report import RepairOutcome
-from repair.surface.features import MODES, refine_surfaces
+from repair.surface.features import MODES, find_features, refine_surfaces, surface_tolerance
 
 
-def surface_stage(out: RepairOutcome, epsilon: float, mode: str) -> RepairOutcome:
+def surface_stage(
+    out: RepairOutcome, epsilon: float, mode: str, found: list | None = None
+) -> RepairOutcome:
     """``out`` with its analytic features refined (``mode``: a key of ``MODES``) and a
     ``surface`` report section; ``out`` itself (plus the section) when nothing changed or the
-    refined mesh does not pass the exact check on its float32 coordinates."""
+    refined mesh does not pass the exact check on its float32 coordinates. ``found``:
+    :func:`features_of` ``out``'s very arrays, when already computed."""
     if mode not in MODES:
         raise ValueError(f"surface must be one of {', '.join(MODES)}, got {mode!r}")
     if mode == "off":
         return out
     try:
-        result = refine_surfaces(out.vertices, out.faces, epsilon=epsilon, mode=mode)
+        result = refine_surfaces(out.vertices, out.faces, epsilon=epsilon, mode=mode,
+                                 found=found)
     except MemoryError:
         raise
     except Exception as exc:  # noqa: BLE001 -- an optional refinement never fails the repair
@@ -66,3 +72,10 @@ def feature_lines(section: dict | None) -> list[str]:
     if section.get("undone"):
         out.append(f"  surface refinement undone: {section['undone']}")
     return out
+
+
+def features_of(vertices: np.ndarray, faces: np.ndarray, epsilon: float, mode: str) -> list:
+    """What :func:`surface_stage` finds to refine on these arrays (``mode`` not "off"):
+    computed ahead, e.g. while the input check runs, and handed to it as ``found``."""
+    return find_features(vertices, faces, tolerance=surface_tolerance(epsilon),
+                         kinds=MODES[mode])

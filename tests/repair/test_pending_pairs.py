@@ -1,0 +1,80 @@
+"""repair.pending_pairs: the intersection test started in forked children gives the pairs
+of a test in one process; the check runs ``meanwhile`` beside it only on a mesh that is
+printable but for the test, and the repair's surface features found then are those the
+surface stage finds afterwards."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import plate_model as plate  # noqa: E402
+from mesh_helpers import concat, sphere  # noqa: E402
+
+from repair.check import check_printable, check_printable_pairs, round_to_float32  # noqa: E402
+from repair.intersections import _pairs, intersecting_face_pairs  # noqa: E402
+from repair.pending_pairs import BACKGROUND_MIN_FACES, start_face_pairs  # noqa: E402
+from repair.pipeline import repair_mesh  # noqa: E402
+from repair.rows import unique_rows  # noqa: E402
+from repair.surface.features import refine_surfaces  # noqa: E402
+from repair.workers import cpu_workers  # noqa: E402
+
+
+def test_pairs_started_in_children_are_those_of_one_whole_test():
+    v, f = concat(sphere(6, 10.0), sphere(5, 8.0, centre=(6.0, 1.0, 0.5)))  # crossing
+    assert len(f) >= BACKGROUND_MIN_FACES
+    pending = start_face_pairs(v, f)
+    assert pending.running == (cpu_workers() > 1)
+    found = pending.result()
+    whole = unique_rows(np.sort(_pairs(v, f), axis=1))  # one libigl test, one process
+    assert len(whole) > 100
+    assert np.array_equal(found, whole)
+    assert np.array_equal(found, intersecting_face_pairs(v, f))
+    assert not pending.running and pending.result() is found
+
+
+def test_meanwhile_runs_only_beside_the_test_of_a_mesh_printable_but_for_it():
+    v, f = sphere(6, 10.0)  # 81920 faces, closed
+    assert len(f) >= BACKGROUND_MIN_FACES
+    calls: list[int] = []
+    verdict, pairs = check_printable_pairs(v, f, meanwhile=lambda: calls.append(1))
+    assert verdict.ok and len(pairs) == 0
+    assert calls == ([1] if cpu_workers() > 1 else [])
+    # Two crossing spheres: printable but for the test; it runs and the verdict says no.
+    v2, f2 = concat((v, f), sphere(4, 10.0, centre=(5.0, 0.0, 0.0)))
+    calls.clear()
+    verdict, pairs = check_printable_pairs(v2, f2, meanwhile=lambda: calls.append(1))
+    assert not verdict.ok and verdict.intersecting_pairs == len(pairs) > 0
+    assert calls == ([1] if cpu_workers() > 1 else [])
+    # A hole: the edge census already says no, nothing runs beside the test.
+    calls.clear()
+    verdict, _ = check_printable_pairs(v, f[1:], meanwhile=lambda: calls.append(1))
+    assert not verdict.closed and calls == []
+
+
+def test_surface_found_beside_the_check_is_what_the_stage_finds_after_it():
+    # A coarse plate with holes beside a fine ball: large enough to be tested in children.
+    pv, pf = plate.plate(24)
+    v, f = concat((pv, pf), sphere(6, 10.0, centre=pv.max(axis=0) + 20.0))
+    assert len(f) >= BACKGROUND_MIN_FACES and check_printable(v, f, as_float32=True).ok
+    result = repair_mesh(v, f, 0.4, surface="holes")
+    after = refine_surfaces(round_to_float32(v), f, epsilon=0.4, mode="holes")
+    assert after.changed and result.report["surface"]["features"]
+    assert np.array_equal(result.vertices, round_to_float32(after.vertices))
+    assert np.array_equal(result.faces, after.faces)
+    assert result.report["surface"] == after.to_dict()
+    assert check_printable(result.vertices, result.faces, as_float32=True).ok
+
+
+def test_a_test_started_on_faces_the_check_must_not_test_starts_again_without_them():
+    v, f = concat(sphere(6, 10.0), sphere(5, 8.0, centre=(6.0, 1.0, 0.5)))
+    proper = intersecting_face_pairs(v, f)
+    # A copy of face 0 and a face with a repeated corner: the test must not see them.
+    with_bad = np.vstack([f, f[:1], [[f[1, 0], f[1, 0], f[1, 1]]]])
+    verdict, pairs = check_printable_pairs(v, with_bad)
+    assert verdict.duplicate_faces == 1 and verdict.degenerate_faces == 1
+    assert np.array_equal(np.sort(pairs, axis=1), proper) and len(proper) > 100
