@@ -35,9 +35,7 @@ import numpy as np
 from repair.topology import (
     EdgeTopology,
     connected_labels,
-    edge_components,
     edge_ids,
-    half_edges,
 )
 
 __all__ = ["SPECK_AREA", "ScanCleaned", "clean_scan", "looks_like_scan", "scan_cleanup"]
@@ -84,18 +82,26 @@ class ScanCleaned:
 
 
 def _normals(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Unit normals (zero for degenerate faces) and areas of the faces."""
-    p = v[f]
-    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    length = np.linalg.norm(n, axis=1)
-    return n / np.maximum(length, 1e-300)[:, None], 0.5 * length
+    """Unit normals (zero for degenerate faces) and areas of the faces. Column by column:
+    the products and sums of ``np.cross`` and ``np.linalg.norm``, in their order (the
+    same bits), without their (m, 3, 3) gathers."""
+    p0 = v[f[:, 0]]
+    u, w = v[f[:, 1]] - p0, v[f[:, 2]] - p0
+    n = np.empty_like(u)
+    n[:, 0] = u[:, 1] * w[:, 2] - u[:, 2] * w[:, 1]
+    n[:, 1] = u[:, 2] * w[:, 0] - u[:, 0] * w[:, 2]
+    n[:, 2] = u[:, 0] * w[:, 1] - u[:, 1] * w[:, 0]
+    length = np.sqrt(n[:, 0] * n[:, 0] + n[:, 1] * n[:, 1] + n[:, 2] * n[:, 2])
+    n /= np.maximum(length, 1e-300)[:, None]
+    return n, 0.5 * length
 
 
 @dataclass(frozen=True)
 class _Edges:
     """Edge structure of a face list, computed once (one sort): each half-edge's edge id
-    ``eid`` (3m,), the edges' ends ``ends`` (k, 2), and the edges of exactly two faces as
-    their half-edges ``h1``, ``h2``."""
+    ``eid`` (3m,), the edges' ends ``ends`` (k, 2), ``lo < hi``, numbered in that
+    lexicographic order, and the edges of exactly two faces as their half-edges ``h1``,
+    ``h2``."""
 
     eid: np.ndarray
     ends: np.ndarray
@@ -108,9 +114,10 @@ class _Edges:
             eid, cnt = topology.eid, topology.counts
         else:
             eid, cnt = edge_ids(f)
-        he = half_edges(f)
+        a, b = f.reshape(-1), f[:, [1, 2, 0]].reshape(-1)
         ends = np.empty((len(cnt), 2), dtype=np.int64)
-        ends[eid] = np.sort(he, axis=1)
+        ends[eid, 0] = np.minimum(a, b)
+        ends[eid, 1] = np.maximum(a, b)
         return _Edges(eid, ends, *_pairs(eid, cnt))
 
     def subset(self, keep: np.ndarray) -> _Edges:
@@ -118,6 +125,51 @@ class _Edges:
         order: edge ids stay (some edges now unused), pairs are taken again."""
         eid = self.eid.reshape(-1, 3)[keep].reshape(-1)
         return _Edges(eid, self.ends, *_pairs(eid, np.bincount(eid, minlength=len(self.ends))))
+
+    def collapsed(self, n: int, remap: np.ndarray, keep: np.ndarray) -> _Edges:
+        """The edges of ``remap[f][keep]`` (vertices merged by ``remap``, the faces that
+        lost a side dropped), as :meth:`of` would number them, without sorting them
+        again: only the few edges at merged vertices get new ends; they are merged with
+        the edges they now coincide with, and the used edges renumbered in order."""
+        eid = self.eid.reshape(-1, 3)[keep].reshape(-1)
+        used = np.bincount(eid, minlength=len(self.ends)) > 0
+        moved = used & (remap[self.ends] != self.ends).any(axis=1)
+        stay = np.flatnonzero(used & ~moved)
+        stay_key = self.ends[stay, 0] * np.int64(n) + self.ends[stay, 1]  # ascending
+        m_ends = np.sort(remap[self.ends[moved]], axis=1)
+        m_key, m_inverse = np.unique(m_ends[:, 0] * np.int64(n) + m_ends[:, 1],
+                                     return_inverse=True)  # fmt: skip
+        at = np.minimum(np.searchsorted(stay_key, m_key), max(len(stay_key) - 1, 0))
+        known = stay_key[at] == m_key if len(stay_key) else np.zeros(len(m_key), dtype=bool)
+        added = m_key[~known]  # sorted: new edges between stay_key's
+        new_id = np.full(len(self.ends), -1, dtype=np.int64)
+        new_id[stay] = np.arange(len(stay)) + np.searchsorted(added, stay_key)
+        m_id = np.empty(len(m_key), dtype=np.int64)
+        m_id[known] = new_id[stay[at[known]]]
+        m_id[~known] = np.arange(len(added)) + np.searchsorted(stay_key, added)
+        new_id[np.flatnonzero(moved)] = m_id[m_inverse.reshape(-1)]
+        ends = np.empty((len(stay) + len(added), 2), dtype=np.int64)
+        ends[new_id[stay]] = self.ends[stay]
+        ends[m_id[~known], 0], ends[m_id[~known], 1] = added // n, added % n
+        eid = new_id[eid]
+        return _Edges(eid, ends, *_pairs(eid, np.bincount(eid, minlength=len(ends))))
+
+    def components(self) -> np.ndarray:
+        """Edge-connected component of each face (faces sharing an edge, however many
+        use it): each half-edge's face linked to the face of its edge's first half-edge,
+        labelled by scipy's graph search (linear; the hooking of
+        :func:`repair.topology.connected_labels` takes many rounds on a scan's long
+        surface)."""
+        from scipy.sparse import coo_matrix
+        from scipy.sparse.csgraph import connected_components
+
+        m = len(self.eid) // 3
+        idx = np.arange(len(self.eid))
+        first = np.zeros(len(self.ends), dtype=np.int64)
+        first[self.eid[::-1]] = idx[::-1]  # the last write wins: the smallest index
+        graph = coo_matrix((np.ones(len(idx), dtype=np.int8), (idx // 3, first[self.eid] // 3)),
+                           shape=(m, m))  # fmt: skip
+        return connected_components(graph, directed=False)[1].astype(np.int64)
 
 
 def _pairs(eid: np.ndarray, cnt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -130,6 +182,24 @@ def _pairs(eid: np.ndarray, cnt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     last[eid] = idx
     two = np.flatnonzero(cnt == 2)
     return first[two], last[two]
+
+
+def _dots(n: np.ndarray, e: _Edges) -> np.ndarray:
+    """Cosine of the dihedral angle of each paired edge (``n``: the faces' unit normals),
+    the same bits as :func:`_dihedrals` takes the arccos of."""
+    return np.einsum("ij,ij->i", n[e.h1 // 3], n[e.h2 // 3])
+
+
+def _sharper(dot: np.ndarray, angle: float, below: bool = False) -> np.ndarray:
+    """Mask of the dihedral angles ``arccos(dot)`` above ``angle`` (``below``: under it),
+    exactly as that arccos says, taken only where ``dot`` is within 1e-9 of the
+    threshold's cosine (elsewhere the cosine alone decides)."""
+    c = np.cos(angle)
+    out = dot > c + 1e-9 if below else dot < c - 1e-9
+    near = np.flatnonzero(np.abs(dot - c) <= 1e-9)
+    theta = np.arccos(np.clip(dot[near], -1.0, 1.0))
+    out[near] = theta < angle if below else theta > angle
+    return out
 
 
 def _dihedrals(
@@ -163,18 +233,21 @@ def looks_like_scan(vertices: np.ndarray, faces: np.ndarray, eps: float) -> str:
     v, f = np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64)
     if len(f) < SCAN_MIN_FACES:
         return ""
-    return _scan_signs(v, f, _Edges.of(f), eps, *_normals(v, f))
+    e = _Edges.of(f)
+    normals, area = _normals(v, f)
+    return _scan_signs(f, e, eps, _dots(normals, e), area, e.components())
 
 
 def _scan_signs(
-    v: np.ndarray, f: np.ndarray, e: _Edges, eps: float, n: np.ndarray, area: np.ndarray
+    f: np.ndarray, e: _Edges, eps: float, dot: np.ndarray, area: np.ndarray, comp: np.ndarray
 ) -> str:
-    dihedral = _dihedrals(v, f, e.h1, e.h2, n)
-    sharp = np.count_nonzero(dihedral > np.radians(60.0)) / max(len(e.h1), 1)
-    flat = np.count_nonzero(dihedral < 1e-4) / max(len(e.h1), 1)
+    """The signs of :func:`looks_like_scan`, from the paired edges' dihedral cosines
+    ``dot`` and the faces' ``area`` and edge-connected component ``comp``."""
+    paired = max(len(e.h1), 1)
+    sharp = np.count_nonzero(_sharper(dot, np.radians(60.0))) / paired
+    flat = np.count_nonzero(_sharper(dot, 1e-4, below=True)) / paired
     if sharp > SCAN_MAX_SHARP or flat > SCAN_MAX_FLAT:
         return ""
-    comp = edge_components(f, e.eid)
     specks = int(np.count_nonzero(np.bincount(comp, weights=area) < SPECK_AREA * eps**2))
     # Boundary loops: the connected pieces of the boundary edges.
     b = e.ends[np.bincount(e.eid, minlength=len(e.ends)) == 1]
@@ -197,15 +270,16 @@ def _adjacency(n: int, ends: np.ndarray):
 
 
 def _collapse(
-    v: np.ndarray, f: np.ndarray, e: _Edges, area: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, int]:
+    v: np.ndarray, e: _Edges, area: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """One round of near-degenerate edge collapses: an independent set of zero and skinny
-    edges (each the shortest candidate at both its ends) passing the link condition.
-    ``area``: of each face (mm²)."""
+    edges (each the shortest candidate at both its ends) passing the link condition, as
+    the vertices kept ``a`` and those merged into them ``b``. ``area``: of each face
+    (mm²)."""
     n = len(v)
     used = np.bincount(e.eid, minlength=len(e.ends)) > 0
     ends = e.ends
-    length = np.where(used, np.linalg.norm(v[ends[:, 0]] - v[ends[:, 1]], axis=1), np.inf)
+    length = np.where(used, _lengths(v, ends), np.inf)
     live = np.where(used, length, 0.0)
     vert_sum = np.bincount(ends.reshape(-1), weights=np.repeat(live, 2), minlength=n)
     vert_cnt = np.maximum(np.bincount(ends[used].reshape(-1), minlength=n), 1)
@@ -220,30 +294,67 @@ def _collapse(
     skinny[e.eid[small_angle.reshape(-1)]] = True
     mean = live.sum() / max(int(np.count_nonzero(used)), 1)
     c = np.flatnonzero((length < 0.1 * mean) | ((length < 0.25 * local) & skinny))
+    none = np.zeros(0, dtype=np.int64)
     if len(c) == 0:
-        return v, f, 0
+        return none, none
     best = np.full(n, np.inf)
     np.minimum.at(best, ends[c, 0], length[c])
     np.minimum.at(best, ends[c, 1], length[c])
     c = c[(best[ends[c, 0]] == length[c]) & (best[ends[c, 1]] == length[c])]
     # Link condition: the ends share exactly the vertices opposite the edge (1 or 2).
-    adj = _adjacency(n, ends)
     a, b = ends[c, 0], ends[c, 1]
+    at_ab = np.zeros(n, dtype=bool)
+    at_ab[a], at_ab[b] = True, True
+    adj = _adjacency(n, ends[at_ab[ends].any(axis=1)])  # the rows of a and b only
     common = np.asarray(adj[a].multiply(adj[b]).sum(axis=1)).ravel()
     ok = common == np.bincount(e.eid, minlength=len(ends))[c]
     a, b = a[ok], b[ok]
     hit = np.bincount(np.r_[a, b], minlength=n)  # ties of length: a vertex in two edges
     single = (hit[a] == 1) & (hit[b] == 1)
-    a, b = a[single], b[single]
-    if len(a) == 0:
-        return v, f, 0
-    v = v.copy()
-    v[a] = 0.5 * (v[a] + v[b])
-    remap = np.arange(n)
-    remap[b] = a
-    f = remap[f]
-    keep = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0])
-    return v, f[keep], len(a)
+    return a[single], b[single]
+
+
+def _lengths(v: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """Length of each edge (the bits of ``np.linalg.norm(..., axis=1)``)."""
+    d = v[ends[:, 0]] - v[ends[:, 1]]
+    return np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2])
+
+
+@dataclass
+class _Surface:
+    """The mesh being cleaned with what is kept up to date through the steps: its edges,
+    the faces' unit normals and areas (re-taken only for the faces whose corners moved)."""
+
+    v: np.ndarray
+    f: np.ndarray
+    e: _Edges
+    normals: np.ndarray
+    area: np.ndarray
+
+    def keep(self, keep: np.ndarray) -> None:
+        """Only the faces ``keep`` (bool per face) stay."""
+        self.f, self.e = self.f[keep], self.e.subset(keep)
+        self.normals, self.area = self.normals[keep], self.area[keep]
+
+    def moved(self, vertices: np.ndarray) -> None:
+        """The faces at ``vertices`` (bool per vertex) have new corners: new normals."""
+        t = np.flatnonzero(vertices[self.f].any(axis=1))
+        self.normals[t], self.area[t] = _normals(self.v, self.f[t])
+
+    def merge(self, a: np.ndarray, b: np.ndarray) -> None:
+        """Collapse the edges ``a[i] b[i]`` onto their midpoints (at ``a``)."""
+        n = len(self.v)
+        self.v = self.v.copy()
+        self.v[a] = 0.5 * (self.v[a] + self.v[b])
+        remap = np.arange(n)
+        remap[b] = a
+        f = remap[self.f]
+        keep = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0])
+        self.e = self.e.collapsed(n, remap, keep)
+        self.f, self.normals, self.area = f[keep], self.normals[keep], self.area[keep]
+        at_a = np.zeros(n, dtype=bool)
+        at_a[a] = True
+        self.moved(at_a)
 
 
 def _vertex_theta(n: int, f: np.ndarray, e: _Edges, faces: np.ndarray, pairs: np.ndarray,
@@ -259,29 +370,29 @@ def _vertex_theta(n: int, f: np.ndarray, e: _Edges, faces: np.ndarray, pairs: np
     return out
 
 
-def _relax_spikes(
-    v: np.ndarray, f: np.ndarray, e: _Edges, n_faces: np.ndarray | None, rounds: int = 20
-):
+def _relax_spikes(v: np.ndarray, f: np.ndarray, e: _Edges, dot: np.ndarray, rounds: int = 20):
     """Eq. 2 on the spiked vertices, ``rounds`` times, the sharpest first: each round moves
     the spiked vertices whose umbrella vector (relative to their mean edge length) is the
     largest among their neighbours, so a spike's tip goes down before its base rises.
-    Only the faces round the first spiked vertices are looked at again. Returns the new
-    vertices, how many moved and the mask of those still spiked above ``SPIKE_B``."""
+    ``dot``: the paired edges' dihedral cosines. Only the faces round the first spiked
+    vertices are looked at again. Returns the new vertices, the mask of those moved and
+    the mask of those still spiked above ``SPIKE_B``."""
     n = len(v)
-    every = np.arange(len(e.h1))
-    angle = _dihedrals(v, f, e.h1, e.h2, n_faces)
-    theta = _vertex_theta(n, f, e, np.arange(len(f)), every, angle)
-    near = theta > SPIKE_A
+    # θ(v) > A: a face round v has an edge sharper than A.
+    sharp_edge = np.zeros(len(e.ends), dtype=bool)
+    sharp_edge[e.eid[e.h1[_sharper(dot, SPIKE_A)]]] = True
+    near = np.zeros(n, dtype=bool)
+    near[f[sharp_edge[e.eid.reshape(-1, 3)].any(axis=1)].reshape(-1)] = True
     if not near.any():
-        return v, 0, np.zeros(n, dtype=bool)
-    adj = _adjacency(n, e.ends)
+        return v, near, near
+    local_e = e.ends[near[e.ends].any(axis=1)]
+    adj = _adjacency(n, local_e)  # complete rows for the vertices near a spike
     deg = np.maximum(np.asarray(adj.sum(axis=1)).ravel(), 1)
     local_f = near[f].any(axis=1)
     pairs = np.flatnonzero(local_f[e.h1 // 3] | local_f[e.h2 // 3])
     local_f = np.flatnonzero(local_f)
-    local_e = e.ends[near[e.ends].any(axis=1)]
-    edge_len = np.linalg.norm(v[e.ends[:, 0]] - v[e.ends[:, 1]], axis=1)
-    mean_len = np.bincount(e.ends.reshape(-1), weights=np.repeat(edge_len, 2), minlength=n)
+    edge_len = _lengths(v, local_e)
+    mean_len = np.bincount(local_e.reshape(-1), weights=np.repeat(edge_len, 2), minlength=n)
     mean_len = np.maximum(mean_len / deg, 1e-300)
     moved = np.zeros(n, dtype=bool)
     v = v.copy()
@@ -301,7 +412,7 @@ def _relax_spikes(
         moved[s[first]] = True
     angle = _dihedrals(v, f, e.h1[pairs], e.h2[pairs])
     theta = _vertex_theta(n, f, e, local_f, pairs, angle)
-    return v, int(np.count_nonzero(moved)), theta > SPIKE_B
+    return v, moved, theta > SPIKE_B
 
 
 def _clean_boundaries(
@@ -312,29 +423,32 @@ def _clean_boundaries(
     removed, so the edge ids stay valid: counts are re-taken per round (no sort)."""
     n = len(sharp_vertex)
     alive = np.ones(len(f), dtype=bool)
-    n_edges = len(e.ends)
+    use = np.bincount(e.eid, minlength=len(e.ends))  # kept up to date as faces go
+    face_count = np.bincount(f.reshape(-1), minlength=n)
     for _ in range(rounds):
-        live_he = np.repeat(alive, 3)
-        use = np.bincount(e.eid[live_he], minlength=n_edges)
         bnd = use == 1
         if not bnd.any():
             break
         b_count = np.bincount(e.ends[bnd].reshape(-1), minlength=n)
-        face_count = np.bincount(f[alive].reshape(-1), minlength=n)
         bad = (b_count > 0) & ((face_count == 1) | (b_count > 2) | sharp_vertex)
-        drop = alive & bad[f].any(axis=1)
-        if not drop.any():
+        drop = np.flatnonzero(alive & bad[f].any(axis=1))
+        if len(drop) == 0:
             break
-        alive &= ~drop
+        alive[drop] = False
+        use -= np.bincount(e.eid.reshape(-1, 3)[drop].reshape(-1), minlength=len(use))
+        face_count -= np.bincount(f[drop].reshape(-1), minlength=n)
     return alive, int(np.count_nonzero(~alive))
 
 
-def _specks(f: np.ndarray, e: _Edges, area: np.ndarray, eps: float) -> tuple[np.ndarray, float]:
+def _specks(
+    e: _Edges, area: np.ndarray, eps: float, comp: np.ndarray | None = None
+) -> tuple[np.ndarray, float]:
     """Sec. 3.2: mask of the faces (of ``area`` mm² each) of components under
-    ``SPECK_AREA * eps**2`` mm² (the largest component always stays), and their area."""
+    ``SPECK_AREA * eps**2`` mm² (the largest component always stays), and their area.
+    ``comp``: the faces' edge-connected components, if known."""
     if len(area) == 0:
         return np.zeros(0, dtype=bool), 0.0
-    comp = edge_components(f, e.eid)
+    comp = e.components() if comp is None else comp
     comp_area = np.bincount(comp, weights=area)
     speck = comp_area < SPECK_AREA * eps**2
     speck[np.argmax(comp_area)] = False
@@ -366,35 +480,43 @@ def scan_cleanup(
         return v, f, None
     e = _Edges.of(f, topology)
     normals, area = _normals(v, f)
-    why = "asked (clean = scan)" if mode == "scan" else _scan_signs(v, f, e, eps, normals, area)
+    comp = topology.shells if topology is not None and topology.of(f) else e.components()
+    if mode == "scan":
+        why = "asked (clean = scan)"
+    else:
+        why = _scan_signs(f, e, eps, _dots(normals, e), area, comp)
     if not why:
         return v, f, None
-    return _clean(v, f, e, eps, why, normals, area)
+    return _clean(v, f, e, eps, why, normals, area, comp)
 
 
 def _clean(
     v: np.ndarray, f: np.ndarray, e: _Edges, eps: float, why: str,
     normals: np.ndarray | None = None, area: np.ndarray | None = None,
+    comp: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, ScanCleaned]:
     if len(f) == 0:
         return v, f, ScanCleaned(why)
     if normals is None or area is None:
         normals, area = _normals(v, f)
-    speck, speck_area = _specks(f, e, area, eps)
-    n_specks = int(np.count_nonzero(speck))
-    f, e, normals = f[~speck], e.subset(~speck), normals[~speck]
-    v, f, collapsed = _collapse(v, f, e, area[~speck])
-    if collapsed:
-        e, normals = _Edges.of(f), None
-    v, relaxed, spiked = _relax_spikes(v, f, e, normals)
+    s = _Surface(v, f, e, normals, area)
+    speck, speck_area = _specks(e, area, eps, comp)
+    s.keep(~speck)
+    a, b = _collapse(s.v, s.e, s.area)
+    if len(a):
+        s.merge(a, b)
+    s.v, moved, spiked = _relax_spikes(s.v, s.f, s.e, _dots(s.normals, s.e))
+    s.moved(moved)
     # Sec. 3.8: what relaxing could not flatten goes (its hole is filled later).
-    spike = spiked[f].any(axis=1)
-    f, e = f[~spike], e.subset(~spike)
-    sharp = _vertex_max(len(v), e.ends[e.eid[e.h1]], _dihedrals(v, f, e.h1, e.h2))
-    alive, boundary_removed = _clean_boundaries(f, e, sharp > BOUNDARY_DIHEDRAL)
-    f, e = f[alive], e.subset(alive)
-    more, more_area = _specks(f, e, _normals(v, f)[1], eps)
-    f = f[~more]
-    return v, f, ScanCleaned(why, collapsed, relaxed, int(np.count_nonzero(spike)),
-                             boundary_removed, n_specks + int(np.count_nonzero(more)),
-                             speck_area + more_area)  # fmt: skip
+    spike = spiked[s.f].any(axis=1)
+    s.keep(~spike)
+    sharp = np.zeros(len(s.v), dtype=bool)
+    sharp[s.e.ends[s.e.eid[s.e.h1[_sharper(_dots(s.normals, s.e), BOUNDARY_DIHEDRAL)]]]] = True
+    alive, boundary_removed = _clean_boundaries(s.f, s.e, sharp)
+    s.keep(alive)
+    more, more_area = _specks(s.e, s.area, eps)
+    return s.v, s.f[~more], ScanCleaned(
+        why, len(a), int(np.count_nonzero(moved)), int(np.count_nonzero(spike)),
+        boundary_removed, int(np.count_nonzero(speck)) + int(np.count_nonzero(more)),
+        speck_area + more_area,
+    )
