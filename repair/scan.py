@@ -28,7 +28,7 @@ Units are mm. Arrays: vertices float64 (n, 3), faces int64 (m, 3).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -68,6 +68,9 @@ class ScanCleaned:
     boundary_faces_removed: int = 0
     components_removed: int = 0
     component_area_removed: float = 0.0
+    #: The :class:`repair.topology.EdgeTopology` of the cleaned faces (not reported):
+    #: the next stages need not sort their edges again.
+    topology: EdgeTopology | None = field(default=None, repr=False, compare=False)
 
     def to_dict(self) -> dict[str, float | int | str]:
         return {
@@ -514,9 +517,35 @@ def _clean(
     sharp[s.e.ends[s.e.eid[s.e.h1[_sharper(_dots(s.normals, s.e), BOUNDARY_DIHEDRAL)]]]] = True
     alive, boundary_removed = _clean_boundaries(s.f, s.e, sharp)
     s.keep(alive)
-    more, more_area = _specks(s.e, s.area, eps)
-    return s.v, s.f[~more], ScanCleaned(
+    comp = s.e.components()
+    more, more_area = _specks(s.e, s.area, eps, comp)
+    f = s.f[~more]
+    return s.v, f, ScanCleaned(
         why, len(a), int(np.count_nonzero(moved)), int(np.count_nonzero(spike)),
         boundary_removed, int(np.count_nonzero(speck)) + int(np.count_nonzero(more)),
-        speck_area + more_area,
+        speck_area + more_area, _topology(f, s.e.subset(~more), comp[~more]),
     )
+
+
+def _topology(f: np.ndarray, e: _Edges, comp: np.ndarray) -> EdgeTopology:
+    """The :func:`repair.topology.edge_topology` of ``f`` from its edges ``e`` (ids in
+    lexicographic order, some unused) and its faces' components ``comp``: the used edges
+    renumbered in order, the components in order of their first face."""
+    counts = np.bincount(e.eid, minlength=len(e.ends))
+    used = counts > 0
+    eid = (np.cumsum(used) - 1)[e.eid]
+    counts = counts[used]
+    if len(comp):
+        first = np.full(int(comp.max()) + 1, len(comp))
+        first[comp[::-1]] = np.arange(len(comp))[::-1]  # the last write wins: the first face
+        rank = np.zeros(len(first), dtype=np.int64)
+        rank[np.argsort(first)] = np.arange(len(first))
+        comp = rank[comp]
+    a, b = f.reshape(-1), f[:, [1, 2, 0]].reshape(-1)
+    forward = np.bincount(eid, weights=a < b, minlength=len(counts))
+    return EdgeTopology(
+        f, eid, counts, comp,
+        boundary=int(np.count_nonzero(counts == 1)),
+        nonmanifold=int(np.count_nonzero(counts > 2)),
+        misoriented=int(np.count_nonzero((counts == 2) & (forward != 1))),
+    )  # fmt: skip
