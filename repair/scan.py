@@ -88,8 +88,8 @@ def _normals(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Unit normals (zero for degenerate faces) and areas of the faces. Column by column:
     the products and sums of ``np.cross`` and ``np.linalg.norm``, in their order (the
     same bits), without their (m, 3, 3) gathers."""
-    p0 = v[f[:, 0]]
-    u, w = v[f[:, 1]] - p0, v[f[:, 2]] - p0
+    p0 = np.take(v, f[:, 0], axis=0)
+    u, w = np.take(v, f[:, 1], axis=0) - p0, np.take(v, f[:, 2], axis=0) - p0
     n = np.empty_like(u)
     n[:, 0] = u[:, 1] * w[:, 2] - u[:, 2] * w[:, 1]
     n[:, 1] = u[:, 2] * w[:, 0] - u[:, 0] * w[:, 2]
@@ -190,7 +190,8 @@ def _pairs(eid: np.ndarray, cnt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _dots(n: np.ndarray, e: _Edges) -> np.ndarray:
     """Cosine of the dihedral angle of each paired edge (``n``: the faces' unit normals),
     the same bits as :func:`_dihedrals` takes the arccos of."""
-    return np.einsum("ij,ij->i", n[e.h1 // 3], n[e.h2 // 3])
+    # np.take: a row gather several times faster than fancy indexing, the same values.
+    return np.einsum("ij,ij->i", np.take(n, e.h1 // 3, axis=0), np.take(n, e.h2 // 3, axis=0))
 
 
 def _sharper(dot: np.ndarray, angle: float, below: bool = False) -> np.ndarray:
@@ -288,15 +289,19 @@ def _collapse(
     vert_cnt = np.maximum(np.bincount(ends[used].reshape(-1), minlength=n), 1)
     local = 0.5 * (vert_sum[ends[:, 0]] / vert_cnt[ends[:, 0]]
                    + vert_sum[ends[:, 1]] / vert_cnt[ends[:, 1]])  # fmt: skip
-    # Skinny: short against its neighbourhood with a small angle opposite it.
-    e_len = length[e.eid].reshape(-1, 3)  # edge k runs corner k -> k+1
+    # Skinny: short against its neighbourhood with a small angle opposite it (the angle
+    # looked at only in the faces of the short edges).
+    short = length < 0.25 * local
+    eid = e.eid.reshape(-1, 3)  # edge k runs corner k -> k+1
+    at_short = np.flatnonzero(short[eid].any(axis=1))
+    e_len = length[eid[at_short]]
     # Angle opposite edge k: sin = 2 area / (product of the other two sides).
     other = e_len[:, [1, 2, 0]] * e_len[:, [2, 0, 1]]
-    small_angle = 2 * area[:, None] / np.maximum(other, 1e-300) < np.sin(np.radians(10.0))
+    small_angle = 2 * area[at_short, None] / np.maximum(other, 1e-300) < np.sin(np.radians(10.0))
     skinny = np.zeros(len(ends), dtype=bool)
-    skinny[e.eid[small_angle.reshape(-1)]] = True
+    skinny[eid[at_short][small_angle]] = True
     mean = live.sum() / max(int(np.count_nonzero(used)), 1)
-    c = np.flatnonzero((length < 0.1 * mean) | ((length < 0.25 * local) & skinny))
+    c = np.flatnonzero((length < 0.1 * mean) | (short & skinny))
     none = np.zeros(0, dtype=np.int64)
     if len(c) == 0:
         return none, none
@@ -319,7 +324,7 @@ def _collapse(
 
 def _lengths(v: np.ndarray, ends: np.ndarray) -> np.ndarray:
     """Length of each edge (the bits of ``np.linalg.norm(..., axis=1)``)."""
-    d = v[ends[:, 0]] - v[ends[:, 1]]
+    d = np.take(v, ends[:, 0], axis=0) - np.take(v, ends[:, 1], axis=0)
     return np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2])
 
 
