@@ -32,11 +32,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from repair.topology import (
-    EdgeTopology,
-    connected_labels,
-    edge_ids,
-)
+from repair.scan_edges import ScanEdges, edge_topology_of
+from repair.topology import EdgeTopology, connected_labels
 
 __all__ = ["SPECK_AREA", "ScanCleaned", "clean_scan", "looks_like_scan", "scan_cleanup"]
 
@@ -99,95 +96,7 @@ def _normals(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return n, 0.5 * length
 
 
-@dataclass(frozen=True)
-class _Edges:
-    """Edge structure of a face list, computed once (one sort): each half-edge's edge id
-    ``eid`` (3m,), the edges' ends ``ends`` (k, 2), ``lo < hi``, numbered in that
-    lexicographic order, and the edges of exactly two faces as their half-edges ``h1``,
-    ``h2``."""
-
-    eid: np.ndarray
-    ends: np.ndarray
-    h1: np.ndarray
-    h2: np.ndarray
-
-    @staticmethod
-    def of(f: np.ndarray, topology: EdgeTopology | None = None) -> _Edges:
-        if topology is not None and topology.of(f):
-            eid, cnt = topology.eid, topology.counts
-        else:
-            eid, cnt = edge_ids(f)
-        a, b = f.reshape(-1), f[:, [1, 2, 0]].reshape(-1)
-        ends = np.empty((len(cnt), 2), dtype=np.int64)
-        ends[eid, 0] = np.minimum(a, b)
-        ends[eid, 1] = np.maximum(a, b)
-        return _Edges(eid, ends, *_pairs(eid, cnt))
-
-    def subset(self, keep: np.ndarray) -> _Edges:
-        """The edges of the faces ``keep`` (bool per face) only, faces renumbered in
-        order: edge ids stay (some edges now unused), pairs are taken again."""
-        eid = self.eid.reshape(-1, 3)[keep].reshape(-1)
-        return _Edges(eid, self.ends, *_pairs(eid, np.bincount(eid, minlength=len(self.ends))))
-
-    def collapsed(self, n: int, remap: np.ndarray, keep: np.ndarray) -> _Edges:
-        """The edges of ``remap[f][keep]`` (vertices merged by ``remap``, the faces that
-        lost a side dropped), as :meth:`of` would number them, without sorting them
-        again: only the few edges at merged vertices get new ends; they are merged with
-        the edges they now coincide with, and the used edges renumbered in order."""
-        eid = self.eid.reshape(-1, 3)[keep].reshape(-1)
-        used = np.bincount(eid, minlength=len(self.ends)) > 0
-        moved = used & (remap[self.ends] != self.ends).any(axis=1)
-        stay = np.flatnonzero(used & ~moved)
-        stay_key = self.ends[stay, 0] * np.int64(n) + self.ends[stay, 1]  # ascending
-        m_ends = np.sort(remap[self.ends[moved]], axis=1)
-        m_key, m_inverse = np.unique(m_ends[:, 0] * np.int64(n) + m_ends[:, 1],
-                                     return_inverse=True)  # fmt: skip
-        at = np.minimum(np.searchsorted(stay_key, m_key), max(len(stay_key) - 1, 0))
-        known = stay_key[at] == m_key if len(stay_key) else np.zeros(len(m_key), dtype=bool)
-        added = m_key[~known]  # sorted: new edges between stay_key's
-        new_id = np.full(len(self.ends), -1, dtype=np.int64)
-        new_id[stay] = np.arange(len(stay)) + np.searchsorted(added, stay_key)
-        m_id = np.empty(len(m_key), dtype=np.int64)
-        m_id[known] = new_id[stay[at[known]]]
-        m_id[~known] = np.arange(len(added)) + np.searchsorted(stay_key, added)
-        new_id[np.flatnonzero(moved)] = m_id[m_inverse.reshape(-1)]
-        ends = np.empty((len(stay) + len(added), 2), dtype=np.int64)
-        ends[new_id[stay]] = self.ends[stay]
-        ends[m_id[~known], 0], ends[m_id[~known], 1] = added // n, added % n
-        eid = new_id[eid]
-        return _Edges(eid, ends, *_pairs(eid, np.bincount(eid, minlength=len(ends))))
-
-    def components(self) -> np.ndarray:
-        """Edge-connected component of each face (faces sharing an edge, however many
-        use it): each half-edge's face linked to the face of its edge's first half-edge,
-        labelled by scipy's graph search (linear; the hooking of
-        :func:`repair.topology.connected_labels` takes many rounds on a scan's long
-        surface)."""
-        from scipy.sparse import coo_matrix
-        from scipy.sparse.csgraph import connected_components
-
-        m = len(self.eid) // 3
-        idx = np.arange(len(self.eid))
-        first = np.zeros(len(self.ends), dtype=np.int64)
-        first[self.eid[::-1]] = idx[::-1]  # the last write wins: the smallest index
-        graph = coo_matrix((np.ones(len(idx), dtype=np.int8), (idx // 3, first[self.eid] // 3)),
-                           shape=(m, m))  # fmt: skip
-        return connected_components(graph, directed=False)[1].astype(np.int64)
-
-
-def _pairs(eid: np.ndarray, cnt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The two half-edges of each edge of exactly two faces, without a sort: the first
-    and the last half-edge of each edge, by two scatters."""
-    idx = np.arange(len(eid))
-    first = np.empty(len(cnt), dtype=np.int64)
-    first[eid[::-1]] = idx[::-1]  # the last write wins: the smallest index
-    last = np.empty(len(cnt), dtype=np.int64)
-    last[eid] = idx
-    two = np.flatnonzero(cnt == 2)
-    return first[two], last[two]
-
-
-def _dots(n: np.ndarray, e: _Edges) -> np.ndarray:
+def _dots(n: np.ndarray, e: ScanEdges) -> np.ndarray:
     """Cosine of the dihedral angle of each paired edge (``n``: the faces' unit normals),
     the same bits as :func:`_dihedrals` takes the arccos of."""
     # np.take: a row gather several times faster than fancy indexing, the same values.
@@ -237,13 +146,13 @@ def looks_like_scan(vertices: np.ndarray, faces: np.ndarray, eps: float) -> str:
     v, f = np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64)
     if len(f) < SCAN_MIN_FACES:
         return ""
-    e = _Edges.of(f)
+    e = ScanEdges.of(f)
     normals, area = _normals(v, f)
     return _scan_signs(f, e, eps, _dots(normals, e), area, e.components())
 
 
 def _scan_signs(
-    f: np.ndarray, e: _Edges, eps: float, dot: np.ndarray, area: np.ndarray, comp: np.ndarray
+    f: np.ndarray, e: ScanEdges, eps: float, dot: np.ndarray, area: np.ndarray, comp: np.ndarray
 ) -> str:
     """The signs of :func:`looks_like_scan`, from the paired edges' dihedral cosines
     ``dot`` and the faces' ``area`` and edge-connected component ``comp``."""
@@ -274,7 +183,7 @@ def _adjacency(n: int, ends: np.ndarray):
 
 
 def _collapse(
-    v: np.ndarray, e: _Edges, area: np.ndarray
+    v: np.ndarray, e: ScanEdges, area: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """One round of near-degenerate edge collapses: an independent set of zero and skinny
     edges (each the shortest candidate at both its ends) passing the link condition, as
@@ -335,7 +244,7 @@ class _Surface:
 
     v: np.ndarray
     f: np.ndarray
-    e: _Edges
+    e: ScanEdges
     normals: np.ndarray
     area: np.ndarray
 
@@ -365,7 +274,7 @@ class _Surface:
         self.moved(at_a)
 
 
-def _vertex_theta(n: int, f: np.ndarray, e: _Edges, faces: np.ndarray, pairs: np.ndarray,
+def _vertex_theta(n: int, f: np.ndarray, e: ScanEdges, faces: np.ndarray, pairs: np.ndarray,
                   angle: np.ndarray) -> np.ndarray:
     """θ(v): the largest dihedral angle of the edges of the faces round each vertex (its
     star and its link: a tall spike's sharpest edges are round its base), from the
@@ -378,7 +287,7 @@ def _vertex_theta(n: int, f: np.ndarray, e: _Edges, faces: np.ndarray, pairs: np
     return out
 
 
-def _relax_spikes(v: np.ndarray, f: np.ndarray, e: _Edges, dot: np.ndarray, rounds: int = 20):
+def _relax_spikes(v: np.ndarray, f: np.ndarray, e: ScanEdges, dot: np.ndarray, rounds: int = 20):
     """Eq. 2 on the spiked vertices, ``rounds`` times, the sharpest first: each round moves
     the spiked vertices whose umbrella vector (relative to their mean edge length) is the
     largest among their neighbours, so a spike's tip goes down before its base rises.
@@ -424,7 +333,7 @@ def _relax_spikes(v: np.ndarray, f: np.ndarray, e: _Edges, dot: np.ndarray, roun
 
 
 def _clean_boundaries(
-    f: np.ndarray, e: _Edges, sharp_vertex: np.ndarray, rounds: int = 30
+    f: np.ndarray, e: ScanEdges, sharp_vertex: np.ndarray, rounds: int = 30
 ) -> tuple[np.ndarray, int]:
     """Sec. 3.3: the faces to keep (bool) once those at bad boundary vertices are
     dropped, round after round until none is left, and how many went. Faces are only
@@ -449,7 +358,7 @@ def _clean_boundaries(
 
 
 def _specks(
-    e: _Edges, area: np.ndarray, eps: float, comp: np.ndarray | None = None
+    e: ScanEdges, area: np.ndarray, eps: float, comp: np.ndarray | None = None
 ) -> tuple[np.ndarray, float]:
     """Sec. 3.2: mask of the faces (of ``area`` mm² each) of components under
     ``SPECK_AREA * eps**2`` mm² (the largest component always stays), and their area.
@@ -472,7 +381,7 @@ def clean_scan(
     vertex indices) and what was done."""
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
-    return _clean(v, f, _Edges.of(f), eps, why)
+    return _clean(v, f, ScanEdges.of(f), eps, why)
 
 
 def scan_cleanup(
@@ -486,7 +395,7 @@ def scan_cleanup(
     f = np.asarray(faces, dtype=np.int64)
     if mode == "none" or len(f) == 0 or (mode == "auto" and len(f) < SCAN_MIN_FACES):
         return v, f, None
-    e = _Edges.of(f, topology)
+    e = ScanEdges.of(f, topology)
     normals, area = _normals(v, f)
     comp = topology.shells if topology is not None and topology.of(f) else e.components()
     if mode == "scan":
@@ -499,7 +408,7 @@ def scan_cleanup(
 
 
 def _clean(
-    v: np.ndarray, f: np.ndarray, e: _Edges, eps: float, why: str,
+    v: np.ndarray, f: np.ndarray, e: ScanEdges, eps: float, why: str,
     normals: np.ndarray | None = None, area: np.ndarray | None = None,
     comp: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, ScanCleaned]:
@@ -528,29 +437,5 @@ def _clean(
     return s.v, f, ScanCleaned(
         why, len(a), int(np.count_nonzero(moved)), int(np.count_nonzero(spike)),
         boundary_removed, int(np.count_nonzero(speck)) + int(np.count_nonzero(more)),
-        speck_area + more_area, _topology(f, s.e.subset(~more), comp[~more]),
+        speck_area + more_area, edge_topology_of(f, s.e.subset(~more), comp[~more]),
     )
-
-
-def _topology(f: np.ndarray, e: _Edges, comp: np.ndarray) -> EdgeTopology:
-    """The :func:`repair.topology.edge_topology` of ``f`` from its edges ``e`` (ids in
-    lexicographic order, some unused) and its faces' components ``comp``: the used edges
-    renumbered in order, the components in order of their first face."""
-    counts = np.bincount(e.eid, minlength=len(e.ends))
-    used = counts > 0
-    eid = (np.cumsum(used) - 1)[e.eid]
-    counts = counts[used]
-    if len(comp):
-        first = np.full(int(comp.max()) + 1, len(comp))
-        first[comp[::-1]] = np.arange(len(comp))[::-1]  # the last write wins: the first face
-        rank = np.zeros(len(first), dtype=np.int64)
-        rank[np.argsort(first)] = np.arange(len(first))
-        comp = rank[comp]
-    a, b = f.reshape(-1), f[:, [1, 2, 0]].reshape(-1)
-    forward = np.bincount(eid, weights=a < b, minlength=len(counts))
-    return EdgeTopology(
-        f, eid, counts, comp,
-        boundary=int(np.count_nonzero(counts == 1)),
-        nonmanifold=int(np.count_nonzero(counts > 2)),
-        misoriented=int(np.count_nonzero((counts == 2) & (forward != 1))),
-    )  # fmt: skip

@@ -132,15 +132,16 @@ def _with_short_edges(count: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
 def test_edges_kept_up_to_date_through_a_collapse_match_a_fresh_sort():
     """The cleanup renumbers only the edges at merged vertices and re-takes normals only
     where corners moved: the result must be what sorting the collapsed faces gives."""
-    from repair.scan import _collapse, _Edges, _normals, _Surface
+    from repair.scan import _collapse, _normals, _Surface
+    from repair.scan_edges import ScanEdges
 
     v, f = _with_short_edges(40, seed=7)
-    e = _Edges.of(f)
+    e = ScanEdges.of(f)
     surface = _Surface(v, f, e, *_normals(v, f))
     a, b = _collapse(surface.v, surface.e, surface.area)
     assert len(a) >= 30  # most planted short edges collapse
     surface.merge(a, b)
-    fresh = _Edges.of(surface.f)
+    fresh = ScanEdges.of(surface.f)
     for name in ("eid", "ends", "h1", "h2"):
         assert np.array_equal(getattr(surface.e, name), getattr(fresh, name)), name
     normals, area = _normals(surface.v, surface.f)
