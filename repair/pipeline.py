@@ -283,6 +283,8 @@ def _solidify(
     # One sort of the edges serves the next stages while they change no face.
     topology = edge_topology(cleaned.faces)
     work_v, work_f, scan = scan_cleanup(cleaned.vertices, cleaned.faces, eps, clean, topology)
+    if scan is not None and scan.topology is not None:
+        topology = scan.topology  # that of the cleaned scan's faces
     clock.lap("scan_cleanup", 0.21)
     stitched_f, stitched = stitch_cracks(work_v, work_f, STITCH_GAMMA * eps, topology)
     clock.lap("stitch", 0.22)

@@ -28,17 +28,12 @@ Units are mm. Arrays: vertices float64 (n, 3), faces int64 (m, 3).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from repair.topology import (
-    EdgeTopology,
-    connected_labels,
-    edge_components,
-    edge_ids,
-    half_edges,
-)
+from repair.scan_edges import ScanEdges, edge_topology_of
+from repair.topology import EdgeTopology, connected_labels
 
 __all__ = ["SPECK_AREA", "ScanCleaned", "clean_scan", "looks_like_scan", "scan_cleanup"]
 
@@ -70,6 +65,9 @@ class ScanCleaned:
     boundary_faces_removed: int = 0
     components_removed: int = 0
     component_area_removed: float = 0.0
+    #: The :class:`repair.topology.EdgeTopology` of the cleaned faces (not reported):
+    #: the next stages need not sort their edges again.
+    topology: EdgeTopology | None = field(default=None, repr=False, compare=False)
 
     def to_dict(self) -> dict[str, float | int | str]:
         return {
@@ -84,52 +82,37 @@ class ScanCleaned:
 
 
 def _normals(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Unit normals (zero for degenerate faces) and areas of the faces."""
-    p = v[f]
-    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    length = np.linalg.norm(n, axis=1)
-    return n / np.maximum(length, 1e-300)[:, None], 0.5 * length
+    """Unit normals (zero for degenerate faces) and areas of the faces. Column by column:
+    the products and sums of ``np.cross`` and ``np.linalg.norm``, in their order (the
+    same bits), without their (m, 3, 3) gathers."""
+    p0 = np.take(v, f[:, 0], axis=0)
+    u, w = np.take(v, f[:, 1], axis=0) - p0, np.take(v, f[:, 2], axis=0) - p0
+    n = np.empty_like(u)
+    n[:, 0] = u[:, 1] * w[:, 2] - u[:, 2] * w[:, 1]
+    n[:, 1] = u[:, 2] * w[:, 0] - u[:, 0] * w[:, 2]
+    n[:, 2] = u[:, 0] * w[:, 1] - u[:, 1] * w[:, 0]
+    length = np.sqrt(n[:, 0] * n[:, 0] + n[:, 1] * n[:, 1] + n[:, 2] * n[:, 2])
+    n /= np.maximum(length, 1e-300)[:, None]
+    return n, 0.5 * length
 
 
-@dataclass(frozen=True)
-class _Edges:
-    """Edge structure of a face list, computed once (one sort): each half-edge's edge id
-    ``eid`` (3m,), the edges' ends ``ends`` (k, 2), and the edges of exactly two faces as
-    their half-edges ``h1``, ``h2``."""
-
-    eid: np.ndarray
-    ends: np.ndarray
-    h1: np.ndarray
-    h2: np.ndarray
-
-    @staticmethod
-    def of(f: np.ndarray, topology: EdgeTopology | None = None) -> _Edges:
-        if topology is not None and topology.of(f):
-            eid, cnt = topology.eid, topology.counts
-        else:
-            eid, cnt = edge_ids(f)
-        he = half_edges(f)
-        ends = np.empty((len(cnt), 2), dtype=np.int64)
-        ends[eid] = np.sort(he, axis=1)
-        return _Edges(eid, ends, *_pairs(eid, cnt))
-
-    def subset(self, keep: np.ndarray) -> _Edges:
-        """The edges of the faces ``keep`` (bool per face) only, faces renumbered in
-        order: edge ids stay (some edges now unused), pairs are taken again."""
-        eid = self.eid.reshape(-1, 3)[keep].reshape(-1)
-        return _Edges(eid, self.ends, *_pairs(eid, np.bincount(eid, minlength=len(self.ends))))
+def _dots(n: np.ndarray, e: ScanEdges) -> np.ndarray:
+    """Cosine of the dihedral angle of each paired edge (``n``: the faces' unit normals),
+    the same bits as :func:`_dihedrals` takes the arccos of."""
+    # np.take: a row gather several times faster than fancy indexing, the same values.
+    return np.einsum("ij,ij->i", np.take(n, e.h1 // 3, axis=0), np.take(n, e.h2 // 3, axis=0))
 
 
-def _pairs(eid: np.ndarray, cnt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The two half-edges of each edge of exactly two faces, without a sort: the first
-    and the last half-edge of each edge, by two scatters."""
-    idx = np.arange(len(eid))
-    first = np.empty(len(cnt), dtype=np.int64)
-    first[eid[::-1]] = idx[::-1]  # the last write wins: the smallest index
-    last = np.empty(len(cnt), dtype=np.int64)
-    last[eid] = idx
-    two = np.flatnonzero(cnt == 2)
-    return first[two], last[two]
+def _sharper(dot: np.ndarray, angle: float, below: bool = False) -> np.ndarray:
+    """Mask of the dihedral angles ``arccos(dot)`` above ``angle`` (``below``: under it),
+    exactly as that arccos says, taken only where ``dot`` is within 1e-9 of the
+    threshold's cosine (elsewhere the cosine alone decides)."""
+    c = np.cos(angle)
+    out = dot > c + 1e-9 if below else dot < c - 1e-9
+    near = np.flatnonzero(np.abs(dot - c) <= 1e-9)
+    theta = np.arccos(np.clip(dot[near], -1.0, 1.0))
+    out[near] = theta < angle if below else theta > angle
+    return out
 
 
 def _dihedrals(
@@ -163,18 +146,21 @@ def looks_like_scan(vertices: np.ndarray, faces: np.ndarray, eps: float) -> str:
     v, f = np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64)
     if len(f) < SCAN_MIN_FACES:
         return ""
-    return _scan_signs(v, f, _Edges.of(f), eps, *_normals(v, f))
+    e = ScanEdges.of(f)
+    normals, area = _normals(v, f)
+    return _scan_signs(f, e, eps, _dots(normals, e), area, e.components())
 
 
 def _scan_signs(
-    v: np.ndarray, f: np.ndarray, e: _Edges, eps: float, n: np.ndarray, area: np.ndarray
+    f: np.ndarray, e: ScanEdges, eps: float, dot: np.ndarray, area: np.ndarray, comp: np.ndarray
 ) -> str:
-    dihedral = _dihedrals(v, f, e.h1, e.h2, n)
-    sharp = np.count_nonzero(dihedral > np.radians(60.0)) / max(len(e.h1), 1)
-    flat = np.count_nonzero(dihedral < 1e-4) / max(len(e.h1), 1)
+    """The signs of :func:`looks_like_scan`, from the paired edges' dihedral cosines
+    ``dot`` and the faces' ``area`` and edge-connected component ``comp``."""
+    paired = max(len(e.h1), 1)
+    sharp = np.count_nonzero(_sharper(dot, np.radians(60.0))) / paired
+    flat = np.count_nonzero(_sharper(dot, 1e-4, below=True)) / paired
     if sharp > SCAN_MAX_SHARP or flat > SCAN_MAX_FLAT:
         return ""
-    comp = edge_components(f, e.eid)
     specks = int(np.count_nonzero(np.bincount(comp, weights=area) < SPECK_AREA * eps**2))
     # Boundary loops: the connected pieces of the boundary edges.
     b = e.ends[np.bincount(e.eid, minlength=len(e.ends)) == 1]
@@ -197,56 +183,98 @@ def _adjacency(n: int, ends: np.ndarray):
 
 
 def _collapse(
-    v: np.ndarray, f: np.ndarray, e: _Edges, area: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, int]:
+    v: np.ndarray, e: ScanEdges, area: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """One round of near-degenerate edge collapses: an independent set of zero and skinny
-    edges (each the shortest candidate at both its ends) passing the link condition.
-    ``area``: of each face (mm²)."""
+    edges (each the shortest candidate at both its ends) passing the link condition, as
+    the vertices kept ``a`` and those merged into them ``b``. ``area``: of each face
+    (mm²)."""
     n = len(v)
     used = np.bincount(e.eid, minlength=len(e.ends)) > 0
     ends = e.ends
-    length = np.where(used, np.linalg.norm(v[ends[:, 0]] - v[ends[:, 1]], axis=1), np.inf)
+    length = np.where(used, _lengths(v, ends), np.inf)
     live = np.where(used, length, 0.0)
     vert_sum = np.bincount(ends.reshape(-1), weights=np.repeat(live, 2), minlength=n)
     vert_cnt = np.maximum(np.bincount(ends[used].reshape(-1), minlength=n), 1)
     local = 0.5 * (vert_sum[ends[:, 0]] / vert_cnt[ends[:, 0]]
                    + vert_sum[ends[:, 1]] / vert_cnt[ends[:, 1]])  # fmt: skip
-    # Skinny: short against its neighbourhood with a small angle opposite it.
-    e_len = length[e.eid].reshape(-1, 3)  # edge k runs corner k -> k+1
+    # Skinny: short against its neighbourhood with a small angle opposite it (the angle
+    # looked at only in the faces of the short edges).
+    short = length < 0.25 * local
+    eid = e.eid.reshape(-1, 3)  # edge k runs corner k -> k+1
+    at_short = np.flatnonzero(short[eid].any(axis=1))
+    e_len = length[eid[at_short]]
     # Angle opposite edge k: sin = 2 area / (product of the other two sides).
     other = e_len[:, [1, 2, 0]] * e_len[:, [2, 0, 1]]
-    small_angle = 2 * area[:, None] / np.maximum(other, 1e-300) < np.sin(np.radians(10.0))
+    small_angle = 2 * area[at_short, None] / np.maximum(other, 1e-300) < np.sin(np.radians(10.0))
     skinny = np.zeros(len(ends), dtype=bool)
-    skinny[e.eid[small_angle.reshape(-1)]] = True
+    skinny[eid[at_short][small_angle]] = True
     mean = live.sum() / max(int(np.count_nonzero(used)), 1)
-    c = np.flatnonzero((length < 0.1 * mean) | ((length < 0.25 * local) & skinny))
+    c = np.flatnonzero((length < 0.1 * mean) | (short & skinny))
+    none = np.zeros(0, dtype=np.int64)
     if len(c) == 0:
-        return v, f, 0
+        return none, none
     best = np.full(n, np.inf)
     np.minimum.at(best, ends[c, 0], length[c])
     np.minimum.at(best, ends[c, 1], length[c])
     c = c[(best[ends[c, 0]] == length[c]) & (best[ends[c, 1]] == length[c])]
     # Link condition: the ends share exactly the vertices opposite the edge (1 or 2).
-    adj = _adjacency(n, ends)
     a, b = ends[c, 0], ends[c, 1]
+    at_ab = np.zeros(n, dtype=bool)
+    at_ab[a], at_ab[b] = True, True
+    adj = _adjacency(n, ends[at_ab[ends].any(axis=1)])  # the rows of a and b only
     common = np.asarray(adj[a].multiply(adj[b]).sum(axis=1)).ravel()
     ok = common == np.bincount(e.eid, minlength=len(ends))[c]
     a, b = a[ok], b[ok]
     hit = np.bincount(np.r_[a, b], minlength=n)  # ties of length: a vertex in two edges
     single = (hit[a] == 1) & (hit[b] == 1)
-    a, b = a[single], b[single]
-    if len(a) == 0:
-        return v, f, 0
-    v = v.copy()
-    v[a] = 0.5 * (v[a] + v[b])
-    remap = np.arange(n)
-    remap[b] = a
-    f = remap[f]
-    keep = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0])
-    return v, f[keep], len(a)
+    return a[single], b[single]
 
 
-def _vertex_theta(n: int, f: np.ndarray, e: _Edges, faces: np.ndarray, pairs: np.ndarray,
+def _lengths(v: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """Length of each edge (the bits of ``np.linalg.norm(..., axis=1)``)."""
+    d = np.take(v, ends[:, 0], axis=0) - np.take(v, ends[:, 1], axis=0)
+    return np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2])
+
+
+@dataclass
+class _Surface:
+    """The mesh being cleaned with what is kept up to date through the steps: its edges,
+    the faces' unit normals and areas (re-taken only for the faces whose corners moved)."""
+
+    v: np.ndarray
+    f: np.ndarray
+    e: ScanEdges
+    normals: np.ndarray
+    area: np.ndarray
+
+    def keep(self, keep: np.ndarray) -> None:
+        """Only the faces ``keep`` (bool per face) stay."""
+        self.f, self.e = self.f[keep], self.e.subset(keep)
+        self.normals, self.area = self.normals[keep], self.area[keep]
+
+    def moved(self, vertices: np.ndarray) -> None:
+        """The faces at ``vertices`` (bool per vertex) have new corners: new normals."""
+        t = np.flatnonzero(vertices[self.f].any(axis=1))
+        self.normals[t], self.area[t] = _normals(self.v, self.f[t])
+
+    def merge(self, a: np.ndarray, b: np.ndarray) -> None:
+        """Collapse the edges ``a[i] b[i]`` onto their midpoints (at ``a``)."""
+        n = len(self.v)
+        self.v = self.v.copy()
+        self.v[a] = 0.5 * (self.v[a] + self.v[b])
+        remap = np.arange(n)
+        remap[b] = a
+        f = remap[self.f]
+        keep = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0])
+        self.e = self.e.collapsed(n, remap, keep)
+        self.f, self.normals, self.area = f[keep], self.normals[keep], self.area[keep]
+        at_a = np.zeros(n, dtype=bool)
+        at_a[a] = True
+        self.moved(at_a)
+
+
+def _vertex_theta(n: int, f: np.ndarray, e: ScanEdges, faces: np.ndarray, pairs: np.ndarray,
                   angle: np.ndarray) -> np.ndarray:
     """θ(v): the largest dihedral angle of the edges of the faces round each vertex (its
     star and its link: a tall spike's sharpest edges are round its base), from the
@@ -259,29 +287,29 @@ def _vertex_theta(n: int, f: np.ndarray, e: _Edges, faces: np.ndarray, pairs: np
     return out
 
 
-def _relax_spikes(
-    v: np.ndarray, f: np.ndarray, e: _Edges, n_faces: np.ndarray | None, rounds: int = 20
-):
+def _relax_spikes(v: np.ndarray, f: np.ndarray, e: ScanEdges, dot: np.ndarray, rounds: int = 20):
     """Eq. 2 on the spiked vertices, ``rounds`` times, the sharpest first: each round moves
     the spiked vertices whose umbrella vector (relative to their mean edge length) is the
     largest among their neighbours, so a spike's tip goes down before its base rises.
-    Only the faces round the first spiked vertices are looked at again. Returns the new
-    vertices, how many moved and the mask of those still spiked above ``SPIKE_B``."""
+    ``dot``: the paired edges' dihedral cosines. Only the faces round the first spiked
+    vertices are looked at again. Returns the new vertices, the mask of those moved and
+    the mask of those still spiked above ``SPIKE_B``."""
     n = len(v)
-    every = np.arange(len(e.h1))
-    angle = _dihedrals(v, f, e.h1, e.h2, n_faces)
-    theta = _vertex_theta(n, f, e, np.arange(len(f)), every, angle)
-    near = theta > SPIKE_A
+    # θ(v) > A: a face round v has an edge sharper than A.
+    sharp_edge = np.zeros(len(e.ends), dtype=bool)
+    sharp_edge[e.eid[e.h1[_sharper(dot, SPIKE_A)]]] = True
+    near = np.zeros(n, dtype=bool)
+    near[f[sharp_edge[e.eid.reshape(-1, 3)].any(axis=1)].reshape(-1)] = True
     if not near.any():
-        return v, 0, np.zeros(n, dtype=bool)
-    adj = _adjacency(n, e.ends)
+        return v, near, near
+    local_e = e.ends[near[e.ends].any(axis=1)]
+    adj = _adjacency(n, local_e)  # complete rows for the vertices near a spike
     deg = np.maximum(np.asarray(adj.sum(axis=1)).ravel(), 1)
     local_f = near[f].any(axis=1)
     pairs = np.flatnonzero(local_f[e.h1 // 3] | local_f[e.h2 // 3])
     local_f = np.flatnonzero(local_f)
-    local_e = e.ends[near[e.ends].any(axis=1)]
-    edge_len = np.linalg.norm(v[e.ends[:, 0]] - v[e.ends[:, 1]], axis=1)
-    mean_len = np.bincount(e.ends.reshape(-1), weights=np.repeat(edge_len, 2), minlength=n)
+    edge_len = _lengths(v, local_e)
+    mean_len = np.bincount(local_e.reshape(-1), weights=np.repeat(edge_len, 2), minlength=n)
     mean_len = np.maximum(mean_len / deg, 1e-300)
     moved = np.zeros(n, dtype=bool)
     v = v.copy()
@@ -301,40 +329,43 @@ def _relax_spikes(
         moved[s[first]] = True
     angle = _dihedrals(v, f, e.h1[pairs], e.h2[pairs])
     theta = _vertex_theta(n, f, e, local_f, pairs, angle)
-    return v, int(np.count_nonzero(moved)), theta > SPIKE_B
+    return v, moved, theta > SPIKE_B
 
 
 def _clean_boundaries(
-    f: np.ndarray, e: _Edges, sharp_vertex: np.ndarray, rounds: int = 30
+    f: np.ndarray, e: ScanEdges, sharp_vertex: np.ndarray, rounds: int = 30
 ) -> tuple[np.ndarray, int]:
     """Sec. 3.3: the faces to keep (bool) once those at bad boundary vertices are
     dropped, round after round until none is left, and how many went. Faces are only
     removed, so the edge ids stay valid: counts are re-taken per round (no sort)."""
     n = len(sharp_vertex)
     alive = np.ones(len(f), dtype=bool)
-    n_edges = len(e.ends)
+    use = np.bincount(e.eid, minlength=len(e.ends))  # kept up to date as faces go
+    face_count = np.bincount(f.reshape(-1), minlength=n)
     for _ in range(rounds):
-        live_he = np.repeat(alive, 3)
-        use = np.bincount(e.eid[live_he], minlength=n_edges)
         bnd = use == 1
         if not bnd.any():
             break
         b_count = np.bincount(e.ends[bnd].reshape(-1), minlength=n)
-        face_count = np.bincount(f[alive].reshape(-1), minlength=n)
         bad = (b_count > 0) & ((face_count == 1) | (b_count > 2) | sharp_vertex)
-        drop = alive & bad[f].any(axis=1)
-        if not drop.any():
+        drop = np.flatnonzero(alive & bad[f].any(axis=1))
+        if len(drop) == 0:
             break
-        alive &= ~drop
+        alive[drop] = False
+        use -= np.bincount(e.eid.reshape(-1, 3)[drop].reshape(-1), minlength=len(use))
+        face_count -= np.bincount(f[drop].reshape(-1), minlength=n)
     return alive, int(np.count_nonzero(~alive))
 
 
-def _specks(f: np.ndarray, e: _Edges, area: np.ndarray, eps: float) -> tuple[np.ndarray, float]:
+def _specks(
+    e: ScanEdges, area: np.ndarray, eps: float, comp: np.ndarray | None = None
+) -> tuple[np.ndarray, float]:
     """Sec. 3.2: mask of the faces (of ``area`` mm² each) of components under
-    ``SPECK_AREA * eps**2`` mm² (the largest component always stays), and their area."""
+    ``SPECK_AREA * eps**2`` mm² (the largest component always stays), and their area.
+    ``comp``: the faces' edge-connected components, if known."""
     if len(area) == 0:
         return np.zeros(0, dtype=bool), 0.0
-    comp = edge_components(f, e.eid)
+    comp = e.components() if comp is None else comp
     comp_area = np.bincount(comp, weights=area)
     speck = comp_area < SPECK_AREA * eps**2
     speck[np.argmax(comp_area)] = False
@@ -350,7 +381,7 @@ def clean_scan(
     vertex indices) and what was done."""
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
-    return _clean(v, f, _Edges.of(f), eps, why)
+    return _clean(v, f, ScanEdges.of(f), eps, why)
 
 
 def scan_cleanup(
@@ -364,37 +395,47 @@ def scan_cleanup(
     f = np.asarray(faces, dtype=np.int64)
     if mode == "none" or len(f) == 0 or (mode == "auto" and len(f) < SCAN_MIN_FACES):
         return v, f, None
-    e = _Edges.of(f, topology)
+    e = ScanEdges.of(f, topology)
     normals, area = _normals(v, f)
-    why = "asked (clean = scan)" if mode == "scan" else _scan_signs(v, f, e, eps, normals, area)
+    comp = topology.shells if topology is not None and topology.of(f) else e.components()
+    if mode == "scan":
+        why = "asked (clean = scan)"
+    else:
+        why = _scan_signs(f, e, eps, _dots(normals, e), area, comp)
     if not why:
         return v, f, None
-    return _clean(v, f, e, eps, why, normals, area)
+    return _clean(v, f, e, eps, why, normals, area, comp)
 
 
 def _clean(
-    v: np.ndarray, f: np.ndarray, e: _Edges, eps: float, why: str,
+    v: np.ndarray, f: np.ndarray, e: ScanEdges, eps: float, why: str,
     normals: np.ndarray | None = None, area: np.ndarray | None = None,
+    comp: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, ScanCleaned]:
     if len(f) == 0:
         return v, f, ScanCleaned(why)
     if normals is None or area is None:
         normals, area = _normals(v, f)
-    speck, speck_area = _specks(f, e, area, eps)
-    n_specks = int(np.count_nonzero(speck))
-    f, e, normals = f[~speck], e.subset(~speck), normals[~speck]
-    v, f, collapsed = _collapse(v, f, e, area[~speck])
-    if collapsed:
-        e, normals = _Edges.of(f), None
-    v, relaxed, spiked = _relax_spikes(v, f, e, normals)
+    s = _Surface(v, f, e, normals, area)
+    speck, speck_area = _specks(e, area, eps, comp)
+    s.keep(~speck)
+    a, b = _collapse(s.v, s.e, s.area)
+    if len(a):
+        s.merge(a, b)
+    s.v, moved, spiked = _relax_spikes(s.v, s.f, s.e, _dots(s.normals, s.e))
+    s.moved(moved)
     # Sec. 3.8: what relaxing could not flatten goes (its hole is filled later).
-    spike = spiked[f].any(axis=1)
-    f, e = f[~spike], e.subset(~spike)
-    sharp = _vertex_max(len(v), e.ends[e.eid[e.h1]], _dihedrals(v, f, e.h1, e.h2))
-    alive, boundary_removed = _clean_boundaries(f, e, sharp > BOUNDARY_DIHEDRAL)
-    f, e = f[alive], e.subset(alive)
-    more, more_area = _specks(f, e, _normals(v, f)[1], eps)
-    f = f[~more]
-    return v, f, ScanCleaned(why, collapsed, relaxed, int(np.count_nonzero(spike)),
-                             boundary_removed, n_specks + int(np.count_nonzero(more)),
-                             speck_area + more_area)  # fmt: skip
+    spike = spiked[s.f].any(axis=1)
+    s.keep(~spike)
+    sharp = np.zeros(len(s.v), dtype=bool)
+    sharp[s.e.ends[s.e.eid[s.e.h1[_sharper(_dots(s.normals, s.e), BOUNDARY_DIHEDRAL)]]]] = True
+    alive, boundary_removed = _clean_boundaries(s.f, s.e, sharp)
+    s.keep(alive)
+    comp = s.e.components()
+    more, more_area = _specks(s.e, s.area, eps, comp)
+    f = s.f[~more]
+    return s.v, f, ScanCleaned(
+        why, len(a), int(np.count_nonzero(moved)), int(np.count_nonzero(spike)),
+        boundary_removed, int(np.count_nonzero(speck)) + int(np.count_nonzero(more)),
+        speck_area + more_area, edge_topology_of(f, s.e.subset(~more), comp[~more]),
+    )

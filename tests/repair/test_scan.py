@@ -117,3 +117,47 @@ def test_a_holed_cad_tessellation_is_not_taken_for_a_scan():
     model = overlapping_shells(40_000, 40, seed=3)
     assert len(model.faces) >= SCAN_MIN_FACES
     assert looks_like_scan(model.vertices, model.faces, EPS) == ""
+
+
+def _with_short_edges(count: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """A noisy scan (holes, specks, spikes) with ``count`` edges shrunk to 2% of their
+    length (one end moved next to the other), at faces far apart."""
+    v, f = noisy_scan(5, RADIUS, seed=seed)
+    v = v.copy()
+    picked = f[np.random.default_rng(seed).choice(len(f) // 2, size=count, replace=False) * 2]
+    v[picked[:, 1]] = v[picked[:, 0]] + 0.02 * (v[picked[:, 1]] - v[picked[:, 0]])
+    return v, f
+
+
+def test_edges_kept_up_to_date_through_a_collapse_match_a_fresh_sort():
+    """The cleanup renumbers only the edges at merged vertices and re-takes normals only
+    where corners moved: the result must be what sorting the collapsed faces gives."""
+    from repair.scan import _collapse, _normals, _Surface
+    from repair.scan_edges import ScanEdges
+
+    v, f = _with_short_edges(40, seed=7)
+    e = ScanEdges.of(f)
+    surface = _Surface(v, f, e, *_normals(v, f))
+    a, b = _collapse(surface.v, surface.e, surface.area)
+    assert len(a) >= 30  # most planted short edges collapse
+    surface.merge(a, b)
+    fresh = ScanEdges.of(surface.f)
+    for name in ("eid", "ends", "h1", "h2"):
+        assert np.array_equal(getattr(surface.e, name), getattr(fresh, name)), name
+    normals, area = _normals(surface.v, surface.f)
+    assert np.array_equal(surface.normals, normals) and np.array_equal(surface.area, area)
+
+
+def test_the_cleaned_scan_hands_on_the_topology_of_its_faces():
+    from repair.topology import edge_topology
+
+    v, f = _with_short_edges(40, seed=8)
+    out_v, out_f, done = clean_scan(v, f, EPS)
+    assert done.collapsed_edges > 0 and done.components_removed > 0
+    given, fresh = done.topology, edge_topology(out_f)
+    assert given is not None and given.of(out_f)
+    for name in ("eid", "counts", "shells"):
+        assert np.array_equal(getattr(given, name), getattr(fresh, name)), name
+    assert (given.boundary, given.nonmanifold, given.misoriented) == (
+        fresh.boundary, fresh.nonmanifold, fresh.misoriented)
+    assert given.boundary > 0  # the holes are still open: shell closure lids them next
