@@ -176,9 +176,10 @@ def finish(
     tried_separation = False
     worse = 0
     last_damage = None
+    ready = None  # this round's rounded verdict, when already taken
     for round_ in range(MAX_FINISH_ROUNDS):
-        v32, f32, verdict, pairs = rounded_verdict(v, f, before)
-        before = None
+        v32, f32, verdict, pairs = ready or rounded_verdict(v, f, before)
+        before = ready = None
         if verdict.ok:
             return v32, f32, verdict
         damage = verdict.intersecting_pairs + verdict.degenerate_faces + verdict.nonmanifold_edges
@@ -206,6 +207,7 @@ def finish(
                 (v, f, tally.separated), tried = separated
                 if tried[2].ok:  # what the next round would find: done
                     return tried[0], tried[1], tried[2]
+                ready = tried  # the next round's: not taken twice
                 continue
         if touching:
             extra.append(_singular_edge_prisms(v32, f32, eps, tally))

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from repair.body_union import unite_closed_bodies
 from repair.clean import clean_soup, drop_unreferenced
 from repair.hull import (
     HullSplit,
@@ -50,9 +51,16 @@ def hull_and_thicken(
     """
     first_hull_birth = np.zeros(0, dtype=np.int64)
     first_poly = (np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64))
+    unorientable = not solid and is_unorientable(f)
+    united = None if unorientable or pairs is None else unite_closed_bodies(v, f, pairs)
+    if united is not None:
+        # The bodies' union stands for them: only the rest is arranged exactly.
+        tally.intersecting_pairs = len(pairs)
+        tally.internal_faces += united.dropped
+        v, f, pairs = united.vertices, united.faces, united.pairs
     for round_ in range(MAX_THICKEN_ROUNDS + 1):
         tally.passes += 1
-        if round_ == 0 and not solid and is_unorientable(f):
+        if round_ == 0 and unorientable:
             rv, rf, birth, split = unorientable_outer_hull(v, f)
             n_pairs = len(intersecting_face_pairs(v, f) if pairs is None else pairs)
         else:
@@ -65,6 +73,8 @@ def hull_and_thicken(
         if round_ == 0:
             first_poly = (rv, rf)
             first_hull_birth = birth[np.r_[split.solid_index, split.sheet_index]]
+            if united is not None:
+                first_hull_birth = united.birth[first_hull_birth]
         extra: list[tuple[np.ndarray, np.ndarray]] = []
         if len(split.sheet_faces) and round_ < MAX_THICKEN_ROUNDS:
             tally.sheet_area += surface_area(rv, split.sheet_faces)
