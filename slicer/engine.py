@@ -231,7 +231,8 @@ def _write_layers(model: _Model, profile: Profile, report: _Reporter) -> Written
 
 def _summary(model: _Model, written: Written, p: Profile) -> dict[str, Any]:
     """The job's figures; the workers' CPU and peak memory over the planning and writing
-    phases (the thumbnails' child is left out: its share varies from run to run)."""
+    phases (the thumbnails' child is left out: its share varies from run to run); the
+    writing's split (Written.write_cpu_seconds, write_wait_seconds: is it balanced?)."""
     cm3 = written.filament_mm * p.filament_area / 1000.0
     return {
         "layers": len(model.tops),
@@ -251,6 +252,8 @@ def _summary(model: _Model, written: Written, p: Profile) -> dict[str, Any]:
         "worker_peak_mb": round(max(written.worker_peak_mb, model.plan_worker_peak_mb), 1),
         "worker_cpu_seconds": round(written.worker_cpu_seconds + model.plan_worker_cpu_seconds,
                                     3),
+        "write_cpu_seconds": [round(s, 3) for s in written.write_cpu_seconds],
+        "write_wait_seconds": round(written.write_wait_seconds, 3),
         **model.layout,
     }
 

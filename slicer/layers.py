@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import copy
 import functools
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -67,6 +68,11 @@ class Written:
     workers: int = 1
     worker_cpu_seconds: float = 0.0
     worker_peak_mb: float = 0.0
+    #: CPU seconds of writing: the parent's share (its forks included), then each worker's
+    #: whole life; and the parent's wall seconds from asking for the workers' G-code to
+    #: having it (its wait, unpickling included). Equal CPU and no wait: a balanced split.
+    write_cpu_seconds: list[float] = field(default_factory=list)
+    write_wait_seconds: float = 0.0
 
     def add(self, code: tuple[str, float, float, float, float]) -> None:
         """Append one layer: (text, seconds, filament mm, support mm, support seconds)."""
@@ -325,16 +331,21 @@ def write_shares(run: LayerRun, shares: list[tuple[int, int]], report: Any) -> W
     out = Written()
     jobs = [(functools.partial(_write_share_in_worker, run, begin, end),
              f"layers {begin}-{end - 1}") for begin, end in shares[1:]]
+    started = time.process_time()
     with forked(jobs) as workers:
         for i in range(*shares[0]):
             out.add(run.layer(i))
             _free_layer(run.model, i)
             report("gcode", 0.5 + i / n * 0.5)
+        out.write_cpu_seconds.append(time.process_time() - started)
         for k, (begin, end) in enumerate(shares[1:]):
+            asked = time.monotonic()
             codes, states = workers[k].result() if k < len(workers) else ([], [])
+            out.write_wait_seconds += time.monotonic() - asked
             _take_over(run, out, begin, end, codes, states)
             report("gcode", 0.5 + end / n * 0.5)
     out.workers = 1 + len(workers)
+    out.write_cpu_seconds.extend(w.cpu_seconds for w in workers)
     out.worker_cpu_seconds = sum(w.cpu_seconds for w in workers)
     out.worker_peak_mb = max((w.peak_mb for w in workers), default=0.0)
     return out

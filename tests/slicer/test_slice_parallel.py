@@ -157,6 +157,30 @@ def test_the_summary_counts_every_workers_cpu():
     assert used > 0 and summary["worker_cpu_seconds"] == pytest.approx(used, abs=0.01)
 
 
+def test_the_summary_shows_how_the_writing_was_split():
+    """The parent's CPU writing its share, then each writing worker's (their sum within the
+    children's CPU this slice used), and the parent's wait for their G-code: one process
+    writes alone with no wait."""
+    import resource
+
+    def cpu(who: int) -> float:
+        usage = resource.getrusage(who)
+        return usage.ru_utime + usage.ru_stime
+
+    v, f = sphere(20.0, 5)
+    profile = BASE.with_overrides({"thumbnails": ""})
+    own, children = cpu(resource.RUSAGE_SELF), cpu(resource.RUSAGE_CHILDREN)
+    two = slice_mesh(v, f, profile.with_overrides({"workers": "2"})).summary
+    own, children = cpu(resource.RUSAGE_SELF) - own, cpu(resource.RUSAGE_CHILDREN) - children
+    parent, *workers = two["write_cpu_seconds"]
+    assert len(workers) == 1 and parent > 0 and workers[0] > 0
+    assert parent <= own + 0.01 and workers[0] <= children + 0.01
+    assert two["write_wait_seconds"] >= 0
+    one = slice_mesh(v, f, profile.with_overrides({"workers": "1"})).summary
+    assert len(one["write_cpu_seconds"]) == 1 and one["write_cpu_seconds"][0] > 0
+    assert one["write_wait_seconds"] == 0
+
+
 def test_a_worker_that_raises_names_the_error():
     worker = Worker(lambda: 1 / 0, "test")
     with pytest.raises(WorkerError, match="ZeroDivisionError"):
