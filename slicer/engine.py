@@ -232,7 +232,7 @@ def _write_layers(model: _Model, profile: Profile, report: _Reporter) -> Written
 def _summary(model: _Model, written: Written, p: Profile) -> dict[str, Any]:
     """The job's figures; the workers' CPU and peak memory over the planning and writing
     phases (the thumbnails' child is left out: its share varies from run to run); the
-    writing's split (Written.write_cpu_seconds, write_wait_seconds: is it balanced?)."""
+    writing's split where workers wrote (:func:`_write_split`: is it balanced?)."""
     cm3 = written.filament_mm * p.filament_area / 1000.0
     return {
         "layers": len(model.tops),
@@ -252,10 +252,18 @@ def _summary(model: _Model, written: Written, p: Profile) -> dict[str, Any]:
         "worker_peak_mb": round(max(written.worker_peak_mb, model.plan_worker_peak_mb), 1),
         "worker_cpu_seconds": round(written.worker_cpu_seconds + model.plan_worker_cpu_seconds,
                                     3),
-        "write_cpu_seconds": [round(s, 3) for s in written.write_cpu_seconds],
-        "write_wait_seconds": round(written.write_wait_seconds, 3),
         **model.layout,
+        **_write_split(written),
     }
+
+
+def _write_split(written: Written) -> dict[str, Any]:
+    """Where workers wrote layers, the split's figures (Written.write_cpu_seconds,
+    write_wait_seconds); none for one process, whose summary stays the same run to run."""
+    if written.workers <= 1:
+        return {}
+    return {"write_cpu_seconds": [round(s, 3) for s in written.write_cpu_seconds],
+            "write_wait_seconds": round(written.write_wait_seconds, 3)}
 
 
 def _thumbnails(model: _Model, man: Any, p: Profile):

@@ -159,8 +159,8 @@ def test_the_summary_counts_every_workers_cpu():
 
 def test_the_summary_shows_how_the_writing_was_split():
     """The parent's CPU writing its share, then each writing worker's (their sum within the
-    children's CPU this slice used), and the parent's wait for their G-code: one process
-    writes alone with no wait."""
+    children's CPU this slice used), and the parent's wait for their G-code; none where one
+    process writes alone (its summary stays the same from run to run)."""
     import resource
 
     def cpu(who: int) -> float:
@@ -177,8 +177,7 @@ def test_the_summary_shows_how_the_writing_was_split():
     assert parent <= own + 0.01 and workers[0] <= children + 0.01
     assert two["write_wait_seconds"] >= 0
     one = slice_mesh(v, f, profile.with_overrides({"workers": "1"})).summary
-    assert len(one["write_cpu_seconds"]) == 1 and one["write_cpu_seconds"][0] > 0
-    assert one["write_wait_seconds"] == 0
+    assert "write_cpu_seconds" not in one and "write_wait_seconds" not in one
 
 
 def test_a_worker_that_raises_names_the_error():
