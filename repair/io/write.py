@@ -21,20 +21,12 @@ def face_normals32(vertices32: np.ndarray, faces: np.ndarray) -> np.ndarray:
 def _triangle_normals32(tri: np.ndarray) -> np.ndarray:
     """Unit normals (float32, (m, 3)) of triangles given by corners (m, 3, 3), computed
     in float64; zero for degenerate ones."""
-    # One contiguous float64 array per corner coordinate: unit-stride arithmetic, the
-    # same operations (cross product, squared length summed x, y, z) as on rows.
-    a, b, c = ([np.ascontiguousarray(tri[:, k, d], dtype=np.float64) for d in range(3)]
-               for k in range(3))  # fmt: skip
-    u = [b[d] - a[d] for d in range(3)]
-    w = [c[d] - a[d] for d in range(3)]
-    n = (u[1] * w[2] - u[2] * w[1], u[2] * w[0] - u[0] * w[2], u[0] * w[1] - u[1] * w[0])
-    length = np.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
-    proper = length > 0
-    safe = np.where(proper, length, 1.0)
-    out = np.empty((len(tri), 3), dtype=np.float32)
-    for d in range(3):
-        out[:, d] = np.where(proper, n[d] / safe, 0.0)
-    return out
+    a = tri[:, 0].astype(np.float64)
+    n = np.cross(tri[:, 1] - a, tri[:, 2] - a)
+    length = np.sqrt(np.einsum("ij,ij->i", n, n))[:, None]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        n = np.where(length > 0, n / length, 0.0)
+    return n.astype(np.float32)
 
 
 def write_stl(path: str | os.PathLike[str], vertices: np.ndarray, faces: np.ndarray) -> None:
