@@ -173,26 +173,29 @@ def _degeneracy_and_volume(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.
     """
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
-    f0, f1, f2 = faces[:, 0], faces[:, 1], faces[:, 2]
+    f0, f1, f2 = (np.ascontiguousarray(faces[:, k]) for k in range(3))
     repeated = (f0 == f1) | (f1 == f2) | (f2 == f0)
-    a, b, c = vertices[f0], vertices[f1], vertices[f2]
-    u = b - a
-    w = c - a
+    # One contiguous array per coordinate: 1-D gathers and unit-stride arithmetic (the
+    # same operations on the same values as on (m, 3) rows, several times faster).
+    cols = [np.ascontiguousarray(vertices[:, d]) for d in range(3)]
+    a = [x[f0] for x in cols]
+    u = [x[f1] - ad for x, ad in zip(cols, a, strict=True)]
+    w = [x[f2] - ad for x, ad in zip(cols, a, strict=True)]
     # The cross product is zero exactly iff all three 2D orientations are zero.
     certain_nonzero = np.zeros(len(faces), dtype=bool)
     volume = 0.0
     centre = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0)) if len(faces) else None
     for k, (i, j) in enumerate(((1, 2), (2, 0), (0, 1))):
-        left = u[:, i] * w[:, j]
-        right = u[:, j] * w[:, i]
+        left = u[i] * w[j]
+        right = u[j] * w[i]
         det = left - right
-        volume += float(np.dot(a[:, k] - centre[k], det)) if len(faces) else 0.0
+        volume += float(np.dot(a[k] - centre[k], det)) if len(faces) else 0.0
         bound = _ORIENT2D_ERRBOUND * (np.abs(left) + np.abs(right))
         certain_nonzero |= (det != 0.0) & (np.abs(det) > bound)
     unsure = np.flatnonzero(~certain_nonzero & ~repeated)
     degenerate = repeated.copy()
     if len(unsure):
-        pts = np.stack([a[unsure], b[unsure], c[unsure]], axis=1)  # (k, 3, 3)
+        pts = vertices[faces[unsure]]  # (k, 3, 3)
         ints = _exact_int_coords(pts)
         ua = ints[:, 1, :] - ints[:, 0, :]
         wa = ints[:, 2, :] - ints[:, 0, :]

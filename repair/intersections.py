@@ -139,10 +139,20 @@ def _pairs_in_slabs(v: np.ndarray, f: np.ndarray, k: int) -> np.ndarray:
 def face_slabs(v: np.ndarray, f: np.ndarray, k: int) -> list[np.ndarray]:
     """The faces (indices into ``f``) of each of ``k`` slabs along the longest axis, as
     :func:`_pairs_in_slabs` tests them."""
-    x = v[:, int(np.argmax(np.ptp(v, axis=0)))][f]
-    lo, hi = x.min(axis=1), x.max(axis=1)
-    edges = np.r_[-np.inf, _even_cuts(lo, hi, k), np.inf]
+    axis = int(np.argmax(v.max(axis=0) - v.min(axis=0)))
+    x = np.ascontiguousarray(v[:, axis])
+    x0, x1, x2 = x[f[:, 0]], x[f[:, 1]], x[f[:, 2]]  # 1-D gathers and element-wise min/max:
+    lo = np.minimum(np.minimum(x0, x1), x2)  # several times faster than a reduction over
+    hi = np.maximum(np.maximum(x0, x1), x2)  # rows of three
+    # The cuts balance the slabs of a sample of the faces (any cuts find every pair; a
+    # balanced split only keeps the children equally busy): no sort of all of them.
+    step = max(1, len(f) // _CUT_SAMPLE)
+    edges = np.r_[-np.inf, _even_cuts(lo[::step], hi[::step], k), np.inf]
     return [np.flatnonzero((lo < edges[i + 1]) & (hi >= edges[i])) for i in range(k)]
+
+
+#: About this many faces (every n-th) place the slab cuts of a large mesh.
+_CUT_SAMPLE = 50_000
 
 
 def _even_cuts(lo: np.ndarray, hi: np.ndarray, k: int) -> np.ndarray:

@@ -40,7 +40,9 @@ def write_stl(path: str | os.PathLike[str], vertices: np.ndarray, faces: np.ndar
     f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     if len(f) and (f.min() < 0 or f.max() >= len(v)):
         raise ValueError("face indices out of range")
-    tri = v.astype(np.float32)[f]  # (m, 3, 3): one gather, shared by corners and normals
+    # (m, 3, 3): one gather of 12-byte rows, shared by corners and normals
+    v32 = np.ascontiguousarray(v, dtype=np.float32)
+    tri = v32.view(np.dtype((np.void, 12))).reshape(-1)[f].view(np.float32).reshape(-1, 3, 3)
     rec = np.empty(len(f), dtype=STL_DTYPE)
     rec["v"] = tri
     rec["normal"] = _triangle_normals32(tri)

@@ -55,3 +55,24 @@ def test_corners_at_one_point_under_two_indices_read_as_shared():
     got = intersecting_pairs_with(v_split, f_split, which, others)
     np.testing.assert_array_equal(got, _region_test(v_split, f_split, which))
     np.testing.assert_array_equal(got, _region_test(v, f, which))
+
+
+@pytest.mark.parametrize("k", [2, 3])
+def test_slabs_of_a_large_mesh_cut_on_a_sample_hold_every_face_and_balance(k):
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from mesh_helpers import concat, sphere
+
+    from repair.intersections import _CUT_SAMPLE, face_slabs
+
+    # Two overlapping balls, faces of very different sizes: more faces than the sample.
+    v, f = concat(sphere(7, 10.0), sphere(3, 8.0, centre=(6.0, 1.0, 0.5)))
+    assert len(f) > 2 * _CUT_SAMPLE
+    slabs = face_slabs(v, f, k)
+    covered = np.zeros(len(f), dtype=bool)
+    for s in slabs:
+        covered[s] = True
+    assert covered.all()  # every face is tested somewhere
+    counts = [len(s) for s in slabs]
+    assert max(counts) - min(counts) <= 0.02 * max(counts)
