@@ -25,6 +25,7 @@ import numpy as np
 from repair.clean import drop_unreferenced
 from repair.intersections import intersecting_face_pairs
 from repair.meshes import concat_meshes
+from repair.rounding import crossings_after_change, round_finding_crossings
 from repair.rows import unique_ints
 from repair.topology import weld_exact
 from repair.union import _arrays_of, _sum_of
@@ -168,8 +169,31 @@ def unite_closed_bodies(v: np.ndarray, f: np.ndarray, pairs: np.ndarray) -> Body
     n = len(bodies.faces)
     if len(source) != len(uf) or (len(uf) and (source.min() < 0 or source.max() >= n)):
         return None  # provenance lost: arrange it all rather than guess
+    uv, uf, source, union_pairs = _rounded(uv, uf, source)
     out_v, out_f = weld_exact(*concat_meshes([(uv, uf), (v, f[bodies.rest])]))
     birth = np.r_[bodies.birth[source], bodies.rest].astype(np.int64)
     dropped = len(f) - len(np.unique(birth))
-    return BodyUnion(out_v, out_f, birth, intersecting_face_pairs(out_v, out_f),
-                     len(solids), int(dropped))  # fmt: skip
+    if union_pairs is None:
+        out_pairs = intersecting_face_pairs(out_v, out_f)
+    else:  # the union's own pairs are known: test only near the rest
+        rest = np.zeros(len(out_f), dtype=bool)
+        rest[len(uf) :] = True
+        out_pairs = crossings_after_change(out_v, out_f, union_pairs, rest)
+    return BodyUnion(out_v, out_f, birth, out_pairs, len(solids), int(dropped))
+
+
+def _rounded(
+    uv: np.ndarray, uf: np.ndarray, source: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """The union rounded to float32 (what is written; the union's new points are float
+    anyway) so that the arrangement and finish that follow start from float32 points and
+    do not round them again: ``(vertices, faces, source, pairs)``. Rounding avoids making
+    faces cross where it can (:func:`repair.rounding.round_finding_crossings`); points it
+    merges are welded and faces left with a repeated corner dropped. ``pairs``: all the
+    crossing pairs of the result, or None where the weld changed the faces."""
+    rv, pairs = round_finding_crossings(uv, uf)
+    wv, wf = weld_exact(rv, uf)
+    if len(wv) == len(rv):
+        return wv, wf, source, pairs
+    keep = (wf[:, 0] != wf[:, 1]) & (wf[:, 1] != wf[:, 2]) & (wf[:, 2] != wf[:, 0])
+    return wv, wf[keep], source[keep], None

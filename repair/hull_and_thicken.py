@@ -46,8 +46,9 @@ def hull_and_thicken(
     """Resolve, take the outer hull, thicken sheets/wires and repeat until no sheet is left.
     ``pairs``: the intersecting face pairs of ``(v, f)`` if known.
 
-    Returns the closed solid ``(vertices, faces)`` plus the first pass's polyhedron and
-    the birth face (into ``f``) of each of its outer-hull faces.
+    Returns the closed solid ``(vertices, faces)`` plus the first pass's outer hull
+    ``(vertices, faces)`` (solid faces, then sheet faces) and the birth face (into ``f``)
+    of each of its faces.
     """
     first_hull_birth = np.zeros(0, dtype=np.int64)
     first_poly = (np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64))
@@ -71,7 +72,7 @@ def hull_and_thicken(
             tally.intersecting_pairs = n_pairs
         tally.internal_faces += split.internal if round_ == 0 else 0
         if round_ == 0:
-            first_poly = (rv, rf)
+            first_poly = (rv, np.vstack([split.solid_faces, split.sheet_faces]))
             first_hull_birth = birth[np.r_[split.solid_index, split.sheet_index]]
             if united is not None:
                 first_hull_birth = united.birth[first_hull_birth]

@@ -62,7 +62,12 @@ from repair.hairline import without_hairline_gaps
 from repair.holes import MAX_BOUNDARY_FRACTION, HolesClosed, close_small_holes
 from repair.hull_and_thicken import hull_and_thicken
 from repair.junk import without_internal_junk
-from repair.provenance import carry_input_pairs, starts_with_faces, union_face_sources
+from repair.provenance import (
+    carry_input_pairs,
+    hull_face_sources,
+    starts_with_faces,
+    union_face_sources,
+)
 from repair.report import (
     Progress,
     RepairOutcome,
@@ -302,7 +307,7 @@ def _solidify(
     if united is not None:
         out, hint = united
     else:
-        out, hint = _exact_or_fallback(cleaned, lidded, eps, tally, clock, fallback), None
+        out, hint = _exact_or_fallback(cleaned, lidded, eps, tally, clock, fallback)
     faces_before = out.faces
     out = without_hairline_gaps(without_internal_junk(out), eps)
     if out.faces is not faces_before:
@@ -375,10 +380,11 @@ def _exact_path(
     eps: float,
     tally: RepairTally,
     clock: StageClock,
-) -> RepairOutcome:
-    """Exact arrangement, outer hull, thickening, finished; raises :class:`RepairError`
+) -> tuple[RepairOutcome, np.ndarray]:
+    """Exact arrangement, outer hull, thickening, finished, with the input face each
+    written face is believed to be a piece of (or -1); raises :class:`RepairError`
     when nothing can be reached from outside or the result cannot be made printable."""
-    hull_v, hull_f, _, hull_birth = hull_and_thicken(
+    hull_v, hull_f, first_hull, hull_birth = hull_and_thicken(
         lidded.vertices, lidded.faces, eps, tally, cleaned.segments, pairs=lidded.pairs
     )
     clock.lap("hull_and_thicken", 0.6)
@@ -393,16 +399,19 @@ def _exact_path(
     clock.lap("finish", 0.8)
     if not verdict.ok:
         raise RepairError(NOT_PRINTABLE + "; ".join(verdict.failures()))
+    hint = hull_face_sources(cleaned.vertices, cleaned.faces, lidded.vertices, lidded.faces,
+                             first_hull, hull_birth, out_v, out_f)  # fmt: skip
     return RepairOutcome(out_v, out_f, verdict, "exact", 0.0, tally, HolesClosed(),
-                         dropped_components=dropped)  # fmt: skip
+                         dropped_components=dropped), hint  # fmt: skip
 
 
 def _exact_or_fallback(
     cleaned: Cleaned, lidded: _Lidded, eps: float, tally: RepairTally, clock: StageClock,
     fallback: str | None,
-) -> RepairOutcome:
-    """The exact path; the fallback instead when ``fallback`` says why, or when the exact
-    path cannot make the model printable and the fallback can."""
+) -> tuple[RepairOutcome, np.ndarray | None]:
+    """The exact path (with its per-face sources, as :func:`_exact_path`); the fallback
+    instead (no sources) when ``fallback`` says why, or when the exact path cannot make
+    the model printable and the fallback can."""
     if fallback is None:
         try:
             return _exact_path(cleaned, lidded, eps, tally, clock)
@@ -413,7 +422,7 @@ def _exact_or_fallback(
     out = fallback_repair(lidded.vertices, lidded.faces, cleaned.segments, lidded.pairs, eps,
                           fallback)  # fmt: skip
     clock.lap("fallback", 0.8)
-    return out
+    return out, None
 
 
 def repair_file(

@@ -18,6 +18,7 @@ from repair.union import ShellUnion
 __all__ = [
     "carried_pairs",
     "carry_input_pairs",
+    "hull_face_sources",
     "same_faces",
     "starts_with_faces",
     "union_face_sources",
@@ -68,6 +69,27 @@ def union_face_sources(
         return source
     match = same_faces(round_to_float32(uv), uf, out_v, out_f)
     return np.where(match >= 0, source[match], -1)
+
+
+def hull_face_sources(
+    v_in: np.ndarray,
+    f_in: np.ndarray,
+    v: np.ndarray,
+    f: np.ndarray,
+    hull: tuple[np.ndarray, np.ndarray],
+    birth: np.ndarray,
+    out_v: np.ndarray,
+    out_f: np.ndarray,
+) -> np.ndarray:
+    """For each written face (``out_v, out_f``, finished from an outer hull of ``(v, f)``):
+    the face of ``(v_in, f_in)`` it is believed to be a piece of, or -1 (a guess, verified
+    by :func:`repair.deviation.max_deviation`). ``hull = (vertices, faces)``: the first
+    outer hull of the exact arrangement, ``birth`` the face of ``f`` each is a piece of;
+    faces the finish kept are on its corners rounded to float32."""
+    to_input = same_faces(v_in, f_in, v, f)  # lids: -1
+    source = np.where(birth >= 0, to_input[birth], -1) if len(birth) else birth
+    match = same_faces(round_to_float32(hull[0]), hull[1], out_v, out_f)
+    return np.where(match >= 0, source[match], -1) if len(source) else match
 
 
 def carry_input_pairs(

@@ -43,6 +43,9 @@ def test_union_keeps_the_rest_and_leaves_crossings_only_with_it(monkeypatch):
     # The union's own faces cross none of one another: every crossing left is the sheet's.
     assert len(united.pairs) and np.all((united.pairs == rows[0]).any(axis=1))
     assert np.array_equal(united.pairs, intersecting_face_pairs(united.vertices, united.faces))
+    # Rounded to float32 (what is written) before the arrangement: finish rounds no more.
+    assert np.array_equal(round_to_float32(united.vertices), united.vertices)
+    assert not np.array_equal(np.unique(united.vertices, axis=0), np.unique(v, axis=0))
 
 
 def test_repair_with_and_without_the_union_agree(monkeypatch):

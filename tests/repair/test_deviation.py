@@ -83,3 +83,38 @@ def test_point_triangle_distance_matches_libigl():
     for i in range(0, 500, 25):  # each point against its own triangle
         want = igl.point_mesh_squared_distance(q[i : i + 1], tri[i], np.array([[0, 1, 2]]))[0]
         assert abs(got[i] - want[0]) <= 1e-12 * max(1.0, want[0])
+
+
+def test_exact_path_sources_are_pieces_of_their_input_faces_and_d_stays_bounded():
+    """The exact path's per-face sources (the first outer hull's birth faces, carried to
+    the faces the finish kept) name input faces the written faces lie on, so D bounds
+    them without samples and stays between what the deterministic samples of every
+    written face measure and the fully sampled D (up to float32 rounding)."""
+    import igl
+    from test_pipeline import klein_bottle  # self-crossing, one-sided: the exact path
+
+    from repair.check import round_to_float32
+    from repair.deviation import _within_input_faces, max_deviation
+    from repair.finish import finish
+    from repair.hull_and_thicken import hull_and_thicken
+    from repair.provenance import hull_face_sources
+    from repair.report import RepairTally
+
+    v, f = klein_bottle()
+    v = round_to_float32(v)
+    tally = RepairTally()
+    hv, hf, first_hull, birth = hull_and_thicken(v, f, 0.4, tally)
+    ov, of, verdict = finish(hv, hf, 0.4, tally)
+    assert verdict.ok
+    hint = hull_face_sources(v, f, v, f, first_hull, birth, ov, of)
+    hinted = np.flatnonzero(hint >= 0)
+    assert len(hinted) > 0.5 * len(of)
+    on_source, _ = _within_input_faces(ov, of[hinted], v, f[hint[hinted]])
+    assert on_source.all()
+    plain = max_deviation(ov, of, v, f)
+    with_hint = max_deviation(ov, of, v, f, hint=hint)
+    p = ov[of]
+    pts = np.vstack([ov, p.mean(axis=1), 0.5 * (p + p[:, [1, 2, 0]]).reshape(-1, 3)])
+    sampled = float(np.sqrt(igl.point_mesh_squared_distance(pts, v, f)[0].max()))
+    tol = 2.0**-21 * float(np.abs(ov).max())
+    assert sampled <= with_hint <= max(plain, tol)
