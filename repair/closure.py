@@ -103,6 +103,35 @@ def _tri_measures(a: np.ndarray, b: np.ndarray, c: np.ndarray, normal: np.ndarra
     return area, np.where(forward, angle, -1.0)
 
 
+#: Candidate triangles measured together by :func:`_gap_measures` (memory: ~100 bytes each).
+_MEASURED_AT_ONCE = 1 << 16
+
+
+def _gap_measures(p: np.ndarray, normal: np.ndarray | None):
+    """For each gap 2..k-1 of the polygon ``p`` (k, 3), in order: ``(gap, area,
+    quality)`` of the triangles (i, i + t, i + gap), rows i, columns t - 1
+    (:func:`_tri_measures`) -- measured many gaps at a time, not one numpy pass each."""
+    k = len(p)
+    gaps = np.arange(2, k)
+    n_gap = (k - gaps) * (gaps - 1)
+    start = 0
+    while start < len(gaps):
+        stop = max(start + 1, int(np.searchsorted(np.cumsum(n_gap[start:]), _MEASURED_AT_ONCE,
+                                                  side="right")) + start)  # fmt: skip
+        at = np.r_[0, np.cumsum(n_gap[start:stop])]
+        g = np.repeat(gaps[start:stop], n_gap[start:stop])
+        local = np.arange(int(at[-1])) - np.repeat(at[:-1], n_gap[start:stop])
+        i = local // (g - 1)
+        m = i + 1 + local % (g - 1)
+        area, quality = _tri_measures(p[i], p[m], p[i + g], normal)
+        for row, gap in enumerate(gaps[start:stop].tolist()):
+            shape = (k - gap, gap - 1)
+            yield gap, area[at[row] : at[row + 1]].reshape(shape), quality[
+                at[row] : at[row + 1]
+            ].reshape(shape)
+        start = stop
+
+
 def _dp_triangulation(p: np.ndarray, normal: np.ndarray | None) -> np.ndarray | None:
     """Triangles (k-2, 3) of local indices 0..k-1: max-min angle among the forward
     triangulations (``normal`` given) or minimal area (``normal`` None). None when no
@@ -113,11 +142,10 @@ def _dp_triangulation(p: np.ndarray, normal: np.ndarray | None) -> np.ndarray | 
     idx = np.arange(k - 1)
     best[idx, idx + 1] = np.inf if normal is not None else 0.0
     split = np.zeros((k, k), dtype=np.int64)
-    for gap in range(2, k):
+    for gap, area, quality in _gap_measures(p, normal):
         i = np.arange(k - gap)
         j = i + gap
         m = i[:, None] + np.arange(1, gap)[None, :]
-        area, quality = _tri_measures(p[i][:, None], p[m], p[j][:, None], normal)
         left, right = best[i[:, None], m], best[m, j[:, None]]
         if normal is not None:
             score = np.minimum(np.minimum(left, right), quality)

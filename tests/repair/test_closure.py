@@ -125,3 +125,35 @@ def test_two_holes_touching_at_a_vertex_are_two_jordan_curves(tmp_path):
     # The lids are the two missing triangles: the sphere comes back whole.
     assert len(written.faces) == len(f)
     assert verdict.volume == pytest.approx(signed_volume(v, f), rel=1e-6)
+
+
+def _per_gap_measures(p: np.ndarray, normal: np.ndarray | None):
+    """The triangles of each gap measured on their own, one numpy pass per gap."""
+    from repair.closure import _tri_measures
+
+    k = len(p)
+    for gap in range(2, k):
+        i = np.arange(k - gap)
+        m = i[:, None] + np.arange(1, gap)[None, :]
+        yield (gap, *_tri_measures(p[i][:, None], p[m], p[i + gap][:, None], normal))
+
+
+@pytest.mark.parametrize("k", [5, 38, 160])
+@pytest.mark.parametrize("planar", [True, False])
+def test_gap_measures_taken_together_equal_those_taken_gap_by_gap(k, planar):
+    """The lid's dynamic programme measures many gaps' triangles in one pass (in blocks,
+    k = 160 spans several); every number must be the one a pass per gap gives."""
+    from repair.closure import _gap_measures
+
+    rng = np.random.default_rng(k)
+    t = np.sort(rng.uniform(0.0, 2.0 * np.pi, k))
+    radius = rng.uniform(5.0, 10.0, k)
+    z = np.zeros(k) if planar else rng.normal(scale=2.0, size=k)
+    p = np.c_[radius * np.cos(t), radius * np.sin(t), z] + 100.0
+    normal = np.array([0.0, 0.0, 1.0]) if planar else None
+    together = list(_gap_measures(p, normal))
+    alone = list(_per_gap_measures(p, normal))
+    assert [g for g, *_ in together] == [g for g, *_ in alone] == list(range(2, k))
+    for (_, a1, q1), (_, a2, q2) in zip(together, alone, strict=True):
+        assert a1.shape == a2.shape
+        assert np.array_equal(a1, a2) and np.array_equal(q1, q2)
