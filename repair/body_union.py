@@ -26,9 +26,8 @@ from repair.clean import drop_unreferenced
 from repair.intersections import intersecting_face_pairs
 from repair.meshes import concat_meshes
 from repair.rounding import crossings_after_change, round_finding_crossings
-from repair.rows import unique_ints
 from repair.topology import weld_exact
-from repair.union import _arrays_of, _sum_of
+from repair.union import _arrays_of, _manifolds_of, _sum_of
 
 __all__ = ["MIN_BODY_PAIRS", "BodyUnion", "unite_closed_bodies"]
 
@@ -121,29 +120,6 @@ def _knot_hull(
     return hv, hf, which[birth[hull.solid_index]]
 
 
-def _solids(v: np.ndarray, f: np.ndarray, label: np.ndarray) -> list | None:
-    """One manifold3d solid per body (float64 coordinates, each face its own id, the
-    index of its row in ``f``), or None if manifold3d rejects one."""
-    import manifold3d as m3d
-
-    order = np.argsort(label, kind="stable")
-    cuts = np.r_[0, np.flatnonzero(np.diff(label[order])) + 1, len(label)]
-    out = []
-    for lo, hi in zip(cuts[:-1], cuts[1:], strict=True):
-        rows = order[lo:hi]
-        used, inv = unique_ints(f[rows].reshape(-1), return_inverse=True)
-        mesh = m3d.Mesh64(
-            vert_properties=np.ascontiguousarray(v[used], dtype=np.float64),
-            tri_verts=np.ascontiguousarray(inv.reshape(-1, 3), dtype=np.uint64),
-            face_id=rows.astype(np.uint64),
-        )
-        solid = m3d.Manifold(mesh)
-        if solid.status() != m3d.Error.NoError:
-            return None
-        out.append(solid)
-    return out
-
-
 def unite_closed_bodies(v: np.ndarray, f: np.ndarray, pairs: np.ndarray) -> BodyUnion | None:
     """The union of the closed bodies of ``(v, f)`` followed by its other faces (see the
     module's doc), or None where it does not apply: fewer than :data:`MIN_BODY_PAIRS`
@@ -158,7 +134,8 @@ def unite_closed_bodies(v: np.ndarray, f: np.ndarray, pairs: np.ndarray) -> Body
     if bodies is None:
         return None
     try:
-        solids = _solids(bodies.vertices, bodies.faces, bodies.label)
+        solids = _manifolds_of(bodies.vertices, bodies.faces, bodies.label,
+                               keep_faces=True, float64=True)
         if not solids:
             return None
         res = _sum_of(solids).to_mesh64()

@@ -49,27 +49,37 @@ class ShellUnion:
 
 
 def _manifolds_of(
-    v: np.ndarray, f: np.ndarray, labels: np.ndarray | None = None, *, keep_faces: bool = False
+    v: np.ndarray,
+    f: np.ndarray,
+    labels: np.ndarray | None = None,
+    *,
+    keep_faces: bool = False,
+    float64: bool = False,
 ) -> list | None:
-    """One manifold3d solid per edge-connected component of ``(v, f)`` (float32), or None
-    if manifold3d rejects one. Much faster than ``Manifold.decompose`` on many pieces.
-    ``keep_faces``: give each triangle its own face id, so that manifold3d keeps the
-    input's triangles (cutting them where needed) instead of merging coplanar ones."""
+    """One manifold3d solid per edge-connected component of ``(v, f)`` (or per label of
+    ``labels``), or None if manifold3d rejects one. Much faster than
+    ``Manifold.decompose`` on many pieces. ``keep_faces``: give each triangle its own
+    face id (its row in ``f``), so that manifold3d keeps the input's triangles (cutting
+    them where needed) instead of merging coplanar ones. ``float64``: the coordinates
+    as they are (manifold3d's Mesh64) rather than rounded to float32."""
     import manifold3d as m3d
 
     lab = edge_components(f) if labels is None else labels
     order = np.argsort(lab, kind="stable")
     cuts = np.r_[0, np.flatnonzero(np.diff(lab[order])) + 1, len(lab)]
-    v32 = np.ascontiguousarray(v, dtype=np.float32)
+    mesh_type, real, index = (
+        (m3d.Mesh64, np.float64, np.uint64) if float64 else (m3d.Mesh, np.float32, np.uint32)
+    )
+    vr = np.ascontiguousarray(v, dtype=real)
     out = []
     for i in range(len(cuts) - 1):
-        ff = f[order[cuts[i] : cuts[i + 1]]]
-        used, inv = unique_ints(ff.reshape(-1), return_inverse=True)
-        ids = {"face_id": order[cuts[i] : cuts[i + 1]].astype(np.uint32)} if keep_faces else {}
+        rows = order[cuts[i] : cuts[i + 1]]
+        used, inv = unique_ints(f[rows].reshape(-1), return_inverse=True)
+        ids = {"face_id": rows.astype(index)} if keep_faces else {}
         solid = m3d.Manifold(
-            m3d.Mesh(
-                vert_properties=np.ascontiguousarray(v32[used]),
-                tri_verts=np.ascontiguousarray(inv.reshape(-1, 3), dtype=np.uint32),
+            mesh_type(
+                vert_properties=np.ascontiguousarray(vr[used]),
+                tri_verts=np.ascontiguousarray(inv.reshape(-1, 3), dtype=index),
                 **ids,
             )
         )
