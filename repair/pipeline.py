@@ -41,6 +41,7 @@ state: every call is independent (the daemon runs it in a child process).
 
 from __future__ import annotations
 
+import functools
 import json
 import time
 from dataclasses import dataclass, field
@@ -48,7 +49,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from threadpoolctl import threadpool_limits
+from threadpoolctl import ThreadpoolController
 
 from repair.budget import Meshed, run_within_budget
 from repair.check import round_to_float32
@@ -142,8 +143,19 @@ def repair_mesh(
     # (3,) products), where waking OpenBLAS's threads costs far more than it saves
     # (np.dot of 10k doubles: 6 ms instead of 6 us on a busy machine), and one thread
     # sums in one order on any machine. Parallel work is done by forked workers.
-    with threadpool_limits(limits=1, user_api="blas"):
+    with _blas_controller().limit(limits=1, user_api="blas"):
         return _repair_mesh(vertices, faces, epsilon, progress, clean, surface, time_budget)
+
+
+@functools.cache
+def _blas_controller() -> ThreadpoolController:
+    """The process's BLAS libraries, found once: finding them walks every loaded shared
+    library (2-3 ms a repair, a tenth of a 1k-triangle model's), while setting their
+    thread count takes microseconds. Found after ``scipy.linalg`` has loaded SciPy's own
+    OpenBLAS next to NumPy's, so both are limited."""
+    import scipy.linalg  # noqa: F401  (loads SciPy's BLAS before the search)
+
+    return ThreadpoolController()
 
 
 def _repair_mesh(
