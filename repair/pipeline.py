@@ -80,7 +80,7 @@ from repair.report import (
 from repair.rounding import RoundedInput, round_input
 from repair.scan import scan_cleanup
 from repair.stitch import stitch_cracks
-from repair.topology import edge_components, edge_topology
+from repair.topology import edge_components, edge_topology, edge_topology_memo
 from repair.union import union_of_shells
 
 __all__ = ["RepairError", "RepairResult", "repair_file", "repair_mesh"]
@@ -143,7 +143,7 @@ def repair_mesh(
     # (3,) products), where waking OpenBLAS's threads costs far more than it saves
     # (np.dot of 10k doubles: 6 ms instead of 6 us on a busy machine), and one thread
     # sums in one order on any machine. Parallel work is done by forked workers.
-    with _blas_controller().limit(limits=1, user_api="blas"):
+    with _blas_controller().limit(limits=1, user_api="blas"), edge_topology_memo():
         return _repair_mesh(vertices, faces, epsilon, progress, clean, surface, time_budget)
 
 

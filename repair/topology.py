@@ -19,6 +19,9 @@ order, where the repair's results depend on this module's defined orders. Units:
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,6 +37,7 @@ __all__ = [
     "edge_neighbours",
     "edge_stats",
     "edge_topology",
+    "edge_topology_memo",
     "face_keys",
     "half_edges",
     "is_cycle",
@@ -202,9 +206,45 @@ class EdgeTopology:
         )
 
 
+#: The topologies found inside :func:`edge_topology_memo` (None outside one).
+_MEMO: ContextVar[list[EdgeTopology] | None] = ContextVar("edge_topology_memo", default=None)
+#: How many recent topologies the memo keeps.
+_MEMO_SIZE = 4
+
+
+@contextmanager
+def edge_topology_memo() -> Iterator[None]:
+    """Within this block :func:`edge_topology` sorts each face array once: a repair's
+    stages ask again for faces an earlier one saw (the union's result is counted by the
+    union, split into shells by the hull, counted again by the check). The last
+    :data:`_MEMO_SIZE` topologies are kept, on private copies of their faces, their
+    arrays read-only; nothing outlives the block."""
+    token = _MEMO.set([])
+    try:
+        yield
+    finally:
+        _MEMO.reset(token)
+
+
 def edge_topology(faces: np.ndarray) -> EdgeTopology:
-    """The :class:`EdgeTopology` of ``faces`` (m, 3)."""
+    """The :class:`EdgeTopology` of ``faces`` (m, 3); inside :func:`edge_topology_memo`,
+    the one found before for equal faces (read-only arrays)."""
     f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    memo = _MEMO.get()
+    if memo is None:
+        return _edge_topology(f)
+    for t in memo:
+        if t.of(f):
+            return t
+    t = _edge_topology(f.copy())
+    for a in (t.faces, t.eid, t.counts, t.shells):
+        a.flags.writeable = False
+    memo.append(t)
+    del memo[:-_MEMO_SIZE]
+    return t
+
+
+def _edge_topology(f: np.ndarray) -> EdgeTopology:
     if len(f) == 0:
         none = np.zeros(0, dtype=np.int64)
         return EdgeTopology(f, none, none, none, 0, 0, 0)
