@@ -29,7 +29,19 @@ def starts_with_faces(va: np.ndarray, fa: np.ndarray, vb: np.ndarray, fb: np.nda
     """True when the first ``len(fa)`` faces of ``(vb, fb)`` are those of ``(va, fa)``,
     row by row, on exactly the same points (cleaning that removed nothing, lids appended)."""
     n = len(fa)
-    return len(fb) >= n and np.array_equal(vb[fb[:n]], va[fa])
+    if len(fb) < n:
+        return False
+    # Block by block: where the faces differ they usually do early (a weld renumbered
+    # them), and the gathers stop there (2-3 ms a call on 16k faces otherwise).
+    for s in range(0, n, _BLOCK):
+        e = min(s + _BLOCK, n)
+        if not np.array_equal(vb[fb[s:e]], va[fa[s:e]]):
+            return False
+    return True
+
+
+#: Faces compared at a time by :func:`starts_with_faces`.
+_BLOCK = 1024
 
 
 def same_faces(va: np.ndarray, fa: np.ndarray, vb: np.ndarray, fb: np.ndarray) -> np.ndarray:
