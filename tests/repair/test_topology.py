@@ -13,6 +13,8 @@ from repair.topology import (
     edge_ids,
     edge_neighbours,
     edge_stats,
+    edge_topology,
+    edge_topology_memo,
     face_keys,
     is_cycle,
     paired_half_edges,
@@ -114,3 +116,20 @@ def test_connected_labels_are_scipys_on_meshes_paths_and_random_graphs():
         got = connected_labels(n, a, b)
         assert got.dtype == np.int64
         assert np.array_equal(got, scipys(n, a, b))
+
+
+def test_edge_topology_memo_sorts_equal_faces_once_and_never_returns_a_stale_one():
+    f = _sphere()
+    alone = edge_topology(f)
+    with edge_topology_memo():
+        first = edge_topology(f)
+        assert edge_topology(f.copy()) is first  # equal faces: found once
+        for name in ("eid", "counts", "shells"):
+            assert np.array_equal(getattr(first, name), getattr(alone, name))
+            assert not getattr(first, name).flags.writeable  # shared: read-only
+        assert (first.boundary, first.nonmanifold, first.misoriented) == (0, 0, 0)
+        f[0] = f[0, ::-1]  # the caller's array changed in place: not the faces memoised
+        flipped = edge_topology(f)
+        assert flipped is not first and flipped.misoriented == 3
+        assert first.misoriented == 0 and np.array_equal(first.faces[0], f[0, ::-1])
+    assert edge_topology(f) is not edge_topology(f)  # nothing outlives the block
