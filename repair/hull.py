@@ -318,9 +318,12 @@ def unbounded_cells(vertices: np.ndarray, faces: np.ndarray, cells: np.ndarray) 
             origin = cen[face] + hair * normal
             escaped = False
             # A bounded region's rays leave it through its own faces: test those first,
-            # all at once (a hit on any face is a hit: the same answer, only cheaper).
+            # all at once (a hit on any face is a hit: the same answer, only cheaper),
+            # unless they are more than one culling pass over all faces would cost.
             units = np.array([d / np.linalg.norm(d) for d in tries]).reshape(-1, 3)
-            blocked = ray_hits(origin, units, p[own[own != face]]).any(axis=1)
+            blocked = np.zeros(len(units), dtype=bool)
+            if len(own) * len(units) <= len(f):
+                blocked = ray_hits(origin, units, p[own[own != face]]).any(axis=1)
             for unit, own_hit in zip(units, blocked, strict=True):
                 budget -= 1
                 if own_hit:
