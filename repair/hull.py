@@ -22,7 +22,7 @@ import numpy as np
 
 from repair.clean import cancel_opposite_faces, degenerate_mask, drop_unreferenced
 from repair.intersections import intersecting_face_pairs
-from repair.rays import RayCaster
+from repair.rays import RayCaster, ray_hits
 from repair.rows import unique_ints
 from repair.thicken import orient_patches, orient_patches_with_edge_use
 from repair.topology import (
@@ -281,7 +281,8 @@ def unbounded_cells(vertices: np.ndarray, faces: np.ndarray, cells: np.ndarray) 
     faces leaves the model without meeting another face. Up to 8 faces per region and
     6 directions per face are tried (away from the model's centre first), largest
     regions first, within :data:`MAX_CELL_RAYS` rays and :data:`MAX_CELL_RAY_TESTS`
-    ray-triangle tests in all (each ray culls by bounding spheres first,
+    ray-triangle tests in all (each ray is tested against the region's own faces first,
+    which a bounded region's rays meet, then culls by bounding spheres,
     :class:`repair.rays.RayCaster`). Float ray tests: a grazing hit only makes a ray
     fail, never pass wrongly."""
     v = np.asarray(vertices, dtype=np.float64)
@@ -302,7 +303,9 @@ def unbounded_cells(vertices: np.ndarray, faces: np.ndarray, cells: np.ndarray) 
     for lab in labels[np.argsort(-counts, kind="stable")].tolist():
         if lab == 0:
             continue  # libigl's own unbounded cell
-        sides = np.argwhere(cells == lab)
+        own_side = cells == lab
+        sides = np.argwhere(own_side)
+        own = np.flatnonzero(own_side.any(axis=1))
         sides = sides[np.linspace(0, len(sides) - 1, min(8, len(sides))).astype(int)]
         for face, col in sides.tolist():
             sign = 1.0 if col == 0 else -1.0
@@ -314,9 +317,18 @@ def unbounded_cells(vertices: np.ndarray, faces: np.ndarray, cells: np.ndarray) 
             tries = tries[tries @ normal > 1e-9 * np.linalg.norm(tries, axis=1)]
             origin = cen[face] + hair * normal
             escaped = False
-            for d in tries:
+            # A bounded region's rays leave it through its own faces: test those first,
+            # all at once (a hit on any face is a hit: the same answer, only cheaper),
+            # unless they are more than one culling pass over all faces would cost.
+            units = np.array([d / np.linalg.norm(d) for d in tries]).reshape(-1, 3)
+            blocked = np.zeros(len(units), dtype=bool)
+            if len(own) * len(units) <= len(f):
+                blocked = ray_hits(origin, units, p[own[own != face]]).any(axis=1)
+            for unit, own_hit in zip(units, blocked, strict=True):
                 budget -= 1
-                if not caster.hits_any(origin, d / np.linalg.norm(d), face):
+                if own_hit:
+                    continue
+                if not caster.hits_any(origin, unit, face):
                     escaped = True
                     break
             if escaped:

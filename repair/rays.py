@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["RayCaster", "ray_hits_any"]
+__all__ = ["RayCaster", "ray_hits", "ray_hits_any"]
 
 #: Bounding spheres are grown by this fraction of their radius (and the model's size
 #: by a smaller one) so that rounding in the cull never drops a triangle the exact-as-
@@ -23,12 +23,22 @@ def ray_hits_any(origin: np.ndarray, direction: np.ndarray, tri: np.ndarray, ski
     """Does the ray hit any triangle of ``tri`` (k, 3, 3) but ``skip`` (an index into
     ``tri``, or -1)? Moller-Trumbore, vectorised; edge and vertex hits count as hits
     (conservative)."""
+    hit = ray_hits(origin, np.reshape(direction, (1, 3)), tri)[0]
+    if skip >= 0:
+        hit[skip] = False
+    return bool(hit.any())
+
+
+def ray_hits(origin: np.ndarray, directions: np.ndarray, tri: np.ndarray) -> np.ndarray:
+    """Which triangles of ``tri`` (k, 3, 3) each ray from ``origin`` along
+    ``directions`` (r, 3) hits: (r, k) bool, as :func:`ray_hits_any` tests them."""
     # Column by column: np.cross and einsum cost more in set-up than in arithmetic on
     # the few triangles a ray is tested against (the same products and sums).
     x0, y0, z0 = tri[:, 0, 0], tri[:, 0, 1], tri[:, 0, 2]
     e1x, e1y, e1z = tri[:, 1, 0] - x0, tri[:, 1, 1] - y0, tri[:, 1, 2] - z0
     e2x, e2y, e2z = tri[:, 2, 0] - x0, tri[:, 2, 1] - y0, tri[:, 2, 2] - z0
-    dx, dy, dz = (float(c) for c in direction)
+    d = np.asarray(directions, dtype=np.float64)
+    dx, dy, dz = d[:, 0:1], d[:, 1:2], d[:, 2:3]
     hx, hy, hz = dy * e2z - dz * e2y, dz * e2x - dx * e2z, dx * e2y - dy * e2x
     a = e1x * hx + e1y * hy + e1z * hz
     ok = np.abs(a) > 1e-300
@@ -39,10 +49,7 @@ def ray_hits_any(origin: np.ndarray, direction: np.ndarray, tri: np.ndarray, ski
     w = inv * (qx * dx + qy * dy + qz * dz)
     t = inv * (e2x * qx + e2y * qy + e2z * qz)
     tol = 1e-9
-    hit = ok & (u >= -tol) & (w >= -tol) & (u + w <= 1 + tol) & (t > 0)
-    if skip >= 0:
-        hit[skip] = False
-    return bool(hit.any())
+    return ok & (u >= -tol) & (w >= -tol) & (u + w <= 1 + tol) & (t > 0)
 
 
 class RayCaster:
