@@ -30,7 +30,7 @@ from repair.mend import mend_intersections, separate_singular_edges
 from repair.meshes import concat_meshes
 from repair.provenance import carried_pairs, same_faces
 from repair.report import RepairTally
-from repair.rounding import crossings_after_change, round_finding_crossings
+from repair.rounding import crossings_after_change, pairs_after_weld, round_finding_crossings
 from repair.rows import unique_ints, unique_rows
 from repair.topology import (
     connected_labels,
@@ -132,25 +132,9 @@ def rounded_verdict(
     r, found = round_finding_crossings(v, f, known=known)
     v32, f32 = weld_exact(r, f)
     if len(v32) != len(r):
-        found = _pairs_after_weld(f, v32, f32, found)
+        found = pairs_after_weld(f, v32, f32, found)
     verdict, pairs = verdict_given_pairs(v32, f32, found)
     return v32, f32, verdict, pairs
-
-
-def _pairs_after_weld(
-    f: np.ndarray, v32: np.ndarray, f32: np.ndarray, found: np.ndarray
-) -> np.ndarray:
-    """All crossing pairs of the welded ``(v32, f32)``, given those ``found`` among the
-    same faces before the weld (``f``). A weld moves no point and re-indexes the faces
-    one for one: two faces none of whose corners was merged with another vertex share
-    exactly the corners they shared before, so their pair stands; only near the faces
-    on a merged vertex is the exact test run again."""
-    n = int(f.max()) + 1 if len(f) else 1
-    links = unique_ints(f32.reshape(-1) * n + f.reshape(-1))  # (welded, original) corners
-    merged = np.bincount(links // n, minlength=len(v32)) > 1
-    changed = merged[f32].any(axis=1)
-    kept = found[~changed[found].any(axis=1)]
-    return crossings_after_change(v32, f32, kept, changed)
 
 
 def finish(
