@@ -166,7 +166,7 @@ def finish(
         before = ready = None
         if verdict.ok:
             return v32, f32, verdict
-        damage = verdict.intersecting_pairs + verdict.degenerate_faces + verdict.nonmanifold_edges
+        damage = _damage(verdict)
         grew = last_damage is not None and damage > last_damage
         if grew:
             worse += 1
@@ -184,10 +184,15 @@ def finish(
         touching = verdict.nonmanifold_edges and not (
             verdict.intersecting_pairs or verdict.degenerate_faces
         )
-        if touching and not tried_separation and not verdict.boundary_edges:
-            tried_separation = True
+        # Separated at the first round they show, crossings or not (the parts that touch
+        # are there from the start: an outer hull keeps them; each round spent mending
+        # around them first costs a rounding and check); tried again once they are all
+        # that is left.
+        if verdict.nonmanifold_edges and not tried_separation and not verdict.boundary_edges:
+            tried_separation = bool(touching)
             separated = _separate_if_better(v32, f32, pairs, verdict)
             if separated is not None:
+                tried_separation = True
                 (v, f, tally.separated), tried = separated
                 if tried[2].ok:  # what the next round would find: done
                     return tried[0], tried[1], tried[2]
@@ -207,6 +212,11 @@ def finish(
     assert verdict is not None
     v32, f32 = weld_exact(round_to_float32(v), f)
     return v32, f32, check_printable(v32, f32)
+
+
+def _damage(p: Printability) -> int:
+    """What a finish round mends: crossing pairs, degenerate faces, non-manifold edges."""
+    return p.intersecting_pairs + p.degenerate_faces + p.nonmanifold_edges
 
 
 def _collapse_short_edges(
@@ -252,16 +262,16 @@ def _separate_if_better(
 ) -> tuple[tuple[np.ndarray, np.ndarray, int], tuple] | None:
     """Parts that touch along an edge: give each its own copy of the edge, a few ulps
     apart (exact elsewhere). Kept -- ``(separated mesh and edge count, its rounded
-    verdict)`` -- if that leaves less damage once rounded (a copy may cross a face close
-    by); else None, and the edges are fused instead."""
+    verdict)`` -- if that leaves less damage (crossing pairs, degenerate faces and
+    non-manifold edges) once rounded than ``verdict`` counts (a copy may cross a face
+    close by); else None, and the edges are fused instead."""
     step = float(np.abs(v32).max()) * 2.0**-17
     sep = separate_singular_edges(v32, f32, step)
     if sep is None:
         return None
     tried = rounded_verdict(*sep[:2], None if pairs is None else (v32, f32, pairs))
     trial = tried[2]
-    left = trial.intersecting_pairs + trial.degenerate_faces
-    if left + trial.nonmanifold_edges < verdict.nonmanifold_edges:
+    if _damage(trial) < _damage(verdict):
         return sep, tried
     return None
 
