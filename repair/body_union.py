@@ -23,9 +23,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from repair.clean import drop_unreferenced
-from repair.intersections import intersecting_face_pairs
 from repair.meshes import concat_meshes
-from repair.rounding import crossings_after_change, round_finding_crossings
+from repair.rounding import crossings_after_change, pairs_after_weld, round_finding_crossings
 from repair.topology import weld_exact
 from repair.union import _arrays_of, _manifolds_of, _sum_of
 
@@ -150,27 +149,28 @@ def unite_closed_bodies(v: np.ndarray, f: np.ndarray, pairs: np.ndarray) -> Body
     out_v, out_f = weld_exact(*concat_meshes([(uv, uf), (v, f[bodies.rest])]))
     birth = np.r_[bodies.birth[source], bodies.rest].astype(np.int64)
     dropped = len(f) - len(np.unique(birth))
-    if union_pairs is None:
-        out_pairs = intersecting_face_pairs(out_v, out_f)
-    else:  # the union's own pairs are known: test only near the rest
-        rest = np.zeros(len(out_f), dtype=bool)
-        rest[len(uf) :] = True
-        out_pairs = crossings_after_change(out_v, out_f, union_pairs, rest)
+    # The union's own pairs are known: test only near the rest.
+    rest = np.zeros(len(out_f), dtype=bool)
+    rest[len(uf) :] = True
+    out_pairs = crossings_after_change(out_v, out_f, union_pairs, rest)
     return BodyUnion(out_v, out_f, birth, out_pairs, len(solids), int(dropped))
 
 
 def _rounded(
     uv: np.ndarray, uf: np.ndarray, source: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The union rounded to float32 (what is written; the union's new points are float
     anyway) so that the arrangement and finish that follow start from float32 points and
     do not round them again: ``(vertices, faces, source, pairs)``. Rounding avoids making
     faces cross where it can (:func:`repair.rounding.round_finding_crossings`); points it
     merges are welded and faces left with a repeated corner dropped. ``pairs``: all the
-    crossing pairs of the result, or None where the weld changed the faces."""
+    crossing pairs of the result (only the faces on a welded point are tested again)."""
     rv, pairs = round_finding_crossings(uv, uf)
     wv, wf = weld_exact(rv, uf)
     if len(wv) == len(rv):
         return wv, wf, source, pairs
+    pairs = pairs_after_weld(uf, wv, wf, pairs)
     keep = (wf[:, 0] != wf[:, 1]) & (wf[:, 1] != wf[:, 2]) & (wf[:, 2] != wf[:, 0])
-    return wv, wf[keep], source[keep], None
+    # A face with a repeated corner is degenerate: in no pair.
+    pairs = (np.cumsum(keep) - 1)[pairs[keep[pairs].all(axis=1)]]
+    return wv, wf[keep], source[keep], pairs

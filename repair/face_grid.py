@@ -99,7 +99,7 @@ class FaceGrid:
     ) -> list[np.ndarray]:
         """The faces listed under cells ``first[i] .. first[i] + count[i]`` (positions in
         the sorted listing) whose box meets that of face ``asked[i]`` -- cells can be
-        coarse -- box-tested ``chunk`` listings at a time (memory)."""
+        coarse -- box-tested ``chunk`` listings at a time (memory); with repeats."""
         out = []
         ends = np.cumsum(count)
         steps = np.arange(1, 1 + int(ends[-1]) // chunk) * chunk
@@ -112,7 +112,7 @@ class FaceGrid:
                 lo, hi = self.lo_t[k], self.hi_t[k]
                 hit = (lo[cand] <= hi[by]) & (hi[cand] >= lo[by])
                 cand, by = cand[hit], by[hit]
-            out.append(np.unique(cand))
+            out.append(cand)
         return out
 
     def near(self, which: np.ndarray, chunk: int = 2**20) -> np.ndarray:
@@ -139,10 +139,14 @@ class FaceGrid:
                 keys = np.unique(keys)
                 first = np.searchsorted(self.sorted_keys, keys, side="left")
                 count = np.searchsorted(self.sorted_keys, keys, side="right") - first
-                found.append(np.unique(self.sorted_faces[ranges(first, count)]))
+                found.append(self.sorted_faces[ranges(first, count)])
         if len(self.big):
             found.append(self.big[self._meet(self.big, which)])
         huge = which[~few]
         if len(huge):
             found.append(np.flatnonzero(self._meet(np.arange(self.m), huge)))
-        return np.unique(np.concatenate(found))
+        # A mark per face, not a sort: the listings repeat faces many times over.
+        near = np.zeros(self.m, dtype=bool)
+        for idx in found:
+            near[idx] = True
+        return np.flatnonzero(near)

@@ -30,7 +30,7 @@ from repair.mend import mend_intersections, separate_singular_edges
 from repair.meshes import concat_meshes
 from repair.provenance import carried_pairs, same_faces
 from repair.report import RepairTally
-from repair.rounding import crossings_after_change, round_finding_crossings
+from repair.rounding import crossings_after_change, pairs_after_weld, round_finding_crossings
 from repair.rows import unique_ints, unique_rows
 from repair.topology import (
     connected_labels,
@@ -132,25 +132,9 @@ def rounded_verdict(
     r, found = round_finding_crossings(v, f, known=known)
     v32, f32 = weld_exact(r, f)
     if len(v32) != len(r):
-        found = _pairs_after_weld(f, v32, f32, found)
+        found = pairs_after_weld(f, v32, f32, found)
     verdict, pairs = verdict_given_pairs(v32, f32, found)
     return v32, f32, verdict, pairs
-
-
-def _pairs_after_weld(
-    f: np.ndarray, v32: np.ndarray, f32: np.ndarray, found: np.ndarray
-) -> np.ndarray:
-    """All crossing pairs of the welded ``(v32, f32)``, given those ``found`` among the
-    same faces before the weld (``f``). A weld moves no point and re-indexes the faces
-    one for one: two faces none of whose corners was merged with another vertex share
-    exactly the corners they shared before, so their pair stands; only near the faces
-    on a merged vertex is the exact test run again."""
-    n = int(f.max()) + 1 if len(f) else 1
-    links = unique_ints(f32.reshape(-1) * n + f.reshape(-1))  # (welded, original) corners
-    merged = np.bincount(links // n, minlength=len(v32)) > 1
-    changed = merged[f32].any(axis=1)
-    kept = found[~changed[found].any(axis=1)]
-    return crossings_after_change(v32, f32, kept, changed)
 
 
 def finish(
@@ -182,7 +166,7 @@ def finish(
         before = ready = None
         if verdict.ok:
             return v32, f32, verdict
-        damage = verdict.intersecting_pairs + verdict.degenerate_faces + verdict.nonmanifold_edges
+        damage = _damage(verdict)
         grew = last_damage is not None and damage > last_damage
         if grew:
             worse += 1
@@ -200,10 +184,15 @@ def finish(
         touching = verdict.nonmanifold_edges and not (
             verdict.intersecting_pairs or verdict.degenerate_faces
         )
-        if touching and not tried_separation and not verdict.boundary_edges:
-            tried_separation = True
+        # Separated at the first round they show, crossings or not (the parts that touch
+        # are there from the start: an outer hull keeps them; each round spent mending
+        # around them first costs a rounding and check); tried again once they are all
+        # that is left.
+        if verdict.nonmanifold_edges and not tried_separation and not verdict.boundary_edges:
+            tried_separation = bool(touching)
             separated = _separate_if_better(v32, f32, pairs, verdict)
             if separated is not None:
+                tried_separation = True
                 (v, f, tally.separated), tried = separated
                 if tried[2].ok:  # what the next round would find: done
                     return tried[0], tried[1], tried[2]
@@ -223,6 +212,11 @@ def finish(
     assert verdict is not None
     v32, f32 = weld_exact(round_to_float32(v), f)
     return v32, f32, check_printable(v32, f32)
+
+
+def _damage(p: Printability) -> int:
+    """What a finish round mends: crossing pairs, degenerate faces, non-manifold edges."""
+    return p.intersecting_pairs + p.degenerate_faces + p.nonmanifold_edges
 
 
 def _collapse_short_edges(
@@ -268,16 +262,16 @@ def _separate_if_better(
 ) -> tuple[tuple[np.ndarray, np.ndarray, int], tuple] | None:
     """Parts that touch along an edge: give each its own copy of the edge, a few ulps
     apart (exact elsewhere). Kept -- ``(separated mesh and edge count, its rounded
-    verdict)`` -- if that leaves less damage once rounded (a copy may cross a face close
-    by); else None, and the edges are fused instead."""
+    verdict)`` -- if that leaves less damage (crossing pairs, degenerate faces and
+    non-manifold edges) once rounded than ``verdict`` counts (a copy may cross a face
+    close by); else None, and the edges are fused instead."""
     step = float(np.abs(v32).max()) * 2.0**-17
     sep = separate_singular_edges(v32, f32, step)
     if sep is None:
         return None
     tried = rounded_verdict(*sep[:2], None if pairs is None else (v32, f32, pairs))
     trial = tried[2]
-    left = trial.intersecting_pairs + trial.degenerate_faces
-    if left + trial.nonmanifold_edges < verdict.nonmanifold_edges:
+    if _damage(trial) < _damage(verdict):
         return sep, tried
     return None
 

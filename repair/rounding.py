@@ -1,7 +1,8 @@
 """Rounding to float32 (what a binary STL stores): the input's, checked before anything
 else (:func:`round_input`, stage 1 of the repair); the result's, without making faces
 cross (:func:`round_finding_crossings`); and the crossing pairs of a mesh of which only
-a few faces changed (:func:`crossings_after_change`).
+a few faces changed (:func:`crossings_after_change`), or that a weld re-indexed
+(:func:`pairs_after_weld`).
 
 Each coordinate not exactly representable in float32 has two float32 neighbours; where
 the nearest ones make faces cross, the vertices of those faces try the others, and only
@@ -22,11 +23,12 @@ from repair.check import Printability, check_printable_pairs, round_to_float32
 from repair.clean import degenerate_mask
 from repair.face_grid import FaceGrid
 from repair.intersections import intersecting_face_pairs, intersecting_pairs_with
-from repair.rows import unique_rows
+from repair.rows import unique_ints, unique_rows
 
 __all__ = [
     "RoundedInput",
     "crossings_after_change",
+    "pairs_after_weld",
     "round_avoiding_crossings",
     "round_finding_crossings",
     "round_input",
@@ -141,6 +143,22 @@ def crossings_after_change(
     found = _pairs_with_changed(v, f, region, changed)
     both = np.vstack([np.asarray(kept, dtype=np.int64).reshape(-1, 2), found])
     return unique_rows(np.sort(both, axis=1)) if len(both) else both
+
+
+def pairs_after_weld(
+    f: np.ndarray, v32: np.ndarray, f32: np.ndarray, found: np.ndarray
+) -> np.ndarray:
+    """All crossing pairs of the welded ``(v32, f32)``, given those ``found`` among the
+    same faces before the weld (``f``). A weld moves no point and re-indexes the faces
+    one for one: two faces none of whose corners was merged with another vertex share
+    exactly the corners they shared before, so their pair stands; only near the faces
+    on a merged vertex is the exact test run again."""
+    n = int(f.max()) + 1 if len(f) else 1
+    links = unique_ints(f32.reshape(-1) * n + f.reshape(-1))  # (welded, original) corners
+    merged = np.bincount(links // n, minlength=len(v32)) > 1
+    changed = merged[f32].any(axis=1)
+    kept = found[~changed[found].any(axis=1)]
+    return crossings_after_change(v32, f32, kept, changed)
 
 
 def _pairs_with_changed(
