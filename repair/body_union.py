@@ -13,6 +13,15 @@ resolve a solid's own crossings). They are handed over with the union's surface,
 whose crossings with them are few. The outer hull of the whole then drops the union's
 cavities and whatever of the rest lies inside, as for any input.
 
+Bodies that touch along a plane rarely touch exactly: their points, rounded to float32
+on export, stand a few ulps off it on either side, and the union keeps the gaps as
+slits a few ulps wide between their walls (a slicer's probe a hair off such a wall lands
+in the solid again). Before the union, each coordinate of the bodies' points a few
+ulps from a more common value of the same axis (and within :data:`SNAP_REACH` probe
+distances of it) is snapped to it (:func:`snapped_coordinates`): walls on a common
+plane of constant x, y or z become coplanar, which manifold3d fuses (mikedh_cycloidal:
+faces failing the two-sided winding test of the output 382 -> 47, D unchanged).
+
 Units are mm; vertices float64 (n, 3) (float32 values), faces int64 (m, 3).
 """
 
@@ -23,16 +32,24 @@ from dataclasses import dataclass
 import numpy as np
 
 from repair.clean import drop_unreferenced
+from repair.junk import probe_distance
 from repair.meshes import concat_meshes
 from repair.rounding import crossings_after_change, pairs_after_weld, round_finding_crossings
 from repair.topology import weld_exact
 from repair.union import _arrays_of, _manifolds_of, _sum_of
 
-__all__ = ["MIN_BODY_PAIRS", "BodyUnion", "unite_closed_bodies"]
+__all__ = ["MIN_BODY_PAIRS", "SNAP_REACH", "BodyUnion", "snapped_coordinates",
+           "unite_closed_bodies"]  # fmt: skip
 
 #: Unite the bodies first only when at least this many face pairs cross between two
 #: of them: below it CGAL's arrangement of the crossings is quick, and exact.
 MIN_BODY_PAIRS = 2000
+#: How far (in probe distances of :func:`repair.junk.probe_distance`, about 2 float32
+#: ulps of the part's size each) a coordinate of a body's point is snapped to a more
+#: common value of its axis before the union.
+SNAP_REACH = 8.0
+#: Coordinate values at most this many float32 ulps apart are one plane's noise.
+SNAP_ULPS = 2
 
 
 @dataclass(frozen=True)
@@ -133,7 +150,8 @@ def unite_closed_bodies(v: np.ndarray, f: np.ndarray, pairs: np.ndarray) -> Body
     if bodies is None:
         return None
     try:
-        solids = _manifolds_of(bodies.vertices, bodies.faces, bodies.label,
+        snapped = snapped_coordinates(bodies.vertices, SNAP_REACH * probe_distance(v))
+        solids = _manifolds_of(snapped, bodies.faces, bodies.label,
                                keep_faces=True, float64=True)
         if not solids:
             return None
@@ -174,3 +192,21 @@ def _rounded(
     # A face with a repeated corner is degenerate: in no pair.
     pairs = (np.cumsum(keep) - 1)[pairs[keep[pairs].all(axis=1)]]
     return wv, wf[keep], source[keep], pairs
+
+
+def snapped_coordinates(vertices: np.ndarray, reach: float) -> np.ndarray:
+    """``vertices`` (mm) with the values of each axis grouped into chains whose
+    consecutive values are at most :data:`SNAP_ULPS` float32 ulps apart, and each
+    coordinate moved onto its chain's most common value (ties: the lower) where that is
+    within ``reach`` (mm) of it: points a few ulps either side of a plane of constant x,
+    y or z that most of its points lie on move onto it. No coordinate moves by more
+    than ``reach``."""
+    out = np.array(vertices, dtype=np.float64)
+    for axis in range(out.shape[1] if out.ndim == 2 and len(out) else 0):
+        u, inv, count = np.unique(out[:, axis], return_inverse=True, return_counts=True)
+        ulp = np.spacing(np.abs(u).astype(np.float32)).astype(np.float64)
+        chain = np.cumsum(np.r_[True, np.diff(u) > SNAP_ULPS * ulp[1:]]) - 1
+        order = np.lexsort((-count, chain))  # each chain's most common value first
+        common = u[order[np.r_[True, np.diff(chain[order]) > 0]]][chain]
+        out[:, axis] = np.where(np.abs(common - u) <= reach, common, u)[inv]
+    return out

@@ -25,7 +25,7 @@ FILES = (
 )
 #: Models with nothing printable in them (every triangle collapses to a point).
 NOTHING_PRINTABLE = {"Ghostkeeper_zero_size_cube.stl"}
-#: Outputs that still hold faces failing the two-sided winding test (24-379 each):
+#: Outputs that still hold faces failing the two-sided winding test (24-47 each):
 #: walls of slits thinner than the probe (another wall of the same shell 1e-9 to 1e-5 mm
 #: away: winding 1|1) whose corners do not face each other, and blades that thin (0|0)
 #: -- kept from near-coincident input faces by the arrangement and the union.
@@ -35,9 +35,10 @@ NOTHING_PRINTABLE = {"Ghostkeeper_zero_size_cube.stl"}
 #: blade went with the sheets' eps-blocks, repair.thicken.face_blocks; mikedh_target's 46
 #: with its blocks' union, the sheet now being thickened by its level set,
 #: repair.sheet_level_set; mikedh_teapot's 30 when finish separated its touching edges
-#: at the first round, repair.finish.) mikedh_cycloidal's 379 are mostly slit walls that
-#: manifold3d's union of its closed bodies leaves where bodies nearly touch
-#: (repair.body_union; 0.03 mm2 in all, inside on both sides).
+#: at the first round, repair.finish.) mikedh_cycloidal's were 382 slit walls that
+#: manifold3d's union of its closed bodies left where bodies touch a few float32 ulps
+#: apart; snapping the bodies' coordinates onto their planes first
+#: (repair.body_union.snapped_coordinates) leaves 47.
 #: Known failures, asserted so, so that a fix shows up here.
 WINDING_KNOWN_FAILURES = {
     "mikedh_counter.unitsmm.STL",
