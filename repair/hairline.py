@@ -9,16 +9,19 @@ apart -- which the exact arrangement keeps as it finds them, and from rounding i
 to float32. A slicer should never see them.
 
 :func:`hairline_suspects` finds, cheaply, the faces that another face comes nearer than
-the probe distance of :func:`repair.junk.face_winding_sides`; the winding number decides
-among them. :func:`without_hairline_gaps` closes them, round by round, by the cheapest
-of: a zip (:mod:`repair.zip`: the walls' corners within :data:`FILL_REACH` probe
-distances merged, faces left back to back dropped -- slits whose walls have matching
-corners, blades, needles); a snap of one wall onto the other and an exact local mend;
-and a fill (:func:`fill_hairline_gaps`: a prism of 2 probe distances either side of each
-failing face, and thin cylinders along its creases, united with the solid by
-manifold3d). Nothing moves by more than those 2 probe distances (about 4 float32 ulps of
-the part's size); each result is rounded, checked and kept only when it is printable
-and fewer faces fail.
+the probe distance of :func:`repair.junk.face_winding_sides` (on large meshes only those
+near a fold, :func:`fold_suspects`); the winding number decides among them.
+:func:`without_hairline_gaps` closes them, round by round, first by a cut
+(:func:`cut_and_lid`: the failing faces and an edge ring or more round them cut out, each
+hole lidded; the lid spans the slit's mouth or the blade's base, within the cut faces'
+reach), else by the cheapest of: a zip (:mod:`repair.zip`: the walls' corners within
+:data:`FILL_REACH` probe distances merged, faces left back to back dropped -- slits
+whose walls have matching corners, blades, needles); a snap of one wall onto the other
+and an exact local mend; and a fill (:func:`fill_hairline_gaps`: a prism of 2 probe
+distances either side of each failing face, and thin cylinders along its creases, united
+with the solid by manifold3d). Zip, snap and fill move nothing by more than those 2
+probe distances (about 4 float32 ulps of the part's size); each result is rounded,
+checked and kept only when it is printable and fewer faces fail.
 
 Units are mm; vertices float64 (n, 3), faces int64 (m, 3).
 """
@@ -39,45 +42,168 @@ FILL_REACH = 2.0
 #: of a second a round): snapping and filling, each rounded and mended, took tens of
 #: seconds on the corpus's 30k-90k-face outputs, more than the rest of their repair.
 MAX_FACES = 20_000
-#: Meshes with more faces are left as they are: finding the failing faces costs 2-15 s on
-#: the corpus's 64k-90k-face outputs (the exact winding numbers near the surface).
+#: Meshes with more faces are only cut and lidded, and searched for failing faces only
+#: near folds (:func:`fold_suspects`): the whole search costs 2-15 s on the corpus's
+#: 64k-90k-face outputs (the exact winding numbers near the surface).
 MAX_ZIP_FACES = 40_000
 #: Rounds of "find, fill, round and check" at most.
 MAX_FILL_ROUNDS = 6
+#: A fold: an edge whose two faces' unit normals have a dot product below this.
+FOLD_DOT = -0.9
+#: Edge rings round a fold searched for failing faces on meshes of more than
+#: :data:`MAX_ZIP_FACES` faces (counter's 24 failing faces lie within 2 rings of one).
+FOLD_RINGS = 2
+#: Large meshes with more of their faces near a fold are left as they are: the search
+#: among them costs seconds (mikedh_cycloidal's output: 67 % of 111k faces, 5.5 s CPU,
+#: and four rounds of cuts took it 382 -> 0 failing faces for ~25 s more; counter: 6 %).
+MAX_FOLD_FRACTION = 0.1
+#: Edge rings round the failing faces cut out before lidding: 1, then up to this many
+#: where fewer do not help.
+MAX_CUT_RINGS = 3
 
 
-def hairline_suspects(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Faces with another face nearer than the probe distance ``d`` to a point ``d``
-    off their centroid (either side): the only faces whose winding sides can be wrong on
-    a printable mesh of one nesting level. A libigl AABB distance query; also every face
-    too thin to be probed at ``d`` (its own probe is nearer)."""
+def hairline_suspects(
+    vertices: np.ndarray, faces: np.ndarray, which: np.ndarray | None = None
+) -> np.ndarray:
+    """Faces (of ``which``, default all) with another face nearer than the probe
+    distance ``d`` to a point ``d`` off their centroid (either side): the only faces whose
+    winding sides can be wrong on a printable mesh of one nesting level. A libigl AABB
+    distance query; also every face too thin to be probed at ``d`` (its own probe is
+    nearer)."""
     import igl
 
     v = np.ascontiguousarray(vertices, dtype=np.float64)
     f = np.ascontiguousarray(faces, dtype=np.int64)
-    if len(f) == 0:
+    idx = np.arange(len(f)) if which is None else np.asarray(which, dtype=np.int64)
+    if len(f) == 0 or len(idx) == 0:
         return np.zeros(0, dtype=np.int64)
     d = probe_distance(v)
-    p = v[f]
+    p = v[f[idx]]
     n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
     length = np.linalg.norm(n, axis=1, keepdims=True)
     n = np.divide(n, length, out=np.zeros_like(n), where=length > 0)
     c = p.mean(axis=1)
     q = np.vstack([c + d * n, c - d * n])
     sq, nearest, _ = igl.point_mesh_squared_distance(q, v, f)
-    m = len(f)
-    other = (nearest.reshape(2, m) != np.arange(m)) & (sq.reshape(2, m) < (0.999 * d) ** 2)
-    return np.flatnonzero(other.any(axis=0) | (length[:, 0] == 0))
+    m = len(idx)
+    other = (nearest.reshape(2, m) != idx) & (sq.reshape(2, m) < (0.999 * d) ** 2)
+    return idx[other.any(axis=0) | (length[:, 0] == 0)]
 
 
-def hairline_failures(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Faces that fail the two-sided winding test (:func:`repair.junk.failing_faces`),
-    looked for among :func:`hairline_suspects` only."""
-    sus = hairline_suspects(vertices, faces)
+def hairline_failures(
+    vertices: np.ndarray, faces: np.ndarray, which: np.ndarray | None = None
+) -> np.ndarray:
+    """Faces (of ``which``, default all) that fail the two-sided winding test
+    (:func:`repair.junk.failing_faces`), looked for among :func:`hairline_suspects`
+    only."""
+    sus = hairline_suspects(vertices, faces, which)
     if len(sus) == 0:
         return sus
     outside, inside = face_winding_sides(vertices, faces, sus)
     return sus[failing_faces(outside, inside)]
+
+
+def _face_rings(eid: np.ndarray, n_edges: int, which: np.ndarray, rings: int) -> np.ndarray:
+    """Sorted faces within ``rings`` edge rings of the faces ``which`` (included);
+    ``eid``: the edge id of each face's 3 edges (m, 3)."""
+    sel = np.unique(np.asarray(which, dtype=np.int64))
+    for _ in range(rings):
+        hit = np.zeros(n_edges, dtype=bool)
+        hit[eid[sel].reshape(-1)] = True
+        sel = np.flatnonzero(hit[eid].any(axis=1))
+    return sel
+
+
+def fold_suspects(vertices: np.ndarray, faces: np.ndarray, rings: int = FOLD_RINGS) -> np.ndarray:
+    """Faces within ``rings`` edge rings of a fold -- an edge whose two faces face nearly
+    opposite ways (unit normals' dot below :data:`FOLD_DOT`), as where a slit narrows to
+    an edge or a blade's two sides meet -- or of a face lower than the probe distance (a
+    flat-bottomed slit's floor, a needle). A cheap stand-in for
+    :func:`hairline_suspects` on large meshes; it misses walls farther from such a place,
+    and slits between two shells."""
+    from repair.topology import edge_ids, paired_half_edges
+
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    if len(f) == 0:
+        return np.zeros(0, dtype=np.int64)
+    p = v[f]
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    longest = np.linalg.norm(p - p[:, [1, 2, 0]], axis=2).max(axis=1)
+    low = length[:, 0] < probe_distance(v) * longest  # height under the probe distance
+    n = np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+    eid, counts = edge_ids(f)
+    first, second, _ = paired_half_edges(eid)
+    a, b = first // 3, second // 3
+    folded = np.einsum("ij,ij->i", n[a], n[b]) < FOLD_DOT
+    seeds = np.r_[a[folded], b[folded], np.flatnonzero(low)]
+    return _face_rings(eid.reshape(-1, 3), len(counts), seeds, rings)
+
+
+def cut_and_lid(
+    vertices: np.ndarray, faces: np.ndarray, which: np.ndarray, rings: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The closed, oriented ``(vertices, faces)`` with the faces ``which`` and ``rings``
+    edge rings round them cut out, and each hole this leaves lidded
+    (:func:`repair.closure.loop_lid`: a slit's or blade's two walls give way to one
+    surface across its mouth or base). Returns ``(vertices, faces, cut)`` (``cut``: the
+    indices of the faces cut out), not yet rounded; None when a hole is not a simple
+    loop."""
+    from repair.closure import loop_lid
+    from repair.holes import boundary_loops
+    from repair.topology import edge_ids
+
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    eid, counts = edge_ids(f)
+    cut = _face_rings(eid.reshape(-1, 3), len(counts), which, rings)
+    keep = np.ones(len(f), dtype=bool)
+    keep[cut] = False
+    kept = f[keep]
+    loops, _ = boundary_loops(kept)
+    open_edges = np.bincount(edge_ids(kept)[0]) == 1 if len(kept) else np.zeros(0, bool)
+    if len(loops) == 0 or sum(len(loop) for loop in loops) != int(open_edges.sum()):
+        return None  # some hole is no simple loop: the lids would not close the shell
+    new_v, new_f = [v], [kept]
+    n = len(v)
+    for loop in loops:
+        lid = loop_lid(v, loop, n)  # only a fan adds a vertex (its centre): index n
+        new_f.append(lid.triangles)
+        new_v.append(lid.new_vertices)
+        n += len(lid.new_vertices)
+    return np.vstack(new_v), np.vstack(new_f), cut
+
+
+def _vertex_keys(v: np.ndarray) -> np.ndarray:
+    """A 64-bit hash of each vertex's exact coordinates."""
+    bits = np.ascontiguousarray(v, dtype=np.float64).view(np.int64)
+    return (bits[:, 0] * np.int64(-7046029254386353131)) ^ (
+        bits[:, 1] * np.int64(0x5851F42D4C957F2D)) ^ bits[:, 2]  # fmt: skip
+
+
+def _face_keys(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    k = np.sort(_vertex_keys(v)[f], axis=1)
+    return (k[:, 0] * np.int64(0x9E3779B97F4A7C15 - 2**64)) ^ (
+        k[:, 1] * np.int64(0x5851F42D4C957F2D)) ^ k[:, 2]  # fmt: skip
+
+
+def near_change(
+    old: tuple[np.ndarray, np.ndarray], new: tuple[np.ndarray, np.ndarray], cut: np.ndarray
+) -> np.ndarray:
+    """Faces of ``new`` whose two winding sides a change from ``old`` can have changed:
+    those near a new face (one not in ``old`` on the same corners) or near a face of
+    ``old`` cut out (``cut``): the winding number changes only between the old surface and
+    the new. A :class:`repair.face_grid.FaceGrid` query (its boxes are grown by more
+    than twice the probe distance)."""
+    from repair.face_grid import FaceGrid
+
+    (v0, f0), (v1, f1) = old, new
+    changed = np.flatnonzero(~np.isin(_face_keys(v1, f1), _face_keys(v0, f0)))
+    both = np.vstack([f1, f0[cut] + len(v1)])
+    asked = np.r_[changed, np.arange(len(f1), len(both))]
+    near = FaceGrid(np.vstack([v1, v0]), both).near(asked)
+    return near[near < len(f1)]
 
 
 def fill_hairline_gaps(
@@ -152,24 +278,54 @@ def _one_round(
     return chosen
 
 
+def _cut_round(
+    v: np.ndarray, f: np.ndarray, bad: np.ndarray, eps: float, tally: RepairTally
+) -> tuple[str, tuple, np.ndarray] | None:
+    """One round of :func:`cut_and_lid` round the failing faces ``bad`` (1 edge ring,
+    then more up to :data:`MAX_CUT_RINGS` while the result is not printable or fails no
+    fewer faces), rounded and mended locally (:func:`repair.finish.finish`); the faces
+    that then fail are looked for only near the change (:func:`near_change`).
+    ``("cut", (v, f, verdict), failing faces)``, or None."""
+    from repair.finish import finish
+
+    no_pairs = np.zeros((0, 2), dtype=np.int64)
+    for rings in range(1, MAX_CUT_RINGS + 1):
+        lidded = cut_and_lid(v, f, bad, rings)
+        if lidded is None:
+            continue
+        tv, tf, verdict = finish(*lidded[:2], eps, tally, (v, f, no_pairs), local_only=True)
+        if not verdict.ok:
+            continue
+        left = hairline_failures(tv, tf, near_change((v, f), (tv, tf), lidded[2]))
+        if len(left) < len(bad):
+            return "cut", (tv, tf, verdict), left
+    return None
+
+
 def without_hairline_gaps(out: RepairOutcome, eps: float) -> RepairOutcome:
     """``out`` with its hairline slits, blades and needles closed, rounded to float32,
     checked and mended locally (:func:`repair.finish.finish`; a result that local mending
     cannot make printable is given up: the whole arrangement may take minutes). Each
-    round tries, in turn, a zip of the failing faces' corners that lie within
-    :data:`FILL_REACH` probe distances of each other (:func:`repair.zip.zip_hairline`,
-    without and with walls left overlapping for the mend),
+    round first cuts the failing faces out and lids the holes (:func:`_cut_round`), taken
+    when it leaves fewer failing faces; else it tries, in turn, a zip of the failing
+    faces' corners that lie within :data:`FILL_REACH` probe distances of each other
+    (:func:`repair.zip.zip_hairline`, without and with walls left overlapping for the mend),
     a snap of one wall onto the other and an exact mend
     (:func:`repair.zip.snap_onto_opposite`), and a fill with prisms
     (:func:`fill_hairline_gaps`); the one that leaves the mesh printable with the fewest
     faces failing the two-sided winding test (:func:`_one_round`) is taken; the round
     with the fewest is kept.
-    Meshes of more than :data:`MAX_FACES` faces are only zipped, of more than
-    :data:`MAX_ZIP_FACES` returned as they are (time).
+    Meshes of more than :data:`MAX_FACES` faces are only cut or zipped, of more than
+    :data:`MAX_ZIP_FACES` only cut, and searched near folds only, if those are not more
+    than :data:`MAX_FOLD_FRACTION` of the faces (time).
     Counted in ``out.sections["hairline_gaps"]``."""
-    if not out.verdict.ok or not 0 < len(out.faces) <= MAX_ZIP_FACES:
+    if not out.verdict.ok or len(out.faces) == 0:
         return out
-    bad = hairline_failures(out.vertices, out.faces)
+    large = len(out.faces) > MAX_ZIP_FACES
+    which = fold_suspects(out.vertices, out.faces) if large else None
+    if which is not None and len(which) > MAX_FOLD_FRACTION * len(out.faces):
+        return out  # folds everywhere: the search would cost seconds (cycloidal: 67 %)
+    bad = hairline_failures(out.vertices, out.faces, which)
     found = best = len(bad)
     used: list[str] = []
     v, f = out.vertices, out.faces
@@ -178,7 +334,9 @@ def without_hairline_gaps(out: RepairOutcome, eps: float) -> RepairOutcome:
     for _ in range(MAX_FILL_ROUNDS):
         if len(bad) == 0:
             break
-        step = _one_round(v, f, bad, eps, out.tally)
+        step = _cut_round(v, f, bad, eps, out.tally)
+        if step is None and not large:
+            step = _one_round(v, f, bad, eps, out.tally)
         if step is None:
             break  # nothing closed any, or every try added failing faces: give up
         method, (v, f, verdict), bad = step

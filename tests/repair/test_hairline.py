@@ -8,7 +8,13 @@ import numpy as np
 
 from repair.check import check_printable
 from repair.deviation import max_deviation
-from repair.hairline import FILL_REACH, hairline_failures, without_hairline_gaps
+from repair.hairline import (
+    FILL_REACH,
+    cut_and_lid,
+    fold_suspects,
+    hairline_failures,
+    without_hairline_gaps,
+)
 from repair.holes import HolesClosed
 from repair.junk import face_winding_sides, failing_faces, probe_distance
 from repair.pipeline import repair_mesh
@@ -75,3 +81,25 @@ def test_repair_of_overlapping_shells_with_a_hairline_slot_passes_the_winding_te
     assert _failing(rv, rf) == 0
     assert result.report["hairline_gaps"]["faces_left"] == 0
     assert result.report["deviation"] <= FILL_REACH * probe_distance(rv) * 1.01
+
+
+def test_fold_suspects_hold_every_failing_face_of_the_slotted_box():
+    v, f = _solid(_slotted_box())
+    outside, inside = face_winding_sides(v, f)
+    every = np.flatnonzero(failing_faces(outside, inside))
+    suspects = fold_suspects(v, f)
+    assert len(suspects) < len(f)
+    assert np.isin(every, suspects).all()
+
+
+def test_cutting_out_the_slot_walls_and_lidding_the_holes_leaves_a_solid_that_passes():
+    v, f = _solid(_slotted_box())
+    cut = cut_and_lid(v, f, hairline_failures(v, f), 1)
+    assert cut is not None
+    cv, cf, gone = cut
+    assert len(gone) > 0
+    verdict = check_printable(cv, cf)
+    assert verdict.ok, verdict.failures()
+    assert _failing(cv, cf) == 0
+    # The lids close the slot's mouth: the solid is the box less at most the slot.
+    assert 1000.0 - 10 * 8 * GAP - 1e-9 <= verdict.volume <= 1000.0 + 1e-9
