@@ -108,3 +108,26 @@ def test_a_coarse_cad_part_with_holes_is_repaired_as_a_solid():
     assert verdict.ok and r.report["path"] == "union"
     assert verdict.volume == pytest.approx(expected, rel=1e-5)
     assert r.report["holes_closed"]["count"] == len(dropped)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_coarse_cad_part_with_t_junctions_is_repaired_as_a_solid(seed):
+    # A patch of faces split at an edge's midpoint while the neighbour across keeps the
+    # whole edge (a T-junction, as tessellating CAD patches separately leaves): each
+    # crack is a zero-area loop, a hole whose lid adds nothing. It was refused (not
+    # edge-manifold / self-intersecting after thickening the "sheet").
+    m = load_mesh(DATA / "cgal_part.obj")
+    v, f = np.asarray(m.vertices, np.float64) * 60.0, np.asarray(m.faces, np.int64)
+    expected = check_printable(v, f).volume
+    rng = np.random.default_rng(seed)
+    centre = v[f].mean(axis=1)
+    d = np.linalg.norm(centre - centre[rng.integers(len(f))], axis=1)
+    split = np.argsort(d)[: int(rng.uniform(0.05, 0.3) * len(f))]
+    a, b, c = f[split].T
+    mid = len(v) + np.arange(len(split))
+    v = np.vstack([v, (v[a] + v[b]) / 2])
+    f = np.vstack([np.delete(f, split, axis=0), np.stack([a, mid, c], 1), np.stack([mid, b, c], 1)])
+    r = repair_mesh(v, f, 0.4)
+    verdict = check_printable(r.vertices, r.faces)
+    assert verdict.ok, verdict.failures()
+    assert verdict.volume == pytest.approx(expected, rel=1e-4)
