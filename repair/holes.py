@@ -37,6 +37,7 @@ from repair.topology import EdgeTopology, edge_topology, half_edges
 __all__ = [
     "MAX_BOUNDARY_FRACTION",
     "MAX_LID_AREA_FRACTION",
+    "MAX_LIDS_AREA_FRACTION",
     "MAX_PERIMETER_FRACTION",
     "HolesClosed",
     "boundary_loops",
@@ -50,12 +51,16 @@ MAX_BOUNDARY_FRACTION = 0.03
 #: box diagonal. The rim of a flat sheet is at least twice as long as the sheet is wide,
 #: and a bowl's rim (pi d) is longer than its diagonal, so neither is ever "small".
 MAX_PERIMETER_FRACTION = 0.5
-#: A shell's holes are also "small" when lids over all of them (centroid fans: an upper
-#: bound on the smallest lid) add at most this fraction of the shell's area. A coarse
-#: CAD export has few, long faces: one missing triangle is several percent of its edges
-#: and its perimeter longer than the part's diagonal, yet its lid is a sliver of the
-#: surface. An open-topped box's top is 20 % of it, a bowl's 50 %, a sheet's 100 %.
+#: A shell's holes are also "small" when a lid over each of them (a centroid fan: an
+#: upper bound on the smallest lid) adds at most this fraction of the shell's area, and
+#: lids over all of them at most :data:`MAX_LIDS_AREA_FRACTION`. A coarse CAD export has
+#: few, long faces: one missing triangle is several percent of its edges and its
+#: perimeter longer than the part's diagonal, yet its lid is a sliver of the surface.
+#: An open-topped box's top is 20 % of it, a bowl's 50 %, a sheet's 100 %.
 MAX_LID_AREA_FRACTION = 0.02
+#: See :data:`MAX_LID_AREA_FRACTION`: a shell pierced by many small holes (a perforated
+#: lampshade) stays a sheet.
+MAX_LIDS_AREA_FRACTION = 0.05
 
 
 @dataclass(frozen=True)
@@ -289,9 +294,9 @@ def close_small_holes(
 
     - *small*: its shell (edge-connected component) has at most ``max_boundary_fraction``
       of its edges on the boundary and the loop's perimeter is at most
-      ``max_perimeter_fraction`` of the shell's bounding-box diagonal (mm), or lids over
-      all the shell's holes would add at most :data:`MAX_LID_AREA_FRACTION` of its area;
-      or
+      ``max_perimeter_fraction`` of the shell's bounding-box diagonal (mm), or a lid
+      over each of the shell's holes would add at most :data:`MAX_LID_AREA_FRACTION` of
+      its area (all of them :data:`MAX_LIDS_AREA_FRACTION`); or
     - *a missing piece of a facet*: the loop is planar and a face of its rim lies in the
       lid's plane facing the same way (the lid continues that facet: a triangle missing
       from a face of a box, not the open top of a box, whose rim faces stand across it).
@@ -380,9 +385,9 @@ def _perimeters(v: np.ndarray, loops: list[np.ndarray]) -> np.ndarray:
 def _lids_are_slivers(
     v: np.ndarray, f: np.ndarray, comp: np.ndarray, loops: list[np.ndarray], labels: np.ndarray
 ) -> np.ndarray:
-    """Per shell: whether centroid-fan lids over all its holes (``loops``, of shells
-    ``labels``) add at most :data:`MAX_LID_AREA_FRACTION` of its area (mm², shells of
-    three faces or more)."""
+    """Per shell: whether a centroid-fan lid over each of its holes (``loops``, of shells
+    ``labels``) adds at most :data:`MAX_LID_AREA_FRACTION` of its area (mm²), and all of
+    them at most :data:`MAX_LIDS_AREA_FRACTION` (shells of three faces or more)."""
     n = int(comp.max()) + 1
     p = v[f]
     area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
@@ -391,8 +396,13 @@ def _lids_are_slivers(
     sizes = np.diff(np.append(start, len(at)))
     centre = np.repeat(np.add.reduceat(v[at], start) / sizes[:, None], sizes, axis=0)
     fan = 0.5 * np.linalg.norm(np.cross(v[at] - centre, v[at[nxt]] - centre), axis=1)
-    lid_area = np.bincount(labels, weights=np.add.reduceat(fan, start), minlength=n)
-    return (lid_area <= MAX_LID_AREA_FRACTION * shell_area) & (np.bincount(comp, minlength=n) >= 3)
+    lid = np.add.reduceat(fan, start)
+    total = np.bincount(labels, weights=lid, minlength=n)
+    largest = np.zeros(n)
+    np.maximum.at(largest, labels, lid)
+    return ((largest <= MAX_LID_AREA_FRACTION * shell_area)
+            & (total <= MAX_LIDS_AREA_FRACTION * shell_area)
+            & (np.bincount(comp, minlength=n) >= 3))  # fmt: skip
 
 
 def _continues_facet(v: np.ndarray, rim: np.ndarray, loop: np.ndarray) -> bool:

@@ -131,3 +131,24 @@ def test_a_coarse_cad_part_with_t_junctions_is_repaired_as_a_solid(seed):
     verdict = check_printable(r.vertices, r.faces)
     assert verdict.ok, verdict.failures()
     assert verdict.volume == pytest.approx(expected, rel=1e-4)
+
+
+def test_a_shell_pierced_by_many_small_holes_stays_a_sheet():
+    # 60 holes, each 0.1 % of the sphere, 6.6 % in all: a perforated shade, not a solid
+    # missing a few triangles (MAX_LIDS_AREA_FRACTION).
+    v, f = icosphere()
+    rng = np.random.default_rng(0)
+    taken = np.zeros(len(v), dtype=bool)
+    centres = []
+    for c in rng.permutation(len(v)):
+        ring = np.unique(f[(f == c).any(axis=1)])
+        if not taken[ring].any():
+            taken[ring] = True
+            centres.append(c)
+        if len(centres) == 60:
+            break
+    holed = f[~np.isin(f, centres).any(axis=1)]
+    assert len(boundary_loops(holed)[0]) == 60
+    out_v, out_f, holes = close_small_holes(v, holed)
+    assert holes.count == 0
+    assert np.array_equal(out_f, holed)
