@@ -36,6 +36,8 @@ from repair.topology import EdgeTopology, edge_topology, half_edges
 
 __all__ = [
     "MAX_BOUNDARY_FRACTION",
+    "MAX_LID_AREA_FRACTION",
+    "MAX_LIDS_AREA_FRACTION",
     "MAX_PERIMETER_FRACTION",
     "HolesClosed",
     "boundary_loops",
@@ -49,6 +51,16 @@ MAX_BOUNDARY_FRACTION = 0.03
 #: box diagonal. The rim of a flat sheet is at least twice as long as the sheet is wide,
 #: and a bowl's rim (pi d) is longer than its diagonal, so neither is ever "small".
 MAX_PERIMETER_FRACTION = 0.5
+#: A shell's holes are also "small" when a lid over each of them (a centroid fan: an
+#: upper bound on the smallest lid) adds at most this fraction of the shell's area, and
+#: lids over all of them at most :data:`MAX_LIDS_AREA_FRACTION`. A coarse CAD export has
+#: few, long faces: one missing triangle is several percent of its edges and its
+#: perimeter longer than the part's diagonal, yet its lid is a sliver of the surface.
+#: An open-topped box's top is 20 % of it, a bowl's 50 %, a sheet's 100 %.
+MAX_LID_AREA_FRACTION = 0.02
+#: See :data:`MAX_LID_AREA_FRACTION`: a shell pierced by many small holes (a perforated
+#: lampshade) stays a sheet.
+MAX_LIDS_AREA_FRACTION = 0.05
 
 
 @dataclass(frozen=True)
@@ -282,7 +294,9 @@ def close_small_holes(
 
     - *small*: its shell (edge-connected component) has at most ``max_boundary_fraction``
       of its edges on the boundary and the loop's perimeter is at most
-      ``max_perimeter_fraction`` of the shell's bounding-box diagonal (mm); or
+      ``max_perimeter_fraction`` of the shell's bounding-box diagonal (mm), or a lid
+      over each of the shell's holes would add at most :data:`MAX_LID_AREA_FRACTION` of
+      its area (all of them :data:`MAX_LIDS_AREA_FRACTION`); or
     - *a missing piece of a facet*: the loop is planar and a face of its rim lies in the
       lid's plane facing the same way (the lid continues that facet: a triangle missing
       from a face of a box, not the open top of a box, whose rim faces stand across it).
@@ -322,6 +336,8 @@ def close_small_holes(
                       for lp, r, c in zip(loops, rims, labels.tolist(), strict=True)],
                      dtype=bool)  # fmt: skip
     ok = small | facet
+    if not ok.all():
+        ok |= _lids_are_slivers(v, f, comp, loops, labels)[labels]
     sizes = np.array([len(lp) for lp in loops], dtype=np.float64)
     covered = np.bincount(labels[ok], weights=sizes[ok], minlength=len(diag))
     closable = (covered == n_bnd) & (n_bnd > 0)
@@ -349,14 +365,44 @@ def close_small_holes(
     return out_v, out_f, _tally(v, flap_f[gone], lids, exact)
 
 
-def _perimeters(v: np.ndarray, loops: list[np.ndarray]) -> np.ndarray:
-    """Length (mm) round each loop, all loops at once."""
+def _loop_steps(loops: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """All loops' vertices end to end (``at``), each loop's start in ``at``, and per
+    position the position of the next vertex round its loop."""
     sizes = np.fromiter((len(lp) for lp in loops), dtype=np.int64, count=len(loops))
     at = np.concatenate(loops)
     start = np.cumsum(sizes) - sizes
     nxt = np.arange(1, len(at) + 1)
     nxt[start + sizes - 1] = start  # each loop's last vertex goes back to its first
+    return at, start, nxt
+
+
+def _perimeters(v: np.ndarray, loops: list[np.ndarray]) -> np.ndarray:
+    """Length (mm) round each loop, all loops at once."""
+    at, start, nxt = _loop_steps(loops)
     return np.add.reduceat(np.linalg.norm(v[at[nxt]] - v[at], axis=1), start)
+
+
+def _lids_are_slivers(
+    v: np.ndarray, f: np.ndarray, comp: np.ndarray, loops: list[np.ndarray], labels: np.ndarray
+) -> np.ndarray:
+    """Per shell: whether a centroid-fan lid over each of its holes (``loops``, of shells
+    ``labels``) adds at most :data:`MAX_LID_AREA_FRACTION` of its area (mm²), and all of
+    them at most :data:`MAX_LIDS_AREA_FRACTION` (shells of three faces or more)."""
+    n = int(comp.max()) + 1
+    p = v[f]
+    area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    shell_area = np.bincount(comp, weights=area, minlength=n)
+    at, start, nxt = _loop_steps(loops)
+    sizes = np.diff(np.append(start, len(at)))
+    centre = np.repeat(np.add.reduceat(v[at], start) / sizes[:, None], sizes, axis=0)
+    fan = 0.5 * np.linalg.norm(np.cross(v[at] - centre, v[at[nxt]] - centre), axis=1)
+    lid = np.add.reduceat(fan, start)
+    total = np.bincount(labels, weights=lid, minlength=n)
+    largest = np.zeros(n)
+    np.maximum.at(largest, labels, lid)
+    return ((largest <= MAX_LID_AREA_FRACTION * shell_area)
+            & (total <= MAX_LIDS_AREA_FRACTION * shell_area)
+            & (np.bincount(comp, minlength=n) >= 3))  # fmt: skip
 
 
 def _continues_facet(v: np.ndarray, rim: np.ndarray, loop: np.ndarray) -> bool:
