@@ -69,6 +69,7 @@ class HolesClosed:
     flaps_removed: int = 0
     flap_area: float = 0.0
     facet_lids: int = 0
+    faired_lids: int = 0
     lids: tuple[Lid, ...] = field(default=(), compare=False)
     exact_faces: np.ndarray = field(
         default_factory=lambda: np.zeros((0, 3), dtype=np.int64), compare=False
@@ -86,6 +87,8 @@ class HolesClosed:
             "planar_lids": sum(1 for lid in self.lids if lid.planar),
             # Lids completing a planar facet: the intended surface, D is measured with them.
             "facet_lids": int(self.facet_lids),
+            # Non-planar lids of a scan refined and faired (repair.fair).
+            "faired_lids": int(self.faired_lids),
             # The largest lids first; a scan may have hundreds.
             "lids": [lid.to_dict() for lid in sorted(self.lids, key=lambda x: -x.area)[:50]],
         }
@@ -275,6 +278,7 @@ def close_small_holes(
     max_boundary_fraction: float = MAX_BOUNDARY_FRACTION,
     max_perimeter_fraction: float = MAX_PERIMETER_FRACTION,
     topology: EdgeTopology | None = None,
+    fair: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, HolesClosed]:
     """Close the holes of shells that a lid makes solid (Bøhn & Wozny's shell closure).
 
@@ -294,6 +298,9 @@ def close_small_holes(
     Vertices are kept (same indices; fan centres are appended); faces keep their order
     except that the flaps kept move after the others; lid faces are appended.
     ``topology``: the :func:`repair.topology.edge_topology` of ``faces``, if known.
+    ``fair``: the non-planar lids are refined and faired (:func:`repair.fair.fair_lids`,
+    a scan's holes), except where a faired lid would cross a face: that one keeps its
+    minimal-area lid.
     """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
@@ -327,6 +334,7 @@ def close_small_holes(
     closable = (covered == n_bnd) & (n_bnd > 0)
 
     lids: list[Lid] = []
+    lid_loops: list[np.ndarray] = []
     exact: list[np.ndarray] = []
     n_new = 0
     for loop, c, is_facet in zip(loops, labels.tolist(), facet.tolist(), strict=True):
@@ -335,8 +343,12 @@ def close_small_holes(
         lid = loop_lid(v, loop, len(v) + n_new)
         n_new += len(lid.new_vertices)
         lids.append(lid)
+        lid_loops.append(loop)
         if is_facet and lid.planar:
             exact.append(lid.triangles)
+    if fair and lids:
+        lids = _faired_where_clear(v, f, lid_loops, lids)
+        n_new = sum(len(lid.new_vertices) for lid in lids)
     # A flap stays removed only when its shell had holes closed (the shell is a scan with
     # holes, its flaps scanner noise next to them); the others go back (fins are sheets).
     gone = np.zeros(len(flap_f), dtype=bool)
@@ -344,9 +356,54 @@ def close_small_holes(
         lidded = np.zeros(len(v), dtype=bool)
         lidded[f[closable[comp]].reshape(-1)] = True
         gone = lidded[flap_f].any(axis=1)
-    out_v = np.vstack([v, *(lid.new_vertices for lid in lids)]) if n_new else v
-    out_f = np.vstack([f, flap_f[~gone], *(lid.triangles for lid in lids)])
+    out_v, lid_f = _lid_faces(v, lids)
+    out_f = np.vstack([f, flap_f[~gone], *lid_f])
     return out_v, out_f, _tally(v, flap_f[gone], lids, exact)
+
+
+def _lid_faces(v: np.ndarray, lids: list[Lid]) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The vertices with every lid's new ones appended in lid order, and each lid's
+    triangles numbered so (a lid numbers its new vertices from wherever it was made)."""
+    n, at, faces = len(v), len(v), []
+    for lid in lids:
+        t = lid.triangles
+        if len(lid.new_vertices):
+            t = np.where(t >= n, t - t[t >= n].min() + at, t)
+            at += len(lid.new_vertices)
+        faces.append(t)
+    out_v = np.vstack([v, *(lid.new_vertices for lid in lids)]) if at > n else v
+    return out_v, faces
+
+
+def _faired_where_clear(
+    v: np.ndarray, f: np.ndarray, loops: list[np.ndarray], lids: list[Lid]
+) -> list[Lid]:
+    """``lids`` with the non-planar ones refined and faired (:func:`repair.fair.fair_lids`
+    on the shell ``f``), but a faired lid that crosses a face of ``f`` or of another lid
+    (CGAL's exact test, on the faces near the lids) stays as it was."""
+    from repair.fair import fair_lids
+    from repair.rounding import crossings_after_change
+
+    which = [i for i, lid in enumerate(lids) if not lid.planar]
+    if not which:
+        return lids
+    faired = fair_lids(v, f, [loops[i] for i in which], [lids[i] for i in which])
+    out = list(lids)
+    for i, lid in zip(which, faired, strict=True):
+        out[i] = lid
+    if not any(lid.faired for lid in out):
+        return out
+    out_v, lid_f = _lid_faces(v, out)
+    owner = np.repeat(np.arange(len(out)), [len(t) for t in lid_f])
+    changed = np.r_[np.zeros(len(f), dtype=bool),
+                    np.array([out[i].faired for i in owner.tolist()], dtype=bool)]  # fmt: skip
+    pairs = crossings_after_change(out_v, np.vstack([f, *lid_f]), np.zeros((0, 2), np.int64),
+                                   changed)  # fmt: skip
+    hit = pairs[pairs >= len(f)] - len(f)
+    for i in np.unique(owner[hit]).tolist():
+        if out[i].faired:
+            out[i] = lids[i]
+    return out
 
 
 def _perimeters(v: np.ndarray, loops: list[np.ndarray]) -> np.ndarray:
@@ -389,6 +446,7 @@ def _tally(v: np.ndarray, flaps: np.ndarray, lids: list[Lid], exact: list[np.nda
         flaps_removed=len(flaps),
         flap_area=flap_area,
         facet_lids=len(exact),
+        faired_lids=sum(1 for lid in lids if lid.faired),
         lids=tuple(lids),
         exact_faces=np.vstack(exact) if exact else np.zeros((0, 3), dtype=np.int64),
     )

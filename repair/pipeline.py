@@ -294,10 +294,10 @@ def _solidify(
     stitched_f, stitched = stitch_cracks(work_v, work_f, STITCH_GAMMA * eps, topology)
     clock.lap("stitch", 0.22)
     # A cleaned scan's holes are all closable when small against their shell, however
-    # much of its edges are boundary (the scan's holes are many).
+    # much of its edges are boundary (the scan's holes are many), and get fair patches.
     lidded_v, lidded_f, holes = close_small_holes(
         work_v, stitched_f, max_boundary_fraction=1.0 if scan else MAX_BOUNDARY_FRACTION,
-        topology=topology,
+        topology=topology, fair=scan is not None,
     )
     clock.lap("holes", 0.25)
     pairs = carry_input_pairs(rounded.vertices, rounded.faces, rounded.pairs, lidded_v, lidded_f)
