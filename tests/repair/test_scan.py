@@ -214,3 +214,61 @@ def test_repair_of_a_scan_reports_its_faired_lids(tmp_path):
     holes = report["holes_closed"]
     assert holes["faired_lids"] >= 1
     assert any(lid["faired"] and lid["new_vertices"] > 0 for lid in holes["lids"])
+
+
+def _depth_along(v: np.ndarray, tris: np.ndarray, u: np.ndarray) -> float:
+    """Distance from the origin along the unit ``u`` to where it meets the triangles
+    (the nearest hit; Möller-Trumbore on all of them at once), mm."""
+    a, b, c = v[tris[:, 0]], v[tris[:, 1]], v[tris[:, 2]]
+    e1, e2 = b - a, c - a
+    p = np.cross(u, e2)
+    det = np.einsum("ij,ij->i", e1, p)
+    s = -a
+    bu = np.einsum("ij,ij->i", s, p) / det
+    q = np.cross(s, e1)
+    bv = (q @ u) / det
+    t = np.einsum("ij,ij->i", e2, q) / det
+    hit = (bu >= 0) & (bv >= 0) & (bu + bv <= 1) & (t > 0)
+    return float(t[hit].min())
+
+
+def test_a_faired_patch_that_would_cross_a_face_keeps_the_minimal_area_lid():
+    """A small closed tetrahedron stands in the hole, between where the flat lid and the
+    faired patch pass: the faired patch would cut it, so that hole keeps its flat lid
+    (the others are still faired) and the result has no crossing."""
+    from repair.check import check_printable
+    from repair.holes import boundary_loops, close_small_holes
+
+    v, f = noisy_scan(5, RADIUS, seed=5, spikes=0, holes=4, specks=0)
+    cv, cf, _ = clean_scan(v, f, EPS)
+    loops, _ = boundary_loops(cf)
+    big = max(loops, key=len)
+    u = cv[big].mean(axis=0)
+    u /= np.linalg.norm(u)
+    depth = {}
+    for fair in (False, True):
+        out_v, out_f, _ = close_small_holes(cv, cf, max_boundary_fraction=1.0, fair=fair)
+        depth[fair] = _depth_along(out_v, out_f[len(cf) :], u)
+    assert depth[True] - depth[False] > 0.05  # the faired patch bulges out to the sphere
+    # The tetrahedron: its tip between the two lids, its base above the faired patch.
+    e1 = np.cross(u, [0.0, 0.0, 1.0] if abs(u[2]) < 0.9 else [1.0, 0.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(u, e1)
+    tip = (0.5 * (depth[True] + depth[False])) * u
+    angles = 2 * np.pi * np.arange(3) / 3
+    ring = np.cos(angles)[:, None] * e1 + np.sin(angles)[:, None] * e2
+    base = (depth[True] + 0.05) * u + 0.2 * ring
+    tet_v = np.vstack([tip, base])
+    tet_f = np.array([[1, 2, 3], [0, 2, 1], [0, 3, 2], [0, 1, 3]]) + len(cv)
+    if np.dot(np.cross(base[1] - base[0], base[2] - base[0]), u) < 0:
+        tet_f = tet_f[:, ::-1]
+    sv, sf = np.vstack([cv, tet_v]), np.vstack([cf, tet_f])
+    out_v, out_f, holes = close_small_holes(sv, sf, max_boundary_fraction=1.0, fair=True)
+    faired = {round(lid.perimeter, 9): lid.faired for lid in holes.lids}
+    rim = cv[big]
+    big_perimeter = round(float(np.linalg.norm(np.roll(rim, -1, axis=0) - rim, axis=1).sum()), 9)
+    assert faired.pop(big_perimeter) is False
+    assert sum(faired.values()) == holes.faired_lids >= 2
+    verdict = check_printable(out_v, out_f)
+    assert verdict.ok, verdict.failures()
+    assert verdict.components == 2  # the sphere, closed, and the tetrahedron beside it
