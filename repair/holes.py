@@ -58,7 +58,8 @@ class HolesClosed:
     closed and ``max_lid_radius`` mm, a bound on how far any lid point lies from its rim
     (hence from the input surface); ``flaps_removed`` faces (``flap_area`` mm²) dangling
     off the shell next to a hole were removed so the hole could be closed. ``lids``: each
-    lid (perimeter, area, planarity); ``exact_faces``: the triangles of the ``facet_lids``
+    lid (perimeter, area, planarity), ``faired_lids`` of them refined and faired;
+    ``exact_faces``: the triangles of the ``facet_lids``
     lids that complete a planar facet of their shell (on the input's vertices)."""
 
     count: int = 0
@@ -74,6 +75,18 @@ class HolesClosed:
     exact_faces: np.ndarray = field(
         default_factory=lambda: np.zeros((0, 3), dtype=np.int64), compare=False
     )
+
+    def faired_crossing(self, n_faces: int, pairs: np.ndarray) -> tuple[int, ...]:
+        """The faired lids (numbered in lid order) with a face in one of the crossing
+        face ``pairs`` (k, 2) of the mesh :func:`close_small_holes` returned, of
+        ``n_faces`` faces: its last ``lid_triangles`` faces are the lids', in order."""
+        if self.faired_lids == 0 or len(pairs) == 0:
+            return ()
+        owner = np.repeat(np.arange(len(self.lids)), [len(lid.triangles) for lid in self.lids])
+        first = n_faces - len(owner)
+        hit = np.asarray(pairs, dtype=np.int64).reshape(-1)
+        hit = np.unique(owner[hit[hit >= first] - first])
+        return tuple(i for i in hit.tolist() if self.lids[i].faired)
 
     def to_dict(self) -> dict[str, float | int]:
         return {
@@ -279,6 +292,7 @@ def close_small_holes(
     max_perimeter_fraction: float = MAX_PERIMETER_FRACTION,
     topology: EdgeTopology | None = None,
     fair: bool = False,
+    flat: tuple[int, ...] = (),
 ) -> tuple[np.ndarray, np.ndarray, HolesClosed]:
     """Close the holes of shells that a lid makes solid (Bøhn & Wozny's shell closure).
 
@@ -299,8 +313,8 @@ def close_small_holes(
     except that the flaps kept move after the others; lid faces are appended.
     ``topology``: the :func:`repair.topology.edge_topology` of ``faces``, if known.
     ``fair``: the non-planar lids are refined and faired (:func:`repair.fair.fair_lids`,
-    a scan's holes), except where a faired lid would cross a face: that one keeps its
-    minimal-area lid.
+    a scan's holes), except those numbered (in lid order) in ``flat``: where a faired lid
+    crosses a face (:meth:`HolesClosed.faired_crossing`), it keeps its minimal-area lid.
     """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
@@ -347,7 +361,7 @@ def close_small_holes(
         if is_facet and lid.planar:
             exact.append(lid.triangles)
     if fair and lids:
-        lids = _faired_where_clear(v, f, lid_loops, lids)
+        lids = _faired(v, f, lid_loops, lids, flat)
         n_new = sum(len(lid.new_vertices) for lid in lids)
     # A flap stays removed only when its shell had holes closed (the shell is a scan with
     # holes, its flaps scanner noise next to them); the others go back (fins are sheets).
@@ -375,34 +389,19 @@ def _lid_faces(v: np.ndarray, lids: list[Lid]) -> tuple[np.ndarray, list[np.ndar
     return out_v, faces
 
 
-def _faired_where_clear(
-    v: np.ndarray, f: np.ndarray, loops: list[np.ndarray], lids: list[Lid]
-) -> list[Lid]:
-    """``lids`` with the non-planar ones refined and faired (:func:`repair.fair.fair_lids`
-    on the shell ``f``), but a faired lid that crosses a face of ``f`` or of another lid
-    (CGAL's exact test, on the faces near the lids) stays as it was."""
+def _faired(v: np.ndarray, f: np.ndarray, loops: list[np.ndarray], lids: list[Lid],
+            flat: tuple[int, ...]) -> list[Lid]:  # fmt: skip
+    """``lids`` with the non-planar ones but those numbered in ``flat`` refined and faired
+    (:func:`repair.fair.fair_lids` on the shell ``f``)."""
     from repair.fair import fair_lids
-    from repair.rounding import crossings_after_change
 
-    which = [i for i, lid in enumerate(lids) if not lid.planar]
+    which = [i for i, lid in enumerate(lids) if not lid.planar and i not in flat]
     if not which:
         return lids
     faired = fair_lids(v, f, [loops[i] for i in which], [lids[i] for i in which])
     out = list(lids)
     for i, lid in zip(which, faired, strict=True):
         out[i] = lid
-    if not any(lid.faired for lid in out):
-        return out
-    out_v, lid_f = _lid_faces(v, out)
-    owner = np.repeat(np.arange(len(out)), [len(t) for t in lid_f])
-    changed = np.r_[np.zeros(len(f), dtype=bool),
-                    np.array([out[i].faired for i in owner.tolist()], dtype=bool)]  # fmt: skip
-    pairs = crossings_after_change(out_v, np.vstack([f, *lid_f]), np.zeros((0, 2), np.int64),
-                                   changed)  # fmt: skip
-    hit = pairs[pairs >= len(f)] - len(f)
-    for i in np.unique(owner[hit]).tolist():
-        if out[i].faired:
-            out[i] = lids[i]
     return out
 
 

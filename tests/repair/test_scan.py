@@ -234,10 +234,12 @@ def _depth_along(v: np.ndarray, tris: np.ndarray, u: np.ndarray) -> float:
 
 def test_a_faired_patch_that_would_cross_a_face_keeps_the_minimal_area_lid():
     """A small closed tetrahedron stands in the hole, between where the flat lid and the
-    faired patch pass: the faired patch would cut it, so that hole keeps its flat lid
+    faired patch pass: the faired patch cuts it (found by the exact crossing test, as
+    the repair's carried pairs find it), so that hole is lidded again with its flat lid
     (the others are still faired) and the result has no crossing."""
     from repair.check import check_printable
     from repair.holes import boundary_loops, close_small_holes
+    from repair.intersections import intersecting_face_pairs
 
     v, f = noisy_scan(5, RADIUS, seed=5, spikes=0, holes=4, specks=0)
     cv, cf, _ = clean_scan(v, f, EPS)
@@ -263,10 +265,16 @@ def test_a_faired_patch_that_would_cross_a_face_keeps_the_minimal_area_lid():
     if np.dot(np.cross(base[1] - base[0], base[2] - base[0]), u) < 0:
         tet_f = tet_f[:, ::-1]
     sv, sf = np.vstack([cv, tet_v]), np.vstack([cf, tet_f])
-    out_v, out_f, holes = close_small_holes(sv, sf, max_boundary_fraction=1.0, fair=True)
-    faired = {round(lid.perimeter, 9): lid.faired for lid in holes.lids}
     rim = cv[big]
     big_perimeter = round(float(np.linalg.norm(np.roll(rim, -1, axis=0) - rim, axis=1).sum()), 9)
+    out_v, out_f, holes = close_small_holes(sv, sf, max_boundary_fraction=1.0, fair=True)
+    crossing = holes.faired_crossing(len(out_f), intersecting_face_pairs(out_v, out_f))
+    assert [round(holes.lids[i].perimeter, 9) for i in crossing] == [big_perimeter]
+    # Made again with that hole flat, as the repair does: nothing crosses.
+    out_v, out_f, holes = close_small_holes(sv, sf, max_boundary_fraction=1.0, fair=True,
+                                            flat=crossing)  # fmt: skip
+    assert holes.faired_crossing(len(out_f), intersecting_face_pairs(out_v, out_f)) == ()
+    faired = {round(lid.perimeter, 9): lid.faired for lid in holes.lids}
     assert faired.pop(big_perimeter) is False
     assert sum(faired.values()) == holes.faired_lids >= 2
     verdict = check_printable(out_v, out_f)
