@@ -17,8 +17,11 @@ beside them would not be simple loops.
 Lids are made by :mod:`repair.closure` (planar loops: an exact planar triangulation on
 the loop's own vertices; others a minimal-area one; very long loops a centroid fan),
 oriented against the hole's rim faces, so a consistently oriented shell stays
-consistently oriented. Lids may cross the shell where a hole is strongly non-planar; the
-exact self-intersection resolution that follows repairs such crossings.
+consistently oriented. A scan's non-planar lids are then refined and faired
+(:mod:`repair.fair`, Liepa's patches); planar ones, and every lid of a mesh not cleaned
+as a scan (CAD: its holes stay minimal-area or exact planar lids), are kept as made.
+Lids may cross the shell where a hole is strongly non-planar; the exact
+self-intersection resolution that follows repairs such crossings.
 
 Units are mm. Arrays: vertices float64 (n, 3), faces int64 (m, 3). Pure functions;
 the edge bookkeeping is vectorised, the only Python loop runs once per boundary vertex
