@@ -183,10 +183,16 @@ def _faired(
     fixed = np.r_[np.arange(n_rim), np.arange(n_rim + n_new, total)]
     a = rows[:, free].tocsc()
     rhs = -(rows[:, fixed] @ allp[fixed])
-    solve = factorized((a.T @ a).tocsc())
     atb = a.T @ rhs
+    try:
+        solve = factorized((a.T @ a).tocsc())
+        moved = np.stack([solve(atb[:, i]) for i in range(3)], axis=1)
+    except RuntimeError:  # a singular system (degenerate rims): the refined points stay
+        return pts
+    if not np.isfinite(moved).all():
+        return pts
     out = pts.copy()
-    out[n_rim:] = np.stack([solve(atb[:, i]) for i in range(3)], axis=1)
+    out[n_rim:] = moved
     return out
 
 
@@ -227,13 +233,15 @@ def fair_lids(
                           len(rim) + np.searchsorted(ring_v, ring_f))  # fmt: skip
     patches = fair_patches(start_pts, start_sigma, np.vstack(tris), np.concatenate(owner),
                            v[ring_v], ring_local, n_rim=len(rim))  # fmt: skip
-    return [_lid_of(patches, rim, j, lid, n) for j, lid in enumerate(lids)]
+    order = np.argsort(patches.owner, kind="stable")
+    cut = np.searchsorted(patches.owner[order], np.arange(len(lids) + 1))
+    return [_lid_of(patches, rim, patches.triangles[order[cut[j] : cut[j + 1]]], lid, n)
+            for j, lid in enumerate(lids)]  # fmt: skip
 
 
-def _lid_of(patches: FairPatches, rim: np.ndarray, j: int, lid: Lid, n: int) -> Lid:
-    """Lid ``j`` of ``patches`` on the input's indices (rim) and its own new vertices from
-    ``n`` up; ``lid`` itself where it gained no vertex."""
-    local = patches.triangles[patches.owner == j]
+def _lid_of(patches: FairPatches, rim: np.ndarray, local: np.ndarray, lid: Lid, n: int) -> Lid:
+    """The lid of the ``patches`` triangles ``local`` on the input's indices (rim) and its
+    own new vertices from ``n`` up; ``lid`` (the same hole's) where it gained no vertex."""
     used = np.unique(local)
     new = used[used >= patches.n_rim]
     if len(new) <= len(lid.new_vertices):
