@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["MAX_DP_VERTICES", "Lid", "loop_lid", "loop_planarity"]
+__all__ = ["MAX_DP_VERTICES", "Lid", "loop_lid", "loop_planarity", "triangle_reach"]
 
 #: Longest loop triangulated by the dynamic programme (O(k^3) work, k^2 memory).
 MAX_DP_VERTICES = 160
@@ -44,7 +44,7 @@ class Lid:
     ``new_vertices``), the loop's ``perimeter`` (mm), the lid's ``area`` (mm²), its
     ``planarity`` (mm: largest distance of a loop vertex from the loop's plane), whether it
     was made as a planar lid, and ``radius`` (mm): every lid point lies within it of a
-    loop vertex, hence of the rim."""
+    loop vertex, hence of the rim; ``faired``: refined and faired (:mod:`repair.fair`)."""
 
     triangles: np.ndarray
     new_vertices: np.ndarray
@@ -53,6 +53,7 @@ class Lid:
     planarity: float
     planar: bool
     radius: float
+    faired: bool = False
 
     def to_dict(self) -> dict[str, float | int | bool]:
         return {
@@ -62,6 +63,8 @@ class Lid:
             "area": round(float(self.area), 9),
             "planarity": float(self.planarity),
             "planar": bool(self.planar),
+            "faired": bool(self.faired),
+            "new_vertices": int(len(self.new_vertices)),
         }
 
 
@@ -170,14 +173,18 @@ def _dp_triangulation(p: np.ndarray, normal: np.ndarray | None) -> np.ndarray | 
     return np.asarray(tris, dtype=np.int64)
 
 
-def _radius(p: np.ndarray, tris: np.ndarray) -> float:
-    """A bound on how far a point of the triangles lies from their nearest corner: the
-    circumradius, or the longest edge where that is smaller."""
-    a, b, c = p[tris[:, 0]], p[tris[:, 1]], p[tris[:, 2]]
+def triangle_reach(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Per triangle (rows of corners, mm): a bound on how far its points lie from its
+    nearest corner -- the circumradius, or the longest edge where that is smaller."""
     ab, bc, ca = (np.linalg.norm(x, axis=1) for x in (b - a, c - b, a - c))
     area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
     circum = ab * bc * ca / np.maximum(4.0 * area, 1e-300)
-    return float(np.minimum(circum, np.maximum(np.maximum(ab, bc), ca)).max())
+    return np.minimum(circum, np.maximum(np.maximum(ab, bc), ca))
+
+
+def _radius(p: np.ndarray, tris: np.ndarray) -> float:
+    """:func:`triangle_reach`'s largest over the triangles ``tris`` of points ``p``."""
+    return float(triangle_reach(p[tris[:, 0]], p[tris[:, 1]], p[tris[:, 2]]).max())
 
 
 def loop_lid(vertices: np.ndarray, loop: np.ndarray, first_new: int) -> Lid:

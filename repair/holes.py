@@ -17,8 +17,11 @@ beside them would not be simple loops.
 Lids are made by :mod:`repair.closure` (planar loops: an exact planar triangulation on
 the loop's own vertices; others a minimal-area one; very long loops a centroid fan),
 oriented against the hole's rim faces, so a consistently oriented shell stays
-consistently oriented. Lids may cross the shell where a hole is strongly non-planar; the
-exact self-intersection resolution that follows repairs such crossings.
+consistently oriented. A scan's non-planar lids are then refined and faired
+(:mod:`repair.fair`, Liepa's patches); planar ones, and every lid of a mesh not cleaned
+as a scan (CAD: its holes stay minimal-area or exact planar lids), are kept as made.
+Lids may cross the shell where a hole is strongly non-planar; the exact
+self-intersection resolution that follows repairs such crossings.
 
 Units are mm. Arrays: vertices float64 (n, 3), faces int64 (m, 3). Pure functions;
 the edge bookkeeping is vectorised, the only Python loop runs once per boundary vertex
@@ -70,7 +73,8 @@ class HolesClosed:
     closed and ``max_lid_radius`` mm, a bound on how far any lid point lies from its rim
     (hence from the input surface); ``flaps_removed`` faces (``flap_area`` mm²) dangling
     off the shell next to a hole were removed so the hole could be closed. ``lids``: each
-    lid (perimeter, area, planarity); ``exact_faces``: the triangles of the ``facet_lids``
+    lid (perimeter, area, planarity), ``faired_lids`` of them refined and faired;
+    ``exact_faces``: the triangles of the ``facet_lids``
     lids that complete a planar facet of their shell (on the input's vertices)."""
 
     count: int = 0
@@ -81,10 +85,23 @@ class HolesClosed:
     flaps_removed: int = 0
     flap_area: float = 0.0
     facet_lids: int = 0
+    faired_lids: int = 0
     lids: tuple[Lid, ...] = field(default=(), compare=False)
     exact_faces: np.ndarray = field(
         default_factory=lambda: np.zeros((0, 3), dtype=np.int64), compare=False
     )
+
+    def faired_crossing(self, n_faces: int, pairs: np.ndarray) -> tuple[int, ...]:
+        """The faired lids (numbered in lid order) with a face in one of the crossing
+        face ``pairs`` (k, 2) of the mesh :func:`close_small_holes` returned, of
+        ``n_faces`` faces: its last ``lid_triangles`` faces are the lids', in order."""
+        if self.faired_lids == 0 or len(pairs) == 0:
+            return ()
+        owner = np.repeat(np.arange(len(self.lids)), [len(lid.triangles) for lid in self.lids])
+        first = n_faces - len(owner)
+        hit = np.asarray(pairs, dtype=np.int64).reshape(-1)
+        hit = np.unique(owner[hit[hit >= first] - first])
+        return tuple(i for i in hit.tolist() if self.lids[i].faired)
 
     def to_dict(self) -> dict[str, float | int]:
         return {
@@ -98,6 +115,8 @@ class HolesClosed:
             "planar_lids": sum(1 for lid in self.lids if lid.planar),
             # Lids completing a planar facet: the intended surface, D is measured with them.
             "facet_lids": int(self.facet_lids),
+            # Non-planar lids of a scan refined and faired (repair.fair).
+            "faired_lids": int(self.faired_lids),
             # The largest lids first; a scan may have hundreds.
             "lids": [lid.to_dict() for lid in sorted(self.lids, key=lambda x: -x.area)[:50]],
         }
@@ -287,6 +306,8 @@ def close_small_holes(
     max_boundary_fraction: float = MAX_BOUNDARY_FRACTION,
     max_perimeter_fraction: float = MAX_PERIMETER_FRACTION,
     topology: EdgeTopology | None = None,
+    fair: bool = False,
+    flat: tuple[int, ...] = (),
 ) -> tuple[np.ndarray, np.ndarray, HolesClosed]:
     """Close the holes of shells that a lid makes solid (Bøhn & Wozny's shell closure).
 
@@ -308,6 +329,9 @@ def close_small_holes(
     Vertices are kept (same indices; fan centres are appended); faces keep their order
     except that the flaps kept move after the others; lid faces are appended.
     ``topology``: the :func:`repair.topology.edge_topology` of ``faces``, if known.
+    ``fair``: the non-planar lids are refined and faired (:func:`repair.fair.fair_lids`,
+    a scan's holes), except those numbered (in lid order) in ``flat``: where a faired lid
+    crosses a face (:meth:`HolesClosed.faired_crossing`), it keeps its minimal-area lid.
     """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
@@ -343,6 +367,7 @@ def close_small_holes(
     closable = (covered == n_bnd) & (n_bnd > 0)
 
     lids: list[Lid] = []
+    lid_loops: list[np.ndarray] = []
     exact: list[np.ndarray] = []
     n_new = 0
     for loop, c, is_facet in zip(loops, labels.tolist(), facet.tolist(), strict=True):
@@ -351,8 +376,12 @@ def close_small_holes(
         lid = loop_lid(v, loop, len(v) + n_new)
         n_new += len(lid.new_vertices)
         lids.append(lid)
+        lid_loops.append(loop)
         if is_facet and lid.planar:
             exact.append(lid.triangles)
+    if fair and lids:
+        lids = _faired(v, f, lid_loops, lids, flat)
+        n_new = sum(len(lid.new_vertices) for lid in lids)
     # A flap stays removed only when its shell had holes closed (the shell is a scan with
     # holes, its flaps scanner noise next to them); the others go back (fins are sheets).
     gone = np.zeros(len(flap_f), dtype=bool)
@@ -360,9 +389,39 @@ def close_small_holes(
         lidded = np.zeros(len(v), dtype=bool)
         lidded[f[closable[comp]].reshape(-1)] = True
         gone = lidded[flap_f].any(axis=1)
-    out_v = np.vstack([v, *(lid.new_vertices for lid in lids)]) if n_new else v
-    out_f = np.vstack([f, flap_f[~gone], *(lid.triangles for lid in lids)])
+    out_v, lid_f = _lid_faces(v, lids)
+    out_f = np.vstack([f, flap_f[~gone], *lid_f])
     return out_v, out_f, _tally(v, flap_f[gone], lids, exact)
+
+
+def _lid_faces(v: np.ndarray, lids: list[Lid]) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The vertices with every lid's new ones appended in lid order, and each lid's
+    triangles numbered so (a lid numbers its new vertices from wherever it was made)."""
+    n, at, faces = len(v), len(v), []
+    for lid in lids:
+        t = lid.triangles
+        if len(lid.new_vertices):
+            t = np.where(t >= n, t - t[t >= n].min() + at, t)
+            at += len(lid.new_vertices)
+        faces.append(t)
+    out_v = np.vstack([v, *(lid.new_vertices for lid in lids)]) if at > n else v
+    return out_v, faces
+
+
+def _faired(v: np.ndarray, f: np.ndarray, loops: list[np.ndarray], lids: list[Lid],
+            flat: tuple[int, ...]) -> list[Lid]:  # fmt: skip
+    """``lids`` with the non-planar ones but those numbered in ``flat`` refined and faired
+    (:func:`repair.fair.fair_lids` on the shell ``f``)."""
+    from repair.fair import fair_lids
+
+    which = [i for i, lid in enumerate(lids) if not lid.planar and i not in flat]
+    if not which:
+        return lids
+    faired = fair_lids(v, f, [loops[i] for i in which], [lids[i] for i in which])
+    out = list(lids)
+    for i, lid in zip(which, faired, strict=True):
+        out[i] = lid
+    return out
 
 
 def _loop_steps(loops: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -435,6 +494,7 @@ def _tally(v: np.ndarray, flaps: np.ndarray, lids: list[Lid], exact: list[np.nda
         flaps_removed=len(flaps),
         flap_area=flap_area,
         facet_lids=len(exact),
+        faired_lids=sum(1 for lid in lids if lid.faired),
         lids=tuple(lids),
         exact_faces=np.vstack(exact) if exact else np.zeros((0, 3), dtype=np.int64),
     )

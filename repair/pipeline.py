@@ -80,7 +80,7 @@ from repair.report import (
 from repair.rounding import RoundedInput, round_input
 from repair.scan import scan_cleanup
 from repair.stitch import stitch_cracks
-from repair.topology import edge_components, edge_topology, edge_topology_memo
+from repair.topology import EdgeTopology, edge_components, edge_topology, edge_topology_memo
 from repair.union import union_of_shells
 
 __all__ = ["RepairError", "RepairResult", "repair_file", "repair_mesh"]
@@ -305,15 +305,7 @@ def _solidify(
     clock.lap("scan_cleanup", 0.21)
     stitched_f, stitched = stitch_cracks(work_v, work_f, STITCH_GAMMA * eps, topology)
     clock.lap("stitch", 0.22)
-    # A cleaned scan's holes are all closable when small against their shell, however
-    # much of its edges are boundary (the scan's holes are many).
-    lidded_v, lidded_f, holes = close_small_holes(
-        work_v, stitched_f, max_boundary_fraction=1.0 if scan else MAX_BOUNDARY_FRACTION,
-        topology=topology,
-    )
-    clock.lap("holes", 0.25)
-    pairs = carry_input_pairs(rounded.vertices, rounded.faces, rounded.pairs, lidded_v, lidded_f)
-    lidded = _Lidded(lidded_v, lidded_f, pairs)
+    lidded, holes = _lidded(rounded, work_v, stitched_f, topology, scan is not None, clock)
     tally = RepairTally()
     united = None if fallback else _union_path(rounded, cleaned, lidded, eps, tally, clock)
     if united is not None:
@@ -342,6 +334,29 @@ def _solidify(
     )  # fmt: skip
     clock.lap("deviation", 0.95)
     return out
+
+
+def _lidded(
+    rounded: RoundedInput, v: np.ndarray, f: np.ndarray, topology: EdgeTopology, scan: bool,
+    clock: StageClock,
+) -> tuple[_Lidded, HolesClosed]:
+    """Stage 2: the shell's holes closed, and the crossing pairs of the result. A cleaned
+    scan's holes are all closable when small against their shell, however much of its
+    edges are boundary (a scan's holes are many), and get fair patches -- but a faired
+    patch that crosses a face is made again as the minimal-area lid."""
+    fraction = 1.0 if scan else MAX_BOUNDARY_FRACTION
+    flat: tuple[int, ...] = ()
+    while True:
+        lidded_v, lidded_f, holes = close_small_holes(
+            v, f, max_boundary_fraction=fraction, topology=topology, fair=scan, flat=flat
+        )
+        clock.lap("holes", 0.25)
+        pairs = carry_input_pairs(rounded.vertices, rounded.faces, rounded.pairs, lidded_v,
+                                  lidded_f)  # fmt: skip
+        crossing = holes.faired_crossing(len(lidded_f), pairs)
+        if not crossing:
+            return _Lidded(lidded_v, lidded_f, pairs), holes
+        flat = tuple(sorted({*flat, *crossing}))
 
 
 def _union_path(

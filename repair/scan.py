@@ -20,8 +20,9 @@ Steps, in the paper's order (Sec. 4), each vectorised over the whole mesh per ro
    ``SPECK_AREA * eps**2`` (what a nozzle of diameter eps cannot print), the largest kept.
 
 Hole filling (Sec. 3.4) is the repair's shell closure (:mod:`repair.holes` with every
-boundary allowed, lids from :mod:`repair.closure`: minimal-area patches; they are not
-remeshed and faired as the paper's are).
+boundary allowed, lids from :mod:`repair.closure`: minimal-area patches), refined and
+faired as the paper's are (Liepa 2003, :mod:`repair.fair`): a faired patch that would
+cross a face keeps its minimal-area lid.
 
 Units are mm. Arrays: vertices float64 (n, 3), faces int64 (m, 3).
 """

@@ -152,3 +152,27 @@ def test_a_shell_pierced_by_many_small_holes_stays_a_sheet():
     out_v, out_f, holes = close_small_holes(v, holed)
     assert holes.count == 0
     assert np.array_equal(out_f, holed)
+
+
+def test_lids_that_gain_no_vertex_are_the_same_when_faired():
+    # One-vertex holes of a regular sphere: their lids' triangles are as fine as the rim
+    # already (Liepa's density rule splits none), so fairing leaves them as they were.
+    v, f = icosphere()
+    targets = [np.argmax(v @ d) for d in np.eye(3)]
+    open_f = f[~np.isin(f, targets).any(axis=1)]
+    plain_v, plain_f, plain = close_small_holes(v, open_f)
+    out_v, out_f, holes = close_small_holes(v, open_f, fair=True)
+    assert holes.count == 3 and holes.faired_lids == 0
+    assert np.array_equal(out_f, plain_f) and np.array_equal(out_v, plain_v)
+    assert all(not lid["faired"] and lid["new_vertices"] == 0 for lid in holes.to_dict()["lids"])
+
+
+def test_a_planar_hole_keeps_its_exact_lid_when_fairing():
+    lo, hi = np.zeros(3), np.full(3, 5.0)
+    m = trimesh.creation.box(bounds=[lo, hi])
+    v, f = np.asarray(m.vertices, float), np.asarray(m.faces, np.int64)
+    open_f = f[1:]
+    out_v, out_f, holes = close_small_holes(v, open_f, fair=True)
+    assert holes.count == 1 and holes.faired_lids == 0 and holes.facet_lids == 1
+    assert len(out_f) == 12 and np.array_equal(out_v, v)
+    assert check_printable(out_v, out_f).ok

@@ -161,3 +161,122 @@ def test_the_cleaned_scan_hands_on_the_topology_of_its_faces():
     assert (given.boundary, given.nonmanifold, given.misoriented) == (
         fresh.boundary, fresh.nonmanifold, fresh.misoriented)
     assert given.boundary > 0  # the holes are still open: shell closure lids them next
+
+
+def _lid_points(v: np.ndarray, lid_f: np.ndarray) -> np.ndarray:
+    """Points spread over the lid triangles (seeded barycentric samples), mm."""
+    w = np.random.default_rng(0).dirichlet([1.0, 1.0, 1.0], size=30)
+    return np.einsum("sk,tkd->tsd", w, v[lid_f]).reshape(-1, 3)
+
+
+def test_a_scan_hole_on_the_curved_side_gets_a_fair_patch_on_the_sphere():
+    """Liepa's refined and faired patch follows the sphere across the hole; the
+    minimal-area lid of the same rim cuts a chord under it (much further off)."""
+    from repair.check import check_printable
+    from repair.holes import boundary_loops, close_small_holes
+
+    v, f = noisy_scan(5, RADIUS, seed=5, spikes=0, holes=4, specks=0)
+    cv, cf, _ = clean_scan(v, f, EPS)
+    loops, _ = boundary_loops(cf)
+    assert len(loops) >= 3
+    gaps = {}
+    for fair in (False, True):
+        out_v, out_f, holes = close_small_holes(cv, cf, max_boundary_fraction=1.0, fair=fair)
+        verdict = check_printable(out_v.astype(np.float32).astype(np.float64), out_f)
+        assert verdict.ok, verdict.failures()
+        assert holes.count == len(loops)
+        r = np.linalg.norm(_lid_points(out_v, out_f[len(cf) :]), axis=1)
+        gaps[fair] = np.abs(r - RADIUS).max()
+        if fair:
+            lids = holes.to_dict()["lids"]
+            # Every hole but the single-triangle ones (planar, exact as they are).
+            assert holes.faired_lids == sum(len(lp) > 3 for lp in loops) >= 3
+            assert all(lid["faired"] and lid["new_vertices"] > 0
+                       for lid in lids if lid["triangles"] > 1)  # fmt: skip
+            # The rim's vertex indices are kept: the shell is untouched, lids appended.
+            assert np.array_equal(out_f[: len(cf)], cf)
+            assert np.array_equal(out_v[: len(cv)], cv)
+    hole_radius = max(holes.max_perimeter / (2 * np.pi), 1e-9)
+    # Within a small fraction of the hole's radius of the sphere (the scan's own noise
+    # is 5% of an edge, ~0.04 mm: the faired patch is at that level); the flat lid at
+    # least twice as far (its chords sag by a sagitta, 0.11 mm here).
+    assert gaps[True] <= 0.05 * hole_radius
+    assert gaps[False] >= 2 * gaps[True]
+
+
+def test_repair_of_a_scan_reports_its_faired_lids(tmp_path):
+    v, f = noisy_scan(5, RADIUS, seed=0)
+    src, out = tmp_path / "scan.stl", tmp_path / "out.stl"
+    write_stl(src, v, f)
+    report = repair_file(src, out, epsilon=EPS, clean="scan")
+    written = load_mesh(out)
+    assert check_printable(written.vertices, written.faces).ok
+    holes = report["holes_closed"]
+    assert holes["faired_lids"] >= 1
+    assert any(lid["faired"] and lid["new_vertices"] > 0 for lid in holes["lids"])
+
+
+def _depth_along(v: np.ndarray, tris: np.ndarray, u: np.ndarray) -> float:
+    """Distance from the origin along the unit ``u`` to where it meets the triangles
+    (the nearest hit; Möller-Trumbore on all of them at once), mm."""
+    a, b, c = v[tris[:, 0]], v[tris[:, 1]], v[tris[:, 2]]
+    e1, e2 = b - a, c - a
+    p = np.cross(u, e2)
+    det = np.einsum("ij,ij->i", e1, p)
+    s = -a
+    bu = np.einsum("ij,ij->i", s, p) / det
+    q = np.cross(s, e1)
+    bv = (q @ u) / det
+    t = np.einsum("ij,ij->i", e2, q) / det
+    hit = (bu >= 0) & (bv >= 0) & (bu + bv <= 1) & (t > 0)
+    return float(t[hit].min())
+
+
+def test_a_faired_patch_that_would_cross_a_face_keeps_the_minimal_area_lid():
+    """A small closed tetrahedron stands in the hole, between where the flat lid and the
+    faired patch pass: the faired patch cuts it (found by the exact crossing test, as
+    the repair's carried pairs find it), so that hole is lidded again with its flat lid
+    (the others are still faired) and the result has no crossing."""
+    from repair.check import check_printable
+    from repair.holes import boundary_loops, close_small_holes
+    from repair.intersections import intersecting_face_pairs
+
+    v, f = noisy_scan(5, RADIUS, seed=5, spikes=0, holes=4, specks=0)
+    cv, cf, _ = clean_scan(v, f, EPS)
+    loops, _ = boundary_loops(cf)
+    big = max(loops, key=len)
+    u = cv[big].mean(axis=0)
+    u /= np.linalg.norm(u)
+    depth = {}
+    for fair in (False, True):
+        out_v, out_f, _ = close_small_holes(cv, cf, max_boundary_fraction=1.0, fair=fair)
+        depth[fair] = _depth_along(out_v, out_f[len(cf) :], u)
+    assert depth[True] - depth[False] > 0.05  # the faired patch bulges out to the sphere
+    # The tetrahedron: its tip between the two lids, its base above the faired patch.
+    e1 = np.cross(u, [0.0, 0.0, 1.0] if abs(u[2]) < 0.9 else [1.0, 0.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(u, e1)
+    tip = (0.5 * (depth[True] + depth[False])) * u
+    angles = 2 * np.pi * np.arange(3) / 3
+    ring = np.cos(angles)[:, None] * e1 + np.sin(angles)[:, None] * e2
+    base = (depth[True] + 0.05) * u + 0.2 * ring
+    tet_v = np.vstack([tip, base])
+    tet_f = np.array([[1, 2, 3], [0, 2, 1], [0, 3, 2], [0, 1, 3]]) + len(cv)
+    if np.dot(np.cross(base[1] - base[0], base[2] - base[0]), u) < 0:
+        tet_f = tet_f[:, ::-1]
+    sv, sf = np.vstack([cv, tet_v]), np.vstack([cf, tet_f])
+    rim = cv[big]
+    big_perimeter = round(float(np.linalg.norm(np.roll(rim, -1, axis=0) - rim, axis=1).sum()), 9)
+    out_v, out_f, holes = close_small_holes(sv, sf, max_boundary_fraction=1.0, fair=True)
+    crossing = holes.faired_crossing(len(out_f), intersecting_face_pairs(out_v, out_f))
+    assert [round(holes.lids[i].perimeter, 9) for i in crossing] == [big_perimeter]
+    # Made again with that hole flat, as the repair does: nothing crosses.
+    out_v, out_f, holes = close_small_holes(sv, sf, max_boundary_fraction=1.0, fair=True,
+                                            flat=crossing)  # fmt: skip
+    assert holes.faired_crossing(len(out_f), intersecting_face_pairs(out_v, out_f)) == ()
+    faired = {round(lid.perimeter, 9): lid.faired for lid in holes.lids}
+    assert faired.pop(big_perimeter) is False
+    assert sum(faired.values()) == holes.faired_lids >= 2
+    verdict = check_printable(out_v, out_f)
+    assert verdict.ok, verdict.failures()
+    assert verdict.components == 2  # the sphere, closed, and the tetrahedron beside it
