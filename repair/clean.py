@@ -22,8 +22,14 @@ __all__ = [
     "clean_soup",
     "degenerate_mask",
     "drop_unreferenced",
+    "hanging_needles",
+    "needle_mask",
     "net_faces",
 ]
+
+#: A face is flat at float32 resolution when its height over its longest side is under
+#: this many float32 ulps of its largest coordinate (a CAD export's midpoint rounded).
+NEEDLE_ULPS = 4.0
 
 
 def degenerate_mask(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -31,6 +37,47 @@ def degenerate_mask(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     if len(faces) == 0:
         return np.zeros(0, dtype=bool)
     return degenerate_face_mask(vertices, faces)
+
+
+def needle_mask(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Faces flat at float32 resolution (bool per face): the height over the longest
+    side is under :data:`NEEDLE_ULPS` float32 ulps of the largest corner coordinate (mm).
+    A zero-area triangle whose corners were rounded to float32 is one; a face of a
+    tessellation, however thin, is thousands of ulps high."""
+    if len(faces) == 0:
+        return np.zeros(0, dtype=bool)
+    p = np.asarray(vertices, dtype=np.float64)[faces]  # (m, 3, 3)
+    sides = p[:, [1, 2, 0]] - p
+    longest = np.sqrt(np.einsum("mkd,mkd->mk", sides, sides).max(axis=1))
+    twice_area = np.linalg.norm(np.cross(sides[:, 0], sides[:, 2]), axis=1)
+    ulp = np.spacing(np.abs(p).max(axis=(1, 2)).astype(np.float32)).astype(np.float64)
+    return twice_area < NEEDLE_ULPS * ulp * np.maximum(longest, 1e-300)
+
+
+def hanging_needles(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """The faces flat at float32 resolution (:func:`needle_mask`) that hang off the
+    surface: the longest side is an edge at least two other (not flat) faces share, and
+    no other face uses the two short sides -- a needle on an edge the surface already
+    closes adds nothing printable, and dropping it opens no edge. A thin face that closes
+    a crack (a T-junction's filler) stays. Returns a bool mask per face."""
+    flat = needle_mask(vertices, faces)
+    if not np.any(flat):
+        return flat
+    f = np.asarray(faces, dtype=np.int64)
+    n = int(f.max()) + 1
+    e = np.sort(half_edges(f), axis=1)
+    key = (e[:, 0] * n + e[:, 1]).reshape(-1, 3)
+    others, uses = np.unique(key[~flat], return_counts=True)
+    mine = key[flat]
+    at = np.minimum(np.searchsorted(others, mine), max(len(others) - 1, 0))
+    count = np.where(others[at] == mine, uses[at], 0) if len(others) else np.zeros_like(mine)
+    p = np.asarray(vertices, dtype=np.float64)[f[flat]]
+    side = np.einsum("mkd,mkd->mk", p[:, [1, 2, 0]] - p, p[:, [1, 2, 0]] - p)
+    longest = np.argmax(side, axis=1)[:, None] == np.arange(3)[None]
+    hangs = np.where(longest, count >= 2, count == 0).all(axis=1)
+    out = np.zeros(len(f), dtype=bool)
+    out[np.flatnonzero(flat)[hangs]] = True
+    return out
 
 
 def net_faces(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -148,7 +195,9 @@ class Cleaned:
 
 
 def clean_soup(vertices: np.ndarray, faces: np.ndarray, *, solid: bool = False) -> Cleaned:
-    """Weld exactly equal vertices, move degenerate faces to segments, keep one layer.
+    """Weld exactly equal vertices, move degenerate faces to segments, drop the needles
+    flat at float32 resolution that hang off the surface (:func:`hanging_needles`), keep
+    one layer.
 
     With ``solid=True`` (closed oriented input) coincident faces cancel by orientation
     (:func:`cancel_opposite_faces`) instead.
@@ -157,19 +206,25 @@ def clean_soup(vertices: np.ndarray, faces: np.ndarray, *, solid: bool = False) 
     deg = degenerate_mask(v, f)
     segments = _segments_of(v, _not_on_edges(f[deg], f[~deg]))
     f = f[~deg]
+    needles = hanging_needles(v, f)
+    f = f[~needles]
     keep = cancel_opposite_faces(f) if solid else unique_faces(f)
     dup = len(f) - len(keep)
     f = f[keep]
     v, f = drop_unreferenced(v, f)
-    return Cleaned(v, f, segments, int(np.count_nonzero(deg)), int(dup))
+    removed = np.count_nonzero(deg) + np.count_nonzero(needles)
+    return Cleaned(v, f, segments, int(removed), int(dup))
 
 
 def clean_checked(vertices: np.ndarray, faces: np.ndarray, verdict: Printability) -> Cleaned:
     """:func:`clean_soup` of a mesh whose ``verdict`` was found on exactly these
     coordinates (``as_float32``, welded the same way): when that check found no
-    degenerate and no duplicate face, there is nothing to remove, and the welded input
-    is the cleaned input."""
+    degenerate and no duplicate face, and no needle hangs off the welded surface
+    (:func:`hanging_needles`), there is nothing to remove: the welded input is the
+    cleaned input."""
     if verdict.degenerate_faces == 0 and verdict.duplicate_faces == 0:
-        v, f = drop_unreferenced(*weld_exact(vertices, faces))
-        return Cleaned(v, f, np.zeros((0, 2, 3)), 0, 0)
+        v, f = weld_exact(vertices, faces)
+        if not np.any(hanging_needles(v, f)):
+            v, f = drop_unreferenced(v, f)
+            return Cleaned(v, f, np.zeros((0, 2, 3)), 0, 0)
     return clean_soup(vertices, faces)
