@@ -200,13 +200,15 @@ def clean_soup(vertices: np.ndarray, faces: np.ndarray, *, solid: bool = False) 
     one layer.
 
     With ``solid=True`` (closed oriented input) coincident faces cancel by orientation
-    (:func:`cancel_opposite_faces`) instead.
+    (:func:`cancel_opposite_faces`) instead, and flat faces are not dropped.
     """
     v, f = weld_exact(np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64))
     deg = degenerate_mask(v, f)
     segments = _segments_of(v, _not_on_edges(f[deg], f[~deg]))
     f = f[~deg]
-    needles = hanging_needles(v, f)
+    # An input's needles only: a solid's own clean (a union's result and prisms) keeps
+    # its faces as the union made them.
+    needles = np.zeros(len(f), dtype=bool) if solid else hanging_needles(v, f)
     f = f[~needles]
     keep = cancel_opposite_faces(f) if solid else unique_faces(f)
     dup = len(f) - len(keep)
