@@ -45,7 +45,18 @@ NOTHING_PRINTABLE = {"Ghostkeeper_zero_size_cube.stl"}
 #: plane: out of the snap's reach; snapping 32-64 ulps leaves 46-43 but D goes
 #: 1.6e-5 -> 0.02 mm), 12 a corner, 2 none. Cut and lidded (repair.hairline with the
 #: search near folds ungated) they go, 47 -> 0, but D grows to 9.5e-3 mm and CPU
-#: 8 -> 27 s; zipped, 47 -> 42.
+#: 8 -> 27 s; zipped, 47 -> 42. Finding them is cheap: all 47 lie within 2 edge rings
+#: of a thin fold (an edge whose faces face opposite ways, dot < -0.9, and one far
+#: corner within 4 probe distances of the other face's plane): 408 of 111k faces, 0.17 s
+#: CPU, then hairline_suspects ~0.35 s and the exact winding ~0.9 s; the cost is the cut
+#: rounds' finish on 111k faces (~11 s a round: repair.face_grid's cells are 0.39 mm on
+#: this 1.9 mm part, so a region near 136 changed faces holds 99k; after a mend with
+#: unknown pairs all faces are tested): CPU median 10.6 -> 32.1 s (3 runs each, same
+#: minutes), D 9.5e-3 mm. Cutting the thin
+#: folds in the union's output before rounding (no winding test) leaves 72-129, D
+#: 0.014-0.019 mm. Moving a body's corners within 4-22 probes of a facing body's crossing
+#: face (dot < -0.99) onto its plane before the union makes touching edges that finish
+#: thickens at eps (D 0.2 mm); moving only corners inside that body leaves 126.
 #: Known failures, asserted so, so that a fix shows up here.
 WINDING_KNOWN_FAILURES = {
     "mikedh_cycloidal.ply",
