@@ -9,6 +9,7 @@ spool at start-up (:meth:`Spool.recover_orphans`).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import shutil
@@ -23,7 +24,7 @@ from daemon.config import Config
 from daemon.events import AnyEvent
 from daemon.journal import Job, Journal
 from daemon.pins import BadSidecar, find_sidecar, folder_nozzle, is_sidecar, read_sidecar
-from daemon.report import write_reports
+from daemon.report import report_paths, write_reports
 from daemon.safety import (
     ACCEPTED_SUFFIXES,
     GCODE_SUFFIXES,
@@ -208,16 +209,17 @@ class Spool:
 
     # -- outcome --------------------------------------------------------------------------
     def _write_reports(self, job_id: int, folder: Path, stem: str) -> None:
+        """Write the job's reports, listing their own paths, then record those paths: a
+        job whose outputs name its reports has them complete on disk (written once, so no
+        half-written temporary file sits in the folder after that)."""
         job = self.journal.get(job_id)
         assert job is not None
-        json_path, text_path = write_reports(folder, stem, job, self.journal.history(job_id))
+        json_path, text_path = report_paths(folder, stem)
         outputs = dict(job.outputs or {})
         outputs.update(report_json=str(json_path), report_txt=str(text_path))
+        write_reports(folder, stem, dataclasses.replace(job, outputs=outputs),
+                      self.journal.history(job_id))
         self.journal.update(job_id, outputs=outputs)
-        # rewrite once more so the JSON report lists its own paths
-        job = self.journal.get(job_id)
-        assert job is not None
-        write_reports(folder, stem, job, self.journal.history(job_id))
 
     def archive(self, job_id: int) -> None:
         """Move a finished job's files to done/ (done) or failed/ (failed, cancelled)

@@ -112,14 +112,18 @@ def _number(value: Any, divisor: float = 1.0, unit: str = "") -> str:
     return "?"
 
 
+def report_paths(folder: Path, stem: str) -> tuple[Path, Path]:
+    """Where ``write_reports`` puts a job's JSON and text reports."""
+    return folder / f"{stem}.report.json", folder / f"{stem}.report.txt"
+
+
 def write_reports(folder: Path, stem: str, job: Job, history: list[dict[str, Any]]
                   ) -> tuple[Path, Path]:
     """Write ``<stem>.report.json`` and ``<stem>.report.txt`` into ``folder`` atomically."""
     from repair.io import write_atomic  # not at import time: it brings numpy along
 
     folder.mkdir(parents=True, exist_ok=True)
-    json_path = folder / f"{stem}.report.json"
-    text_path = folder / f"{stem}.report.txt"
+    json_path, text_path = report_paths(folder, stem)
     write_atomic(json_path, [json.dumps(report_dict(job, history), indent=2,
                                         default=str).encode()])
     write_atomic(text_path, [report_text(job, history).encode()])
