@@ -382,12 +382,11 @@ def _union_path(
     clock.lap("union", 0.4)
     if union is None:
         return None
-    # A shell that is its own union keeps the crossings found on it (none): only its
-    # lids' corners round. (Where the union cut faces, the cut ones and those near them
-    # are a large part of the mesh: a whole test is cheaper.)
-    whole = len(union.faces) == len(f) and np.array_equal(union.source, np.arange(len(f)))
+    # Faces the union kept as they were keep the crossings found on them (none): only
+    # the region near the cut faces and the lids' corners is tested again, where those
+    # are few (counter: 7 % of 88.5k faces; box's 36 % get a whole test).
     out_v, out_f, verdict = finish(union.vertices, union.faces, eps, tally,
-                                   (v, f, lidded.pairs) if whole else None)  # fmt: skip
+                                   (v, f, lidded.pairs))  # fmt: skip
     clock.lap("finish", 0.7)
     if not verdict.ok:
         return None

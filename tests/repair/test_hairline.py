@@ -13,6 +13,7 @@ from repair.hairline import (
     cut_and_lid,
     fold_suspects,
     hairline_failures,
+    hairline_suspects,
     without_hairline_gaps,
 )
 from repair.holes import HolesClosed
@@ -52,6 +53,23 @@ def test_slotted_box_fails_the_winding_test_and_the_suspects_find_every_failure(
     every = np.flatnonzero(failing_faces(outside, inside))
     assert len(every) > 0
     assert np.array_equal(np.sort(hairline_failures(v, f)), every)
+
+
+def test_suspects_among_a_few_faces_are_those_of_the_whole_search():
+    """Asked about a few faces of a large mesh, the search builds its tree on the faces
+    near them only: the answer is the whole search's, restricted to them."""
+    import manifold3d as m3d
+
+    ball = m3d.Manifold.sphere(3.0, 256).translate([5.0, 5.0, 16.0])
+    v, f = _solid(_slotted_box() + ball)
+    every = hairline_suspects(v, f)
+    assert len(every) > 0
+    rng = np.random.default_rng(7)
+    which = np.unique(np.r_[every[::2], rng.choice(len(f), len(f) // 10, replace=False)])
+    assert 4 * len(which) <= len(f)  # the restricted search
+    found = hairline_suspects(v, f, which)
+    assert np.array_equal(np.sort(found), np.intersect1d(every, which))
+    assert len(found) > 0
 
 
 def test_filling_closes_the_slot_and_moves_the_surface_by_at_most_the_reach():
