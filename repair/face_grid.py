@@ -43,7 +43,7 @@ class FaceGrid:
         self.origin = self.lo.min(axis=0)
         span = float((self.hi.max(axis=0) - self.origin).max())
         ext = (self.hi - self.lo).max(axis=1)
-        self.h = max(float(np.quantile(ext, 0.99)), span / 1024.0, 1e-300)
+        self.h = self._cell_size(ext, span)
         self.n = int(span / self.h) + 3
         self.fits = ext <= self.h
         listed = np.flatnonzero(self.fits)
@@ -59,6 +59,21 @@ class FaceGrid:
             listed = np.r_[listed, big[few][rows]]
         order, self.sorted_keys = sort_with_positions(k)
         self.sorted_faces = listed[order]
+
+    def _cell_size(self, ext: np.ndarray, span: float) -> float:
+        """The edge of a cell (mm): the smallest of a few quantiles of the faces' box
+        sizes (``ext``) at which listing each face under every cell its box covers takes
+        at most ``4 m`` listings -- fine cells where most faces are small, so a query
+        gathers few faces beyond those it asks for even where a few faces are long (a
+        gear's flanks) -- and never below ``span / 1024`` (keys stay small)."""
+        floor = max(span / 1024.0, 1e-300)
+        sizes = np.maximum(np.quantile(ext, [0.5, 0.75, 0.9, 0.99]), floor)
+        for h in sizes[:-1]:
+            lo = np.floor((self.lo - self.origin) / h)
+            cover = (np.floor((self.hi - self.origin) / h) - lo + 1).prod(axis=1)
+            if float(cover.sum()) <= 4.0 * self.m:
+                return float(h)
+        return float(sizes[-1])
 
     def _cells_in(self, lo_c: np.ndarray, hi_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Keys of all cells in each box of cells ``lo_c..hi_c`` (k, 3), and for each key

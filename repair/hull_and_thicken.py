@@ -42,23 +42,30 @@ def hull_and_thicken(
     *,
     solid: bool = False,
     pairs: np.ndarray | None = None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[
+    np.ndarray, np.ndarray, tuple, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray] | None
+]:
     """Resolve, take the outer hull, thicken sheets/wires and repeat until no sheet is left.
     ``pairs``: the intersecting face pairs of ``(v, f)`` if known.
 
     Returns the closed solid ``(vertices, faces)`` plus the first pass's outer hull
-    ``(vertices, faces)`` (solid faces, then sheet faces) and the birth face (into ``f``)
-    of each of its faces.
+    ``(vertices, faces)`` (solid faces, then sheet faces), the birth face (into ``f``)
+    of each of its faces, and, when the closed bodies were united, the rounded union
+    with all its crossing pairs ``(vertices, faces, pairs)`` (else None): the solid
+    keeps most of its faces on the same points, so a check of it need test only near
+    the others (``before`` of :func:`repair.finish.rounded_verdict`).
     """
     first_hull_birth = np.zeros(0, dtype=np.int64)
     first_poly = (np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64))
     unorientable = not solid and is_unorientable(f)
     united = None if unorientable or pairs is None else unite_closed_bodies(v, f, pairs)
+    checked = None
     if united is not None:
         # The bodies' union stands for them: only the rest is arranged exactly.
         tally.intersecting_pairs = len(pairs)
         tally.internal_faces += united.dropped
         v, f, pairs = united.vertices, united.faces, united.pairs
+        checked = (v, f, pairs)
     for round_ in range(MAX_THICKEN_ROUNDS + 1):
         tally.passes += 1
         if round_ == 0 and unorientable:
@@ -90,16 +97,16 @@ def hull_and_thicken(
         if not extra:
             # Specks: outer-hull shells of a mend's crumbs (see without_specks).
             sv, sf = without_specks(*drop_unreferenced(rv, split.solid_faces), speck_volume(eps))
-            return sv, sf, first_poly, first_hull_birth
+            return sv, sf, first_poly, first_hull_birth, checked
         fused = manifold_union([(rv, split.solid_faces), *extra], min_volume=speck_volume(eps))
         if fused is not None:
             sv, sf = fused
-            return sv, sf, first_poly, first_hull_birth
+            return sv, sf, first_poly, first_hull_birth, checked
         v, f = concat_meshes([(rv, split.solid_faces), *extra])
         c = clean_soup(v, f, solid=True)
         v, f = c.vertices, c.faces
     sv, sf = drop_unreferenced(v, f)
-    return sv, sf, first_poly, first_hull_birth
+    return sv, sf, first_poly, first_hull_birth, checked
 
 
 def hull_again(
@@ -122,7 +129,7 @@ def hull_again(
     """
     c = clean_soup(*concat_meshes([(v32, f32), *extra]), solid=True)
     known = None if pairs is None else carry_input_pairs(v32, f32, pairs, c.vertices, c.faces)
-    v, f, _, _ = hull_and_thicken(c.vertices, c.faces, eps, tally, solid=True, pairs=known)
+    v, f, _, _, _ = hull_and_thicken(c.vertices, c.faces, eps, tally, solid=True, pairs=known)
     return v, f, None if known is None else (c.vertices, c.faces, known)
 
 

@@ -410,7 +410,7 @@ def _exact_path(
     """Exact arrangement, outer hull, thickening, finished, with the input face each
     written face is believed to be a piece of (or -1); raises :class:`RepairError`
     when nothing can be reached from outside or the result cannot be made printable."""
-    hull_v, hull_f, first_hull, hull_birth = hull_and_thicken(
+    hull_v, hull_f, first_hull, hull_birth, united = hull_and_thicken(
         lidded.vertices, lidded.faces, eps, tally, cleaned.segments, pairs=lidded.pairs
     )
     clock.lap("hull_and_thicken", 0.6)
@@ -421,7 +421,7 @@ def _exact_path(
         dropped = int(shell_in.max()) + 1 - len(seen)
     if len(hull_f) == 0:
         raise RepairError("nothing printable: no part of the model can be reached from outside")
-    out_v, out_f, verdict = finish(hull_v, hull_f, eps, tally)
+    out_v, out_f, verdict = finish(hull_v, hull_f, eps, tally, united)
     clock.lap("finish", 0.8)
     if not verdict.ok:
         raise RepairError(NOT_PRINTABLE + "; ".join(verdict.failures()))

@@ -103,7 +103,7 @@ def test_exact_path_sources_are_pieces_of_their_input_faces_and_d_stays_bounded(
     v, f = klein_bottle()
     v = round_to_float32(v)
     tally = RepairTally()
-    hv, hf, first_hull, birth = hull_and_thicken(v, f, 0.4, tally)
+    hv, hf, first_hull, birth, _ = hull_and_thicken(v, f, 0.4, tally)
     ov, of, verdict = finish(hv, hf, 0.4, tally)
     assert verdict.ok
     hint = hull_face_sources(v, f, v, f, first_hull, birth, ov, of)

@@ -181,7 +181,7 @@ def test_hull_taken_again_with_known_pairs_is_the_hull_taken_from_scratch():
     assert len(pairs) > 0 and len(f) >= LOCAL_REMESH_MIN_FACES
     got_v, got_f, before = hull_again(v32, f, pairs, [], 0.4, RepairTally())
     c = clean_soup(v32, f, solid=True)
-    ref_v, ref_f, _, _ = hull_and_thicken(c.vertices, c.faces, 0.4, RepairTally(), solid=True)
+    ref_v, ref_f, _, _, _ = hull_and_thicken(c.vertices, c.faces, 0.4, RepairTally(), solid=True)
     assert np.array_equal(got_v, ref_v) and np.array_equal(got_f, ref_f)
     assert len(got_f) < len(f)  # the union dropped the faces inside the other sphere
     bv, bf, bp = before
