@@ -20,9 +20,11 @@ import numpy as np
 KINDS = ("cylinder", "cone", "sphere", "torus")
 #: vertices a fit is first tried on
 SUBSAMPLE = 256
-#: a guess whose median vertex distance exceeds this share of the region's size is not
-#: refined (on a true feature the guesses from normals and circles are nearly exact)
-GUESS_SHARE = 0.02
+#: a guess whose median vertex distance exceeds this multiple of the fit's ``accept`` is not
+#: refined: on a design surface the guesses from facet normals and circles are nearly exact
+#: (every corpus feature's within 0.5 ``accept``), on a scan's small noisy regions they are
+#: 10-1000 ``accept`` off, and refining each of those hundreds of guesses cost ~0.1 s CPU
+GUESS_ACCEPT = 2.0
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
@@ -226,7 +228,7 @@ def fit_surface(points: np.ndarray, centroids: np.ndarray, normals: np.ndarray,
         with np.errstate(all="ignore"):
             guess = _GUESS[kind](p, centroids, normals, areas)
             if not _sane(guess, extent * 10) or np.median(
-                    np.abs(guess.distance(few))) > GUESS_SHARE * extent:
+                    np.abs(guess.distance(few))) > GUESS_ACCEPT * accept:
                 continue  # the normals' guess is far off: not this kind of surface
             # scipy.optimize takes ~1 s to import: only a guess worth refining pays for it
             from scipy.optimize import least_squares

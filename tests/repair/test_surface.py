@@ -239,3 +239,34 @@ def test_countersink_cone_and_cylinder_sharing_a_rim_are_both_refined():
     err = (np.abs(rho - design) * np.where(above, np.sqrt(0.5), 1.0))[wall]
     assert err.max() <= TOL
     assert check_printable(result.vertices, result.faces, as_float32=True).ok
+
+
+def test_noisy_scan_gets_no_surface_refinement(tmp_path, monkeypatch):
+    """A scan's small noisy regions are no design surface: the stage (the CLI's default
+    "holes") refines none of them and leaves the repaired mesh as it was, and it rejects
+    nearly all of them from their initial guesses, before any least-squares refinement
+    (each of which cost ~0.1 s CPU on a hopeless guess: a minute on this 4,787-face scan)."""
+    import scipy.optimize
+    from scan_models import noisy_scan
+
+    from repair.pipeline import repair_file
+    from repair.surface import fit
+
+    v, f = noisy_scan(4, 20.0, seed=5)
+    src, out = tmp_path / "scan.stl", tmp_path / "out.stl"
+    write_stl(src, v, f)
+    report = repair_file(src, out, epsilon=EPS, clean="auto", surface="holes")
+    section = report["surface"]
+    assert section["triangles_added"] == 0 and "undone" not in section
+    assert all(feat["status"] == "within tolerance" for feat in section["features"])
+    written = load_mesh(out)
+    assert check_printable(written.vertices, written.faces).ok
+
+    offered, refined = [], []
+    guess, solve = fit._GUESS["cylinder"], scipy.optimize.least_squares
+    monkeypatch.setitem(fit._GUESS, "cylinder", lambda *a: offered.append(1) or guess(*a))
+    monkeypatch.setattr(scipy.optimize, "least_squares",
+                        lambda *a, **k: refined.append(1) or solve(*a, **k))
+    again = refine_surfaces(written.vertices, written.faces, epsilon=EPS, mode="holes")
+    assert again.triangles_added == 0
+    assert len(offered) > 100 and len(refined) < len(offered) / 10
