@@ -41,6 +41,7 @@ __all__ = [
     "MAX_BOUNDARY_FRACTION",
     "MAX_LID_AREA_FRACTION",
     "MAX_LIDS_AREA_FRACTION",
+    "MAX_MISSING_TRIANGLES",
     "MAX_PERIMETER_FRACTION",
     "HolesClosed",
     "boundary_loops",
@@ -64,6 +65,9 @@ MAX_LID_AREA_FRACTION = 0.02
 #: See :data:`MAX_LID_AREA_FRACTION`: a shell pierced by many small holes (a perforated
 #: lampshade) stays a sheet.
 MAX_LIDS_AREA_FRACTION = 0.05
+#: A shell whose holes are all single missing triangles (however large) is closed when
+#: they are at most this fraction of its faces: one missing from 34 faces or more.
+MAX_MISSING_TRIANGLES = 0.03
 
 
 @dataclass(frozen=True)
@@ -360,9 +364,10 @@ def close_small_holes(
                       for lp, r, c in zip(loops, rims, labels.tolist(), strict=True)],
                      dtype=bool)  # fmt: skip
     ok = small | facet
+    sizes = np.array([len(lp) for lp in loops], dtype=np.float64)
     if not ok.all():
         ok |= _lids_are_slivers(v, f, comp, loops, labels)[labels]
-    sizes = np.array([len(lp) for lp in loops], dtype=np.float64)
+        ok |= _missing_triangles(sizes, labels, n_faces)[labels]
     covered = np.bincount(labels[ok], weights=sizes[ok], minlength=len(diag))
     closable = (covered == n_bnd) & (n_bnd > 0)
 
@@ -462,6 +467,18 @@ def _lids_are_slivers(
     return ((largest <= MAX_LID_AREA_FRACTION * shell_area)
             & (total <= MAX_LIDS_AREA_FRACTION * shell_area)
             & (np.bincount(comp, minlength=n) >= 3))  # fmt: skip
+
+
+def _missing_triangles(sizes: np.ndarray, labels: np.ndarray, n_faces: np.ndarray) -> np.ndarray:
+    """Per shell: whether its holes (loops of ``sizes`` edges, of shells ``labels``) are
+    all single missing triangles, at most :data:`MAX_MISSING_TRIANGLES` of its
+    ``n_faces`` faces. Such a lid is determined (the one triangle on the hole's corners),
+    whatever its size: a coarse CAD export missing a long face gets it back instead of
+    being thickened into a hollow skin."""
+    n = len(n_faces)
+    loops = np.bincount(labels, minlength=n)
+    triangles = np.bincount(labels, weights=sizes == 3, minlength=n)
+    return (loops > 0) & (triangles == loops) & (triangles <= MAX_MISSING_TRIANGLES * n_faces)
 
 
 def _continues_facet(v: np.ndarray, rim: np.ndarray, loop: np.ndarray) -> bool:
