@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from repair.closure import Lid, loop_lid, loop_planarity
+from repair.thicken import orient_patches
 from repair.topology import EdgeTopology, edge_topology, half_edges
 
 __all__ = [
@@ -342,6 +343,16 @@ def close_small_holes(
     topo = topology if topology is not None and topology.of(f) else edge_topology(f)
     if len(f) == 0 or topo.boundary == 0:
         return v, f, HolesClosed()  # no open edge: nothing to close
+    if topo.misoriented:
+        # An export with faces flipped (STL normals ignored): no hole's rim can be
+        # traced into a loop until each patch is oriented consistently; the shell is
+        # given back so oriented only when it gets lids.
+        oriented = orient_patches(f)[0]
+        out_v, out_f, holes = close_small_holes(
+            v, oriented, max_boundary_fraction=max_boundary_fraction,
+            max_perimeter_fraction=max_perimeter_fraction, fair=fair, flat=flat,
+        )  # fmt: skip
+        return (out_v, out_f, holes) if holes.count else (v, f, holes)
     flaps = flap_faces(v, f, max_boundary_fraction=max_boundary_fraction, topology=topo)
     flap_f = f[flaps]
     f = f[~flaps]

@@ -76,3 +76,36 @@ def test_a_cracked_patch_meeting_two_others_at_a_corner_is_stitched(seed, tmp_pa
     assert written_solid(np.vstack([v, moved]), cracked, tmp_path) == pytest.approx(
         expected, rel=1e-3
     )
+
+
+def multibody() -> tuple[np.ndarray, np.ndarray, float]:
+    """trimesh's multibody.stl at 50x: two solids, written with some faces flipped (as
+    exporters that trust the normals do), and the volume of its own repair (mm³)."""
+    v, f = real_model("trimesh_multibody.stl", 50.0)
+    r = repair_mesh(v, f, 0.4)
+    return v, f, check_printable(r.vertices, r.faces).volume
+
+
+@pytest.mark.parametrize("missing", [8, 16, 24])
+def test_a_misoriented_export_missing_a_triangle_is_closed(missing, tmp_path):
+    # With faces flipped, no hole's rim could be traced into a loop: the shell was left
+    # a sheet and thickened (a hollow body, half the volume) or refused.
+    v, f, expected = multibody()
+    holed = np.delete(f, missing, axis=0)
+    assert written_solid(v, holed, tmp_path) == pytest.approx(expected, rel=1e-3)
+
+
+@pytest.mark.parametrize("seed", [2, 6])
+def test_a_misoriented_export_with_t_junctions_is_closed(seed, tmp_path):
+    # Faces split at an edge's midpoint while the neighbour across keeps the whole edge:
+    # zero-area holes, traced only once the flipped faces are oriented.
+    v, f, expected = multibody()
+    rng = np.random.default_rng(seed)
+    centre = v[f].mean(axis=1)
+    d = np.linalg.norm(centre - centre[rng.integers(len(f))], axis=1)
+    split = np.argsort(d)[: max(1, int(rng.uniform(0.05, 0.3) * len(f)))]
+    a, b, c = f[split].T
+    mid = len(v) + np.arange(len(split))
+    v = np.vstack([v, (v[a] + v[b]) / 2])
+    f = np.vstack([np.delete(f, split, axis=0), np.stack([a, mid, c], 1), np.stack([mid, b, c], 1)])
+    assert written_solid(v, f, tmp_path) == pytest.approx(expected, rel=1e-3)
