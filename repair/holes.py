@@ -66,8 +66,8 @@ MAX_LID_AREA_FRACTION = 0.02
 #: See :data:`MAX_LID_AREA_FRACTION`: a shell pierced by many small holes (a perforated
 #: lampshade) stays a sheet.
 MAX_LIDS_AREA_FRACTION = 0.05
-#: A shell whose holes are all single missing triangles (however large) is closed when
-#: they are at most this fraction of its faces: one missing from 34 faces or more.
+#: A shell whose holes are all one or two missing triangles (however large) is closed
+#: when they are at most this fraction of its faces: one missing from 34 faces or more.
 MAX_MISSING_TRIANGLES = 0.03
 
 
@@ -482,14 +482,16 @@ def _lids_are_slivers(
 
 def _missing_triangles(sizes: np.ndarray, labels: np.ndarray, n_faces: np.ndarray) -> np.ndarray:
     """Per shell: whether its holes (loops of ``sizes`` edges, of shells ``labels``) are
-    all single missing triangles, at most :data:`MAX_MISSING_TRIANGLES` of its
-    ``n_faces`` faces. Such a lid is determined (the one triangle on the hole's corners),
-    whatever its size: a coarse CAD export missing a long face gets it back instead of
-    being thickened into a hollow skin."""
+    all one or two missing triangles (3 or 4 edges; a loop of k edges takes k - 2), at
+    most :data:`MAX_MISSING_TRIANGLES` of its ``n_faces`` faces. Such a lid is the
+    missing triangle itself (or one of two diagonals), whatever its size: a coarse CAD
+    export missing a long face gets it back instead of being thickened into a hollow
+    skin."""
     n = len(n_faces)
     loops = np.bincount(labels, minlength=n)
-    triangles = np.bincount(labels, weights=sizes == 3, minlength=n)
-    return (loops > 0) & (triangles == loops) & (triangles <= MAX_MISSING_TRIANGLES * n_faces)
+    few = np.bincount(labels, weights=sizes <= 4, minlength=n)
+    missing = np.bincount(labels, weights=sizes - 2, minlength=n)
+    return (loops > 0) & (few == loops) & (missing <= MAX_MISSING_TRIANGLES * n_faces)
 
 
 def _continues_facet(v: np.ndarray, rim: np.ndarray, loop: np.ndarray) -> bool:
