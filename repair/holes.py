@@ -343,16 +343,23 @@ def close_small_holes(
     topo = topology if topology is not None and topology.of(f) else edge_topology(f)
     if len(f) == 0 or topo.boundary == 0:
         return v, f, HolesClosed()  # no open edge: nothing to close
-    if topo.misoriented:
-        # An export with faces flipped (STL normals ignored): no hole's rim can be
-        # traced into a loop until each patch is oriented consistently; the shell is
-        # given back so oriented only when it gets lids.
-        oriented = orient_patches(f)[0]
-        out_v, out_f, holes = close_small_holes(
-            v, oriented, max_boundary_fraction=max_boundary_fraction,
-            max_perimeter_fraction=max_perimeter_fraction, fair=fair, flat=flat,
-        )  # fmt: skip
-        return (out_v, out_f, holes) if holes.count else (v, f, holes)
+    rules = (max_boundary_fraction, max_perimeter_fraction, fair, flat)
+    out = _closed(v, f, topo, *rules)
+    if out[2].count or not topo.misoriented:
+        return out
+    # An export with faces flipped (STL normals ignored): no hole's rim traces into a
+    # loop until each patch is oriented consistently; the shell is given back so
+    # oriented only when it gets lids.
+    oriented = orient_patches(f)[0]
+    again = _closed(v, oriented, edge_topology(oriented), *rules)
+    return again if again[2].count else out
+
+
+def _closed(
+    v: np.ndarray, f: np.ndarray, topo: EdgeTopology, max_boundary_fraction: float,
+    max_perimeter_fraction: float, fair: bool, flat: tuple[int, ...],
+) -> tuple[np.ndarray, np.ndarray, HolesClosed]:
+    """:func:`close_small_holes` of a mesh with boundary edges (``topo``: that of ``f``)."""
     flaps = flap_faces(v, f, max_boundary_fraction=max_boundary_fraction, topology=topo)
     flap_f = f[flaps]
     f = f[~flaps]
