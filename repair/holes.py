@@ -35,12 +35,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from repair.closure import Lid, loop_lid, loop_planarity
+from repair.thicken import orient_patches
 from repair.topology import EdgeTopology, edge_topology, half_edges
 
 __all__ = [
     "MAX_BOUNDARY_FRACTION",
     "MAX_LID_AREA_FRACTION",
     "MAX_LIDS_AREA_FRACTION",
+    "MAX_MISSING_TRIANGLES",
     "MAX_PERIMETER_FRACTION",
     "HolesClosed",
     "boundary_loops",
@@ -64,6 +66,9 @@ MAX_LID_AREA_FRACTION = 0.02
 #: See :data:`MAX_LID_AREA_FRACTION`: a shell pierced by many small holes (a perforated
 #: lampshade) stays a sheet.
 MAX_LIDS_AREA_FRACTION = 0.05
+#: A shell whose holes are all one or two missing triangles (however large) is closed
+#: when they are at most this fraction of its faces: one missing from 34 faces or more.
+MAX_MISSING_TRIANGLES = 0.03
 
 
 @dataclass(frozen=True)
@@ -338,6 +343,23 @@ def close_small_holes(
     topo = topology if topology is not None and topology.of(f) else edge_topology(f)
     if len(f) == 0 or topo.boundary == 0:
         return v, f, HolesClosed()  # no open edge: nothing to close
+    rules = (max_boundary_fraction, max_perimeter_fraction, fair, flat)
+    out = _closed(v, f, topo, *rules)
+    if out[2].count or not topo.misoriented:
+        return out
+    # An export with faces flipped (STL normals ignored): no hole's rim traces into a
+    # loop until each patch is oriented consistently; the shell is given back so
+    # oriented only when it gets lids.
+    oriented = orient_patches(f)[0]
+    again = _closed(v, oriented, edge_topology(oriented), *rules)
+    return again if again[2].count else out
+
+
+def _closed(
+    v: np.ndarray, f: np.ndarray, topo: EdgeTopology, max_boundary_fraction: float,
+    max_perimeter_fraction: float, fair: bool, flat: tuple[int, ...],
+) -> tuple[np.ndarray, np.ndarray, HolesClosed]:
+    """:func:`close_small_holes` of a mesh with boundary edges (``topo``: that of ``f``)."""
     flaps = flap_faces(v, f, max_boundary_fraction=max_boundary_fraction, topology=topo)
     flap_f = f[flaps]
     f = f[~flaps]
@@ -360,9 +382,10 @@ def close_small_holes(
                       for lp, r, c in zip(loops, rims, labels.tolist(), strict=True)],
                      dtype=bool)  # fmt: skip
     ok = small | facet
+    sizes = np.array([len(lp) for lp in loops], dtype=np.float64)
     if not ok.all():
         ok |= _lids_are_slivers(v, f, comp, loops, labels)[labels]
-    sizes = np.array([len(lp) for lp in loops], dtype=np.float64)
+        ok |= _missing_triangles(sizes, labels, n_faces)[labels]
     covered = np.bincount(labels[ok], weights=sizes[ok], minlength=len(diag))
     closable = (covered == n_bnd) & (n_bnd > 0)
 
@@ -462,6 +485,20 @@ def _lids_are_slivers(
     return ((largest <= MAX_LID_AREA_FRACTION * shell_area)
             & (total <= MAX_LIDS_AREA_FRACTION * shell_area)
             & (np.bincount(comp, minlength=n) >= 3))  # fmt: skip
+
+
+def _missing_triangles(sizes: np.ndarray, labels: np.ndarray, n_faces: np.ndarray) -> np.ndarray:
+    """Per shell: whether its holes (loops of ``sizes`` edges, of shells ``labels``) are
+    all one or two missing triangles (3 or 4 edges; a loop of k edges takes k - 2), at
+    most :data:`MAX_MISSING_TRIANGLES` of its ``n_faces`` faces. Such a lid is the
+    missing triangle itself (or one of two diagonals), whatever its size: a coarse CAD
+    export missing a long face gets it back instead of being thickened into a hollow
+    skin."""
+    n = len(n_faces)
+    loops = np.bincount(labels, minlength=n)
+    few = np.bincount(labels, weights=sizes <= 4, minlength=n)
+    missing = np.bincount(labels, weights=sizes - 2, minlength=n)
+    return (loops > 0) & (few == loops) & (missing <= MAX_MISSING_TRIANGLES * n_faces)
 
 
 def _continues_facet(v: np.ndarray, rim: np.ndarray, loop: np.ndarray) -> bool:

@@ -31,6 +31,8 @@ __all__ = ["Stitched", "stitch_cracks"]
 #: How many rounds of edge splitting at most (a face with points on two of its edges
 #: needs two; each round splits one edge per face).
 _SPLIT_ROUNDS = 3
+#: How many rounds of vertex snapping at most (a corner where k patches meet needs k - 1).
+_SNAP_ROUNDS = 4
 
 
 @dataclass(frozen=True)
@@ -66,14 +68,15 @@ def _boundary(f: np.ndarray, topology: EdgeTopology) -> tuple[np.ndarray, np.nda
 
 
 def _snap(
-    v: np.ndarray, f: np.ndarray, gamma: float, topology: EdgeTopology
-) -> tuple[np.ndarray, int]:
-    """Faces with mutually nearest boundary vertices of different patches merged."""
-    bnd, patch = _boundary(f, topology)
+    v: np.ndarray, f: np.ndarray, gamma: float, topology: EdgeTopology, patch: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """Faces with mutually nearest boundary vertices of different patches merged, each
+    face's ``patch`` label (carried through), and how many pairs were merged."""
+    bnd = _boundary(f, topology)[0]
     he = half_edges(f)
     bv, first = np.unique(he[bnd, 0], return_index=True)
     if len(bv) < 2:
-        return f, 0
+        return f, patch, 0
     bpatch = patch[bnd[first] // 3]
     from scipy.spatial import cKDTree
 
@@ -89,13 +92,13 @@ def _snap(
     a, b = mutual, nearest[mutual]
     a, b = a[a < b], b[a < b]
     if len(a) == 0:
-        return f, 0
+        return f, patch, 0
     labels = connected_labels(len(v), bv[a], bv[b])
     keep = np.full(labels.max() + 1, len(v))
     np.minimum.at(keep, labels, np.arange(len(v)))
     out = keep[labels][f]
     ok = (out[:, 0] != out[:, 1]) & (out[:, 1] != out[:, 2]) & (out[:, 2] != out[:, 0])
-    return out[ok], len(a)
+    return out[ok], patch[ok], len(a)
 
 
 def _split_candidates(
@@ -179,7 +182,16 @@ def stitch_cracks(
     if b0 == 0:
         return f, Stitched(gamma=float(gamma))
     original = f
-    f, snapped = _snap(v, f, gamma, topo)
+    # Where three or more patches meet at a corner (a cracked-off patch touching two
+    # others), its copies are merged a mutual pair per round; the patches keep their
+    # input labels, so a copy left over still finds the patch it was cut from.
+    patch, snapped, topo_f = topo.shells, 0, topo
+    for _ in range(_SNAP_ROUNDS):
+        f, patch, merged = _snap(v, f, gamma, topo_f, patch)
+        snapped += merged
+        if merged == 0:
+            break
+        topo_f = edge_topology(f)
     inserted = 0
     for _ in range(_SPLIT_ROUNDS):
         h, p, t = _split_candidates(v, f, gamma, topo)
