@@ -2,7 +2,7 @@
 
 A hole is a closed loop of boundary (lamina) edges, its vertices listed in *lid order*
 (against the orientation of the faces round its rim, so a lid in that order continues the
-shell's orientation; :func:`repair.holes.boundary_loops` traces them). Its lid is a
+shell's orientation; :func:`repair.loops.boundary_loops` traces them). Its lid is a
 triangulation of the loop's own vertices, found by dynamic programming over the loop
 (every triangulation of a polygon without new vertices is one split (i, m, j) and two
 smaller polygons):

@@ -171,7 +171,7 @@ def cut_and_lid(
     indices of the faces cut out), not yet rounded; None when a hole is not a simple
     loop."""
     from repair.closure import loop_lid
-    from repair.holes import boundary_loops
+    from repair.loops import boundary_loops
     from repair.topology import edge_ids
 
     v = np.asarray(vertices, dtype=np.float64)
