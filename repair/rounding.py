@@ -89,13 +89,16 @@ def round_finding_crossings(
     changed = np.ones(len(f), dtype=bool)
     if known is not None:
         same = np.asarray(known[0], dtype=bool)
-        # Their corners do not round: their pairs stand (worth it where few changed).
-        if np.count_nonzero(~same) <= len(f) // 5 and np.all(exact[f[same]]):
+        # Their corners do not round: their pairs stand, however many others changed
+        # (the others are tested against them, not they among themselves).
+        if np.all(exact[f[same]]):
             changed = ~same
             pairs = np.asarray(known[1], dtype=np.int64).reshape(-1, 2)
             deg_faces = np.flatnonzero(same & degenerate_mask(out, f))
-            grid = FaceGrid(out, f)
-            region = grid.near(np.flatnonzero(changed)) if np.any(changed) else region[:0]
+            which = np.flatnonzero(changed)
+            if len(which) <= len(f) // 5:  # else near() would answer all: no grid yet
+                grid = FaceGrid(out, f)
+                region = grid.near(which)
     for attempt in range(max_tries + 1):
         # Exact and face by face: only the moved faces can have become (non)degenerate.
         is_deg = np.zeros(len(f), dtype=bool)
@@ -165,12 +168,14 @@ def _pairs_with_changed(
     v: np.ndarray, f: np.ndarray, region: np.ndarray, changed: np.ndarray
 ) -> np.ndarray:
     """The crossing pairs among the faces ``region`` (non-degenerate) that hold a face
-    marked in ``changed``, as a test of the whole region finds them (i < j, unique). Where
-    the changed faces are a small part of the region, only their pairs are tested
-    (:func:`repair.intersections.intersecting_pairs_with`), not all those among the
-    unchanged faces around them."""
+    marked in ``changed``, as a test of the whole region finds them (i < j, unique). Only
+    their pairs are tested (:func:`repair.intersections.intersecting_pairs_with`), not
+    all those among the unchanged faces around them -- unless the changed faces are
+    over three quarters of the region: then one test of all of it costs no more. (A CAD
+    union whose cuts changed a third of its faces, mikedh_box's 3,941 of 10,884: 95 ms
+    CPU for the whole region, 54 for their pairs.)"""
     moved = changed[region]
-    if np.count_nonzero(moved) * 4 > len(region):
+    if np.count_nonzero(moved) * 4 > 3 * len(region):
         found = region[intersecting_face_pairs(v, f[region])]
         return found[changed[found].any(axis=1)]
     return intersecting_pairs_with(v, f, region[moved], region[~moved])
