@@ -421,7 +421,10 @@ def _exact_path(
         dropped = int(shell_in.max()) + 1 - len(seen)
     if len(hull_f) == 0:
         raise RepairError("nothing printable: no part of the model can be reached from outside")
-    out_v, out_f, verdict = finish(hull_v, hull_f, eps, tally, united)
+    # The hull keeps most faces of the lidded input (or of the bodies' union) on the
+    # same points: they keep their crossing pairs; only near the others is tested.
+    checked = united or (lidded.vertices, lidded.faces, lidded.pairs)
+    out_v, out_f, verdict = finish(hull_v, hull_f, eps, tally, checked)
     clock.lap("finish", 0.8)
     if not verdict.ok:
         raise RepairError(NOT_PRINTABLE + "; ".join(verdict.failures()))
