@@ -13,6 +13,8 @@ from repair.face_grid import FaceGrid
 from repair.intersections import intersecting_face_pairs
 from repair.mend import mend_intersections, separate_singular_edges, side_windings
 from repair.rounding import (
+    DIRECT_BOX_TESTS,
+    _near,
     crossings_after_change,
     round_avoiding_crossings,
     round_finding_crossings,
@@ -126,6 +128,43 @@ def test_rounding_with_known_pairs_of_untouched_faces_finds_what_a_whole_test_fi
                           out[~np.isin(np.arange(len(v2)), moved)])  # fmt: skip
     assert np.array_equal(got, _whole_test(got_v, f))
     assert len(kept) > 0 and not np.array_equal(got, pairs)
+
+
+def test_rounding_with_known_pairs_when_most_faces_changed_finds_what_a_whole_test_finds():
+    # A union that cut a third or more of the faces (a CAD export's overlapping shells):
+    # the untouched faces still keep their pairs, the changed ones are tested against
+    # them and among themselves only.
+    v, f = _two_crossing_spheres()
+    out, pairs = round_finding_crossings(v, f, max_tries=5)
+    rng = np.random.default_rng(6)
+    moved = np.unique(np.r_[f[pairs].reshape(-1), rng.integers(0, len(v), len(v) // 6)])
+    v2 = out.copy()
+    v2[moved] += rng.normal(scale=0.05, size=(len(moved), 3))  # not float32 values
+    same = ~np.isin(f, moved).any(axis=1)
+    assert len(f) // 5 < np.count_nonzero(~same) < len(f) * 3 // 4
+    kept = pairs[same[pairs].all(axis=1)]
+    got_v, got = round_finding_crossings(v2, f, max_tries=5, known=(same, kept))
+    assert np.array_equal(np.delete(got_v, moved, axis=0), np.delete(out, moved, axis=0))
+    assert np.array_equal(got, _whole_test(got_v, f))
+    assert len(got) > 0
+
+
+def test_faces_near_a_few_changed_ones_are_exactly_those_whose_box_meets_one():
+    # Few changed faces on a large mesh: found box against box, without a grid.
+    v, f = concat(sphere(5, 10.0), sphere(4, 6.0, (8.3, 1.7, -2.1)))
+    p = v[f]
+    lo, hi = p.min(axis=1), p.max(axis=1)
+    rng = np.random.default_rng(8)
+    for k in (1, 5, 40):
+        changed = np.zeros(len(f), dtype=bool)
+        changed[rng.integers(0, len(f), k)] = True
+        assert np.count_nonzero(changed) * len(f) <= DIRECT_BOX_TESTS
+        which = np.flatnonzero(changed)
+        near, grid = _near(v, f, changed, None)
+        assert grid is None
+        meets = (lo[None] <= hi[which, None]) & (hi[None] >= lo[which, None])
+        assert np.array_equal(near, np.flatnonzero(meets.all(axis=2).any(axis=0)))
+        assert np.isin(near, FaceGrid(v, f).near(which)).all()
 
 
 def test_crossings_after_a_local_change_are_those_a_whole_test_finds():
