@@ -148,6 +148,9 @@ def _point_mesh_d2(pts: np.ndarray, v: np.ndarray, f: np.ndarray) -> np.ndarray:
 
     if len(f) < 50_000 or len(pts) == 0 or len(pts) > len(f):
         return d2_to(f, pts)
+    near = _faces_within_vertex_reach(pts, v, f)
+    if near is not None:
+        return d2_to(f[near], pts) if len(near) else d2_to(f, pts)
     p = v[f]
     span = float(np.ptp(v, axis=0).max())
     h = max(2.0 * float(np.ptp(p, axis=1).max()), span / 256.0, 1e-12)
@@ -172,6 +175,30 @@ def _point_mesh_d2(pts: np.ndarray, v: np.ndarray, f: np.ndarray) -> np.ndarray:
     if np.any(far):
         d2[far] = d2_to(f, pts[far])
     return d2
+
+
+def _faces_within_vertex_reach(pts: np.ndarray, v: np.ndarray, f: np.ndarray) -> np.ndarray | None:
+    """For a few points (``len(pts) x`` corners at most ``2^22``): the faces that can hold
+    a point's nearest surface point -- those whose box, grown by ``r``, holds a point along
+    every axis (:func:`repair.hairline.faces_near_points`), ``r`` the largest distance
+    from a point to its nearest corner of a face (no nearer face can be farther). Building
+    libigl's tree on all of counter's 84k faces for its 60 sample points cost 0.12 s; None
+    when the points are too many for the brute-force corner distances or the faces found
+    are most of them."""
+    from repair.hairline import faces_near_points
+
+    corners = v[unique_ints(f.reshape(-1))]
+    if len(pts) * len(corners) > 2**22:
+        return None
+    reach = 0.0
+    step = max(1, 2**20 // len(corners))
+    for s in range(0, len(pts), step):
+        q = pts[s : s + step]
+        d2 = sum((q[:, None, k] - corners[None, :, k]) ** 2 for k in range(3))
+        reach = max(reach, float(d2.min(axis=1).max()))
+    r = np.sqrt(reach) * (1.0 + 1e-9)  # nearest corners, rounding aside
+    near = faces_near_points(v, f, pts, r)
+    return near if 2 * len(near) < len(f) else None
 
 
 def _within_input_faces(

@@ -33,7 +33,7 @@ import numpy as np
 from repair.junk import face_winding_sides, failing_faces, probe_distance
 from repair.report import RepairOutcome, RepairTally
 
-__all__ = ["fill_hairline_gaps", "hairline_suspects", "hairline_failures",
+__all__ = ["faces_near_points", "fill_hairline_gaps", "hairline_suspects", "hairline_failures",
            "without_hairline_gaps"]  # fmt: skip
 
 #: How far the filling prisms reach either side of a failing face, in probe distances.
@@ -87,7 +87,7 @@ def hairline_suspects(
     # Only faces whose box comes within 2 d of a probe can be nearer than d to it: for
     # a few faces of a large mesh, libigl's tree is built on those alone (its build on
     # all 88k of counter's faces is most of the query's cost), the same distances.
-    near = np.arange(len(f)) if 4 * len(idx) > len(f) else _faces_near_points(v, f, q, 2 * d)
+    near = np.arange(len(f)) if 4 * len(idx) > len(f) else faces_near_points(v, f, q, 2 * d)
     sq, nearest, _ = igl.point_mesh_squared_distance(q, v, np.ascontiguousarray(f[near]))
     nearest = near[nearest]
     m = len(idx)
@@ -95,7 +95,7 @@ def hairline_suspects(
     return idx[other.any(axis=0) | (length[:, 0] == 0)]
 
 
-def _faces_near_points(v: np.ndarray, f: np.ndarray, q: np.ndarray, r: float) -> np.ndarray:
+def faces_near_points(v: np.ndarray, f: np.ndarray, q: np.ndarray, r: float) -> np.ndarray:
     """Faces whose bounding box, grown by ``r`` (mm), holds some point of ``q`` along
     each axis (a point within ``r`` of a face is: not always the same point per axis,
     a superset). Per axis one sort of the points and two searches."""
