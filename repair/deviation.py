@@ -17,7 +17,7 @@ import numpy as np
 from repair.rows import ranges, unique_ints, unique_rows
 from repair.topology import face_keys
 
-__all__ = ["max_deviation"]
+__all__ = ["max_deviation", "point_triangle_d2"]
 
 
 def _surface_samples(v: np.ndarray, f: np.ndarray, max_points: int) -> np.ndarray:
@@ -83,7 +83,10 @@ def _new_faces(
     n = len(iv)
     if n >= 2**21:
         return np.ones(len(of), dtype=bool), 0.0
-    kin = face_keys(inf, n)
+    # Only input faces on matched corners can be an output face's (84k of counter's, few).
+    matched = np.zeros(n, dtype=bool)
+    matched[fid[known].reshape(-1)] = True
+    kin = face_keys(inf[matched[inf].all(axis=1)], n)
     kout = face_keys(fid[known], n)
     same = np.zeros(len(of), dtype=bool)
     same[np.flatnonzero(known)] = np.isin(kout, kin)
@@ -91,7 +94,7 @@ def _new_faces(
     return ~same, bound
 
 
-def _point_triangle_d2(q: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+def point_triangle_d2(q: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
     """Squared distance (mm²) from each point ``q`` (k, 3) to its triangle ``abc`` (k, 3)
     each: the closest point by Voronoi region of the corners, edges and face (Ericson,
     *Real-Time Collision Detection* 5.1.5), vectorised."""
@@ -216,7 +219,7 @@ def _within_input_faces(
     p = ov[of]
     t = iv[tri]
     d2 = np.max(
-        [_point_triangle_d2(p[:, k], t[:, 0], t[:, 1], t[:, 2]) for k in range(3)], axis=0
+        [point_triangle_d2(p[:, k], t[:, 0], t[:, 1], t[:, 2]) for k in range(3)], axis=0
     )
     tol = 2.0**-21 * max(float(np.abs(iv).max()), float(np.abs(ov).max()), 1.0)
     ok = d2 <= tol * tol
@@ -229,8 +232,13 @@ def _neighbour_guesses(
     """Candidate input faces for the faces ``which`` of ``of``: the distinct hints of the
     faces sharing a corner with each. Returns ``(rows, input faces)``, one row per
     candidate (at most ``limit``)."""
-    has = np.flatnonzero(hint >= 0)
-    if len(which) == 0 or len(has) == 0:
+    if len(which) == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    # Only hinted faces sharing a corner with one asked about can be a candidate.
+    asked = np.zeros(int(of.max()) + 1, dtype=bool)
+    asked[of[which].reshape(-1)] = True
+    has = np.flatnonzero((hint >= 0) & asked[of].any(axis=1))
+    if len(has) == 0:
         return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
     # (vertex, hint) of every hinted face's corners, distinct, sorted by vertex.
     vh = unique_rows(np.stack([of[has].reshape(-1), np.repeat(hint[has], 3)], axis=1))

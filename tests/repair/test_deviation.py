@@ -93,12 +93,12 @@ def test_a_hint_bounds_pieces_of_input_faces_and_never_changes_the_answer():
 def test_point_triangle_distance_matches_libigl():
     import igl
 
-    from repair.deviation import _point_triangle_d2
+    from repair.deviation import point_triangle_d2
 
     rng = np.random.default_rng(3)
     tri = rng.normal(size=(500, 3, 3))
     q = rng.normal(size=(500, 3)) * 2.0
-    got = _point_triangle_d2(q, tri[:, 0], tri[:, 1], tri[:, 2])
+    got = point_triangle_d2(q, tri[:, 0], tri[:, 1], tri[:, 2])
     for i in range(0, 500, 25):  # each point against its own triangle
         want = igl.point_mesh_squared_distance(q[i : i + 1], tri[i], np.array([[0, 1, 2]]))[0]
         assert abs(got[i] - want[0]) <= 1e-12 * max(1.0, want[0])

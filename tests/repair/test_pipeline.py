@@ -74,10 +74,10 @@ def test_overlapping_closed_parts_give_the_exact_union():
     # Every written face is a piece of one input triangle: none spans two.
     p = res.vertices[res.faces]
     t = v[f]
-    from repair.deviation import _point_triangle_d2
+    from repair.deviation import point_triangle_d2
 
     for face in p:
-        d2 = np.max([_point_triangle_d2(np.repeat(face[k][None], len(t), 0), t[:, 0], t[:, 1],
+        d2 = np.max([point_triangle_d2(np.repeat(face[k][None], len(t), 0), t[:, 0], t[:, 1],
                                         t[:, 2]) for k in range(3)], axis=0)  # fmt: skip
         assert d2.min() < 1e-14
 
