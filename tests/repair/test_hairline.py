@@ -140,17 +140,20 @@ def _suspects_by_tree(v: np.ndarray, f: np.ndarray) -> np.ndarray:
 
 
 def test_flat_faces_searched_plane_by_plane_give_the_trees_suspects():
-    """A CAD solid whose faces lie in a few shared planes (a slotted box with a bored,
-    tilted hole, tessellated in fans of long triangles): its planes are searched plane by
-    plane, the curved rest by the tree, and the suspects are exactly the whole tree's."""
+    """A CAD-like model whose faces mostly lie in a few shared planes (the slotted box,
+    its triangles split finer) and a ball above it (each face a plane of its own): the
+    planes are searched plane by plane, the ball by the tree, and the suspects are
+    exactly those of the whole tree."""
     import manifold3d as m3d
 
-    from repair.hairline import _shared_planes, _unit_normals
+    from repair.hairline import PLANE_MIN_MESH, _shared_planes, _unit_normals
 
-    hole = m3d.Manifold.cylinder(12.0, 1.5, 1.5, 48).rotate([20.0, 35.0, 0.0])
-    v, f = _solid(_slotted_box() - hole.translate([2.5, 2.5, -1.0]))
+    bv, bf = _solid(_slotted_box().refine(8))
+    sv, sf = _solid(m3d.Manifold.sphere(2.0, 48).translate([2.5, 5.0, 12.5]))
+    v, f = np.vstack([bv, sv]), np.vstack([bf, sf + len(bv)])
+    assert len(f) >= PLANE_MIN_MESH
     plane = _shared_planes(v, f, *_unit_normals(v[f]))
-    assert 0 < np.count_nonzero(plane >= 0) < len(f)  # both searches take part
+    assert len(f) // 4 <= np.count_nonzero(plane >= 0) < len(f)  # both searches take part
     every = hairline_suspects(v, f)
     assert len(every) > 0
     assert np.array_equal(every, _suspects_by_tree(v, f))
