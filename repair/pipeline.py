@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import functools
 import json
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -66,6 +67,7 @@ from repair.junk import without_internal_junk
 from repair.provenance import (
     carry_input_pairs,
     hull_face_sources,
+    same_faces,
     starts_with_faces,
     union_face_sources,
 )
@@ -151,11 +153,39 @@ def repair_mesh(
 def _blas_controller() -> ThreadpoolController:
     """The process's BLAS libraries, found once: finding them walks every loaded shared
     library (2-3 ms a repair, a tenth of a 1k-triangle model's), while setting their
-    thread count takes microseconds. Found after ``scipy.linalg`` has loaded SciPy's own
-    OpenBLAS next to NumPy's, so both are limited."""
-    import scipy.linalg  # noqa: F401  (loads SciPy's BLAS before the search)
-
+    thread count takes microseconds. Found after SciPy's own OpenBLAS is loaded next to
+    NumPy's (:func:`_load_scipy_blas`), so both are limited."""
+    _load_scipy_blas()
     return ThreadpoolController()
+
+
+def _load_scipy_blas() -> None:
+    """Load the OpenBLAS a SciPy wheel bundles (``scipy.libs/``) as a plain shared
+    library, without importing ``scipy.linalg``: that import costs ~0.3 s of CPU (it pulls
+    in ``numpy.testing`` and ``numpy.f2py``), a tenth of a command-line repair of a clean
+    500k-triangle model, while the repair itself uses SciPy's BLAS only in a scan's
+    fairing, if ever. When SciPy later loads the same file, the dynamic loader hands it the
+    library already loaded -- the one the controller limits. A SciPy built otherwise (a
+    system BLAS) is imported as before."""
+    import ctypes
+    import glob
+    import importlib.util
+    import os
+
+    if "scipy.linalg" in sys.modules:
+        return
+    spec = importlib.util.find_spec("scipy")
+    found = []
+    if spec is not None and spec.origin:
+        libs = os.path.join(os.path.dirname(os.path.dirname(spec.origin)), "scipy.libs")
+        found = sorted(glob.glob(os.path.join(libs, "libscipy_openblas*.so*")))
+    if found:
+        try:
+            ctypes.CDLL(found[0])
+            return
+        except OSError:
+            pass
+    import scipy.linalg  # noqa: F401
 
 
 def _repair_mesh(
@@ -312,10 +342,12 @@ def _solidify(
         out, hint = united
     else:
         out, hint = _exact_or_fallback(cleaned, lidded, eps, tally, clock, fallback)
-    faces_before = out.faces
+    before = out.vertices, out.faces
     out = without_hairline_gaps(without_internal_junk(out), eps)
-    if out.faces is not faces_before:
-        hint = None  # faces were removed: the per-face sources no longer line up
+    if out.faces is not before[1] and hint is not None:
+        # Faces were removed or cut: those still on the same three points keep theirs.
+        match = same_faces(*before, out.vertices, out.faces)
+        hint = np.where(match >= 0, hint[np.maximum(match, 0)], -1)
     clock.lap("junk", 0.9)
     out.holes = holes
     if stitched.snapped or stitched.inserted:

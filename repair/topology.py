@@ -226,6 +226,15 @@ def edge_topology_memo() -> Iterator[None]:
         _MEMO.reset(token)
 
 
+def _memoized(f: np.ndarray) -> EdgeTopology | None:
+    """The topology of the (m, 3) int64 faces ``f`` if :func:`edge_topology` found it
+    inside the current :func:`edge_topology_memo`, else None (nothing is computed)."""
+    for t in _MEMO.get() or ():
+        if t.of(f):
+            return t
+    return None
+
+
 def edge_topology(faces: np.ndarray) -> EdgeTopology:
     """The :class:`EdgeTopology` of ``faces`` (m, 3); inside :func:`edge_topology_memo`,
     the one found before for equal faces (read-only arrays)."""
@@ -298,7 +307,13 @@ def is_cycle(faces: np.ndarray) -> bool:
     """True when every undirected edge is traversed as often in one direction as in the
     other: the faces bound a region (a closed surface, perhaps touching itself), so
     winding numbers are well defined off it."""
-    he = half_edges(faces)
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    known = _memoized(f)
+    if known is not None:  # the check just sorted these edges: count on its edge ids
+        a, b = f.reshape(-1), f[:, [1, 2, 0]].reshape(-1)
+        sign = (a < b).astype(np.int64) - (a > b)  # a repeated corner adds nothing
+        return bool(np.all(np.bincount(known.eid, weights=sign) == 0))
+    he = half_edges(f)
     he = he[he[:, 0] != he[:, 1]]  # a face with a repeated corner adds nothing
     if len(he) == 0:
         return True

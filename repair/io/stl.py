@@ -20,16 +20,12 @@ from repair.topology import weld_exact
 
 
 def _stl_soup_to_mesh(tri: np.ndarray, fmt: str, name: str) -> Mesh:
-    """(m, 3, 3) triangle corners -> Mesh with exactly coincident corners merged."""
+    """(m, 3, 3) triangle corners -> Mesh with exactly coincident corners merged. NaN and
+    infinite corners are welded like any others (by bit pattern) and refused by
+    :func:`repair.io.base.finish`, which names the triangles that use them: checked on
+    the welded vertices, a sixth as many as corners (35 ms of a 500k-triangle load)."""
     m = len(tri)
     soup = np.ascontiguousarray(tri).reshape(-1, 3)  # float32 (binary) or float64 (ASCII)
-    finite = np.isfinite(soup).all(axis=1)
-    if not finite.all():
-        bad = np.flatnonzero(~finite) // 3
-        raise MeshReadError(
-            f"{name}: NaN or infinite coordinates in {len(np.unique(bad))} triangle(s), "
-            f"first is #{bad[0]}"
-        )
     v, f = weld_exact(soup, np.arange(3 * m, dtype=np.int64).reshape(m, 3))
     return finish(v, f, fmt, name)
 

@@ -24,6 +24,25 @@ def test_local_distance_tree_gives_the_same_distances_as_the_whole_mesh():
     assert np.array_equal(_point_mesh_d2(pts, v, f), want)
 
 
+def test_a_few_points_measured_on_the_faces_within_their_corner_reach_only():
+    """A few sample points on a large mesh (counter's 60 on 84k faces): the tree is built
+    on the faces within reach of their nearest corners, with the whole mesh's distances."""
+    import igl
+
+    from repair.deviation import _faces_within_vertex_reach, _point_mesh_d2
+
+    m = trimesh.creation.icosphere(subdivisions=6, radius=20.0)  # 81920 triangles
+    v, f = np.asarray(m.vertices), np.asarray(m.faces, dtype=np.int64)
+    rng = np.random.default_rng(6)
+    on = v[f[:30]].mean(axis=1) + rng.normal(scale=0.05, size=(30, 3))
+    corner = v[f[40:45, 0]]  # exactly at a corner: reach 0 for these
+    pts = np.vstack([on, corner, [[0.0, 0.0, 21.0], [3.0, -2.0, 18.5]]])
+    near = _faces_within_vertex_reach(pts, v, f)
+    assert near is not None and 0 < len(near) < len(f) // 10
+    want = igl.point_mesh_squared_distance(pts, v, f)[0]
+    assert np.array_equal(_point_mesh_d2(pts, v, f), want)
+
+
 def test_faces_rounded_to_float32_are_bounded_by_their_corner_displacement():
     from repair.deviation import _point_mesh_d2, _surface_samples, max_deviation
 
@@ -74,12 +93,12 @@ def test_a_hint_bounds_pieces_of_input_faces_and_never_changes_the_answer():
 def test_point_triangle_distance_matches_libigl():
     import igl
 
-    from repair.deviation import _point_triangle_d2
+    from repair.deviation import point_triangle_d2
 
     rng = np.random.default_rng(3)
     tri = rng.normal(size=(500, 3, 3))
     q = rng.normal(size=(500, 3)) * 2.0
-    got = _point_triangle_d2(q, tri[:, 0], tri[:, 1], tri[:, 2])
+    got = point_triangle_d2(q, tri[:, 0], tri[:, 1], tri[:, 2])
     for i in range(0, 500, 25):  # each point against its own triangle
         want = igl.point_mesh_squared_distance(q[i : i + 1], tri[i], np.array([[0, 1, 2]]))[0]
         assert abs(got[i] - want[0]) <= 1e-12 * max(1.0, want[0])

@@ -121,3 +121,39 @@ def test_cutting_out_the_slot_walls_and_lidding_the_holes_leaves_a_solid_that_pa
     assert _failing(cv, cf) == 0
     # The lids close the slot's mouth: the solid is the box less at most the slot.
     assert 1000.0 - 10 * 8 * GAP - 1e-9 <= verdict.volume <= 1000.0 + 1e-9
+
+
+def _suspects_by_tree(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """The definition, by one libigl distance query of every probe against every face."""
+    import igl
+
+    d = probe_distance(v)
+    p = v[f]
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    n = np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+    c = p.mean(axis=1)
+    sq, nearest, _ = igl.point_mesh_squared_distance(np.vstack([c + d * n, c - d * n]), v, f)
+    m = len(f)
+    other = (nearest.reshape(2, m) != np.arange(m)) & (sq.reshape(2, m) < (0.999 * d) ** 2)
+    return np.flatnonzero(other.any(axis=0) | (length[:, 0] == 0))
+
+
+def test_flat_faces_searched_plane_by_plane_give_the_trees_suspects():
+    """A CAD-like model whose faces mostly lie in a few shared planes (the slotted box,
+    its triangles split finer) and a ball above it (each face a plane of its own): the
+    planes are searched plane by plane, the ball by the tree, and the suspects are
+    exactly those of the whole tree."""
+    import manifold3d as m3d
+
+    from repair.hairline import PLANE_MIN_MESH, _shared_planes, _unit_normals
+
+    bv, bf = _solid(_slotted_box().refine(8))
+    sv, sf = _solid(m3d.Manifold.sphere(2.0, 48).translate([2.5, 5.0, 12.5]))
+    v, f = np.vstack([bv, sv]), np.vstack([bf, sf + len(bv)])
+    assert len(f) >= PLANE_MIN_MESH
+    plane = _shared_planes(v, f, *_unit_normals(v[f]))
+    assert len(f) // 4 <= np.count_nonzero(plane >= 0) < len(f)  # both searches take part
+    every = hairline_suspects(v, f)
+    assert len(every) > 0
+    assert np.array_equal(every, _suspects_by_tree(v, f))

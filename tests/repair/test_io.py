@@ -174,7 +174,7 @@ def test_nan_coordinates(tmp_path):
     data = bytearray(out.read_bytes())
     data[84 + 50 * 5 + 12 : 84 + 50 * 5 + 16] = struct.pack("<f", float("nan"))
     out.write_bytes(bytes(data))
-    with pytest.raises(MeshReadError, match="NaN"):
+    with pytest.raises(MeshReadError, match=r"NaN or infinite .* in 1 triangle\(s\), first is #5"):
         load_mesh(out)
     # ASCII, with inf
     text = ascii_stl(v, f).replace(b"vertex 20.0", b"vertex inf", 1)

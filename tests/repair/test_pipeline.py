@@ -74,10 +74,10 @@ def test_overlapping_closed_parts_give_the_exact_union():
     # Every written face is a piece of one input triangle: none spans two.
     p = res.vertices[res.faces]
     t = v[f]
-    from repair.deviation import _point_triangle_d2
+    from repair.deviation import point_triangle_d2
 
     for face in p:
-        d2 = np.max([_point_triangle_d2(np.repeat(face[k][None], len(t), 0), t[:, 0], t[:, 1],
+        d2 = np.max([point_triangle_d2(np.repeat(face[k][None], len(t), 0), t[:, 0], t[:, 1],
                                         t[:, 2]) for k in range(3)], axis=0)  # fmt: skip
         assert d2.min() < 1e-14
 
@@ -422,6 +422,7 @@ def test_the_repair_runs_blas_on_one_thread_and_gives_the_threads_back():
 
     inside: list[list[int]] = []
     v, f = concat(box(), box((0.5, 0.3, 0.2), (1.5, 1.3, 1.2)))
+    repair_mesh(v, f, EPS)  # a first repair loads SciPy's BLAS: counted before, too
     with threadpool_limits(limits=2, user_api="blas"):
         before = blas_threads()
         out = repair_mesh(v, f, EPS, progress=lambda stage, x: inside.append(blas_threads()))
@@ -430,3 +431,30 @@ def test_the_repair_runs_blas_on_one_thread_and_gives_the_threads_back():
     assert check_printable(out.vertices, out.faces, as_float32=True).ok
     assert inside and all(t == [1] * len(before) for t in inside)
     assert after == before
+
+
+def test_a_fresh_process_limits_scipys_blas_without_importing_scipy_linalg():
+    """A command-line repair does not pay for importing scipy.linalg (~0.3 s of CPU):
+    SciPy's own OpenBLAS is loaded as a library before the BLAS search, and when SciPy
+    then imports it, it is that same library, limited to one thread inside a repair."""
+    code = """if True:
+        import sys
+        from mesh_helpers import box, concat
+        from threadpoolctl import threadpool_info
+        from repair.pipeline import _blas_controller, repair_mesh
+        v, f = concat(box(), box((0.5, 0.3, 0.2), (1.5, 1.3, 1.2)))
+        repair_mesh(v, f, 0.4)
+        print("linalg" if "scipy.linalg" in sys.modules else "no linalg")
+        with _blas_controller().limit(limits=1, user_api="blas"):
+            import scipy.linalg
+            scipy.linalg.solve([[2.0, 1.0], [1.0, 3.0]], [1.0, 2.0])
+            print(sorted((i["prefix"], i["num_threads"]) for i in threadpool_info()
+                         if i["user_api"] == "blas"))
+    """
+    tests = Path(__file__).resolve().parent
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         cwd=tests, check=True).stdout.splitlines()  # fmt: skip
+    assert out[0] == "no linalg"
+    libs = eval(out[1])  # noqa: S307 -- our own subprocess's printed list
+    assert len(libs) >= 2  # NumPy's OpenBLAS and SciPy's, each once
+    assert all(n == 1 for _, n in libs)

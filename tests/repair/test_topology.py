@@ -133,3 +133,26 @@ def test_edge_topology_memo_sorts_equal_faces_once_and_never_returns_a_stale_one
         assert flipped is not first and flipped.misoriented == 3
         assert first.misoriented == 0 and np.array_equal(first.faces[0], f[0, ::-1])
     assert edge_topology(f) is not edge_topology(f)  # nothing outlives the block
+
+
+def test_is_cycle_answers_the_same_from_a_memoized_topology():
+    """Inside a memo where the check sorted the same faces, is_cycle counts on those edge
+    ids: the same answers on a closed sphere, one with a hole, one with a face flipped,
+    two spheres touching along an edge used four times, and faces with a repeated corner."""
+    f = _sphere()
+    v = np.asarray(trimesh.creation.icosphere(subdivisions=2).vertices)
+    pinned = np.vstack([f, f + len(v)])
+    a, b = f[0, 0], f[0, 1]
+    pinned[pinned == b + len(v)] = b  # the second sphere shares the first's edge (a, b)...
+    pinned[pinned == a + len(v)] = a  # ...and both its corners: four uses, two each way
+    flipped = f.copy()
+    flipped[5] = flipped[5, ::-1]
+    repeated = np.vstack([f, [[3, 3, 7], [7, 3, 3]]])
+    lone = np.vstack([f, [[3, 3, 7]]])  # its two real half-edges cancel
+    cases = [f, f[1:], flipped, pinned, repeated, lone]
+    outside = [is_cycle(c) for c in cases]
+    assert outside == [True, False, False, True, True, True]  # a repeated corner: nothing
+    with edge_topology_memo():
+        for c in cases:
+            edge_topology(c)
+            assert is_cycle(c.copy()) == outside.pop(0)
