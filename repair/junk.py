@@ -58,12 +58,48 @@ def _solid_angle_sum(v: np.ndarray, f: np.ndarray, q: np.ndarray) -> np.ndarray:
     return out
 
 
+#: On meshes of this many faces, the exact sums run over the faces near the probes only
+#: (:func:`_near_exact_winding`).
+SPLIT_MIN_FACES = 40_000
+#: Up to this many probes, even more than :data:`NUMPY_PROBES`, go straight to
+#: :func:`_near_exact_winding` on such meshes (a few clusters near a change).
+SPLIT_MAX_PROBES = 512
+#: Faces farther than this fraction of the mesh's extent from every probe are summed by
+#: libigl's hierarchical approximation (errors there are far below half a unit).
+NEAR_FRACTION = 2.0**-12
+
+
 def _exact_winding(v: np.ndarray, f: np.ndarray, q: np.ndarray) -> np.ndarray:
+    if len(f) >= SPLIT_MIN_FACES:
+        return _near_exact_winding(v, f, q)
     if len(q) <= NUMPY_PROBES:
         return _solid_angle_sum(v, f, q)
     import igl
 
     return np.asarray(igl.winding_number(v, f, q), dtype=np.float64)
+
+
+def _near_exact_winding(v: np.ndarray, f: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Winding numbers at ``q`` (exact once rounded to an integer): the solid angles of
+    the faces near a probe (bounding box within :data:`NEAR_FRACTION` of the extent)
+    summed exactly (:func:`_solid_angle_sum`), those of the rest by libigl's
+    ``fast_winding_number``, which errs only near a face (float32 sums). A probe a hair
+    off a face costs the near faces only, not all of a large mesh's."""
+    import igl
+
+    r = NEAR_FRACTION * float(np.ptp(v, axis=0).max())
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    lo = np.minimum(np.minimum(a, b), c) - r
+    hi = np.maximum(np.maximum(a, b), c) + r
+    near = np.ones(len(f), dtype=bool)
+    for k in range(3):  # a box near some probe along every axis: a superset
+        s = np.sort(q[:, k])
+        near &= np.searchsorted(s, hi[:, k], side="right") > np.searchsorted(s, lo[:, k])
+    w = _solid_angle_sum(v, f[near], q)
+    if not near.all():
+        far = np.ascontiguousarray(f[~near])
+        w += np.asarray(igl.fast_winding_number(v, far, q), dtype=np.float64)
+    return w
 
 
 def _winding(v: np.ndarray, f: np.ndarray, q: np.ndarray, expected: np.ndarray) -> np.ndarray:
@@ -79,6 +115,8 @@ def _winding(v: np.ndarray, f: np.ndarray, q: np.ndarray, expected: np.ndarray) 
     q = np.ascontiguousarray(q, dtype=np.float64)
     if len(f) * len(q) <= 4_000_000 or len(q) <= NUMPY_PROBES:
         return _exact_winding(v, f, q)
+    if len(f) >= SPLIT_MIN_FACES and len(q) <= SPLIT_MAX_PROBES:
+        return _near_exact_winding(v, f, q)
     w = np.asarray(igl.fast_winding_number(v, f, q), dtype=np.float64)
     recheck = np.flatnonzero(np.abs(w - expected) > 0.05)
     for s in range(0, len(recheck), 256):

@@ -66,6 +66,7 @@ from repair.junk import without_internal_junk
 from repair.provenance import (
     carry_input_pairs,
     hull_face_sources,
+    same_faces,
     starts_with_faces,
     union_face_sources,
 )
@@ -312,10 +313,13 @@ def _solidify(
         out, hint = united
     else:
         out, hint = _exact_or_fallback(cleaned, lidded, eps, tally, clock, fallback)
-    faces_before = out.faces
+    before = out.vertices, out.faces
     out = without_hairline_gaps(without_internal_junk(out), eps)
-    if out.faces is not faces_before:
-        hint = None  # faces were removed: the per-face sources no longer line up
+    if out.faces is not before[1] and hint is not None:
+        # Faces were removed or added: the kept ones keep their sources (a weld may have
+        # renumbered them), new ones have none (measured as such).
+        kept = same_faces(*before, out.vertices, out.faces)
+        hint = np.where(kept >= 0, hint[kept], -1)
     clock.lap("junk", 0.9)
     out.holes = holes
     if stitched.snapped or stitched.inserted:

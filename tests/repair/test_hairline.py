@@ -10,6 +10,7 @@ from repair.check import check_printable
 from repair.deviation import max_deviation
 from repair.hairline import (
     FILL_REACH,
+    MAX_ZIP_FACES,
     cut_and_lid,
     fold_suspects,
     hairline_failures,
@@ -121,3 +122,27 @@ def test_cutting_out_the_slot_walls_and_lidding_the_holes_leaves_a_solid_that_pa
     assert _failing(cv, cf) == 0
     # The lids close the slot's mouth: the solid is the box less at most the slot.
     assert 1000.0 - 10 * 8 * GAP - 1e-9 <= verdict.volume <= 1000.0 + 1e-9
+
+
+def test_a_large_mesh_is_cut_in_rounds_checked_near_the_cuts_and_then_passes():
+    """Over MAX_ZIP_FACES faces the slot is looked for near thin folds only and cut out
+    and lidded in rounds checked near the cuts (one local finish at the end): the
+    result is printable, no face fails the winding test, and the solid gained at most
+    the slot (the lids close its mouth)."""
+    import manifold3d as m3d
+
+    ball = m3d.Manifold.sphere(3.0, 384).translate([5.0, 5.0, 16.0])
+    v, f = _solid(_slotted_box() + ball)
+    assert len(f) > MAX_ZIP_FACES
+    before = check_printable(v, f)
+    found = _failing(v, f)
+    assert found > 0
+    out = RepairOutcome(v, f, before, "exact", 0.0, RepairTally(), HolesClosed())
+    out = without_hairline_gaps(out, 0.4)
+    verdict = check_printable(out.vertices, out.faces)
+    assert verdict.ok, verdict.failures()
+    assert _failing(out.vertices, out.faces) == 0
+    section = out.sections["hairline_gaps"]
+    assert section["faces_found"] == found and section["faces_left"] == 0
+    assert set(section["rounds"]) == {"cut"}
+    assert before.volume - 1e-9 <= verdict.volume <= before.volume + 10 * 8 * GAP + 1e-9
