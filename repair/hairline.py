@@ -28,10 +28,12 @@ Units are mm; vertices float64 (n, 3), faces int64 (m, 3).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from repair.hairline_cut import cut_and_lid, face_rings, local_cut_rounds
-from repair.junk import face_winding_sides, failing_faces, probe_distance
+from repair.junk import WindingFromBase, face_winding_sides, failing_faces, probe_distance
 from repair.report import RepairOutcome, RepairTally
 
 __all__ = ["fill_hairline_gaps", "hairline_suspects", "hairline_failures",
@@ -58,9 +60,9 @@ FOLD_REACH = 4.0
 #: Edge rings round a fold searched for failing faces on meshes of more than
 #: :data:`MAX_ZIP_FACES` faces (counter's 24 failing faces lie within 2 rings of one).
 FOLD_RINGS = 2
-#: Large meshes with more of their faces near a fold are left as they are: the search
-#: among them costs seconds (mikedh_cycloidal's output: 67 % of 111k faces, 5.5 s CPU,
-#: and four rounds of cuts took it 382 -> 0 failing faces for ~25 s more; counter: 6 %).
+#: Large meshes with more of their faces near a thin fold are left as they are: the
+#: search among them would cost seconds (mikedh_cycloidal: 0.6 % of 111k faces, where
+#: folds of any width reach 67 %; counter: 0.2 %).
 MAX_FOLD_FRACTION = 0.1
 #: Edge rings round the failing faces cut out before lidding: 1, then up to this many
 #: where fewer do not help.
@@ -116,15 +118,16 @@ def _faces_near_points(v: np.ndarray, f: np.ndarray, q: np.ndarray, r: float) ->
 
 
 def hairline_failures(
-    vertices: np.ndarray, faces: np.ndarray, which: np.ndarray | None = None
+    vertices: np.ndarray, faces: np.ndarray, which: np.ndarray | None = None,
+    winding: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> np.ndarray:
     """Faces (of ``which``, default all) that fail the two-sided winding test
     (:func:`repair.junk.failing_faces`), looked for among :func:`hairline_suspects`
-    only."""
+    only; ``winding`` as in :func:`repair.junk.face_winding_sides`."""
     sus = hairline_suspects(vertices, faces, which)
     if len(sus) == 0:
         return sus
-    outside, inside = face_winding_sides(vertices, faces, sus)
+    outside, inside = face_winding_sides(vertices, faces, sus, winding=winding)
     return sus[failing_faces(outside, inside)]
 
 
@@ -312,16 +315,19 @@ def _close_rounds(out: RepairOutcome, bad: np.ndarray, eps: float) -> tuple[int,
     return best, used
 
 
-def _cut_large(out: RepairOutcome, bad: np.ndarray, eps: float) -> tuple[int, list[str]]:
+def _cut_large(
+    out: RepairOutcome, bad: np.ndarray, eps: float, base: WindingFromBase
+) -> tuple[int, list[str]]:
     """Rounds of cuts checked near the cuts only (:func:`repair.hairline_cut.
     local_cut_rounds`), then one local finish (:func:`repair.finish.finish`) of the round
-    that left the fewest failing faces: ``out`` updated in place when that is printable
+    that left the fewest failing faces (``base``: the winding numbers of ``out``'s
+    mesh): ``out`` updated in place when that is printable
     and fewer faces fail (looked for again near folds if the finish changed the
     surface). ``(faces left, methods)``."""
     from repair.finish import finish
 
     v, f, left, rounds = local_cut_rounds(out.vertices, out.faces, bad, MAX_FILL_ROUNDS,
-                                          MAX_CUT_RINGS)  # fmt: skip
+                                          MAX_CUT_RINGS, base)  # fmt: skip
     if rounds == 0:
         return len(bad), []
     no_pairs = np.zeros((0, 2), dtype=np.int64)
@@ -359,10 +365,18 @@ def without_hairline_gaps(out: RepairOutcome, eps: float) -> RepairOutcome:
     large = len(out.faces) > MAX_ZIP_FACES
     which = fold_suspects(out.vertices, out.faces) if large else None
     if which is not None and len(which) > MAX_FOLD_FRACTION * len(out.faces):
-        return out  # folds everywhere: the search would cost seconds (cycloidal: 67 %)
-    bad = hairline_failures(out.vertices, out.faces, which)
+        return out  # thin folds everywhere: the search would cost seconds
+    if large:
+        # The winding numbers of each round's mesh from those of this one (tree built once).
+        base = WindingFromBase(out.vertices, out.faces)
+        none = np.zeros(0, dtype=np.int64)
+        bad = hairline_failures(out.vertices, out.faces, which,
+                                lambda q: base.at(q, out.vertices, none.reshape(0, 3), none))
+        best, used = _cut_large(out, bad, eps, base)
+    else:
+        bad = hairline_failures(out.vertices, out.faces)
+        best, used = _close_rounds(out, bad, eps)
     found = len(bad)
-    best, used = _cut_large(out, bad, eps) if large else _close_rounds(out, bad, eps)
     if found:
         out.sections["hairline_gaps"] = {
             "faces_found": found, "rounds": used, "faces_left": best,

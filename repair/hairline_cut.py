@@ -25,6 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from repair.junk import WindingFromBase
+
 __all__ = ["CutMesh", "cut_and_lid", "local_cut_rounds"]
 
 
@@ -42,11 +44,12 @@ def face_rings(eid: np.ndarray, n_edges: int, which: np.ndarray, rings: int) -> 
 @dataclass(frozen=True)
 class CutMesh:
     """A lidded mesh: ``vertices``, ``faces`` (the kept faces in their order, then the
-    lids), ``cut`` (indices of the input's faces cut out, or cancelled by a lid) and
-    ``new`` (indices into ``faces`` of the lid faces)."""
+    lids), ``kept`` and ``cut`` (indices of the input's faces kept, and cut out or
+    cancelled by a lid) and ``new`` (indices into ``faces`` of the lid faces)."""
 
     vertices: np.ndarray
     faces: np.ndarray
+    kept: np.ndarray
     cut: np.ndarray
     new: np.ndarray
 
@@ -114,30 +117,33 @@ def _cut_and_lid(
     kept = np.flatnonzero(keep)
     out_f = np.vstack([f[kept], lid_f])
     gone = np.flatnonzero(~keep)
-    return CutMesh(np.vstack(new_v), out_f, gone, np.arange(len(kept), len(out_f)))
+    return CutMesh(np.vstack(new_v), out_f, kept, gone, np.arange(len(kept), len(out_f)))
 
 
 def local_cut_rounds(
-    vertices: np.ndarray, faces: np.ndarray, bad: np.ndarray, rounds: int, max_rings: int
+    vertices: np.ndarray, faces: np.ndarray, bad: np.ndarray, rounds: int, max_rings: int,
+    base: WindingFromBase,
 ) -> tuple[np.ndarray, np.ndarray, int, int]:
     """Up to ``rounds`` rounds of :func:`cut_and_lid` round the failing faces ``bad`` of
     the printable, float32-valued ``(vertices, faces)`` (1 edge ring, then more up to
     ``max_rings`` while the lids are not sound or fail no fewer faces; after a round
     that left more than half of its failing faces, the next starts one ring wider),
-    each checked near its cuts only (module docstring). Returns the mesh of the round
-    that left the fewest failing faces (the input when none left fewer), how many it
-    left, and the rounds taken to it: ``(vertices, faces, left, rounds)``. Not checked
-    as a whole."""
+    each checked near its cuts only (module docstring; ``base``: the winding numbers of
+    ``(vertices, faces)``, from which each round's are taken). Returns the mesh of the
+    round that left the fewest failing faces (the input when none left fewer), how many
+    it left, and the rounds taken to it: ``(vertices, faces, left, rounds)``. Not
+    checked as a whole."""
     v, f = vertices, faces
+    origin = np.arange(len(f))  # each face's index in ``faces``, or -1 (a lid)
     best = (v, f, len(bad), 0)
     first = 1
     for k in range(rounds):
         if len(bad) == 0:
             break
-        step = _local_round(v, f, bad, first, max_rings)
+        step = _local_round(v, f, origin, bad, first, max_rings, base)
         if step is None:
             break  # nothing closed any: give up
-        v, f, left, rings = step
+        v, f, origin, left, rings = step
         # Wedges whose thin end a cut only moves along: cut wider at once next time.
         first = min(rings + 1, max_rings) if 2 * len(left) > len(bad) else rings
         bad = left
@@ -147,11 +153,13 @@ def local_cut_rounds(
 
 
 def _local_round(
-    v: np.ndarray, f: np.ndarray, bad: np.ndarray, first: int, max_rings: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, int] | None:
-    """One round of :func:`local_cut_rounds` from ``first`` edge rings on:
-    ``(vertices, faces, failing faces, rings)``, or None when no ring count leaves a
-    sound mesh with fewer failing faces."""
+    v: np.ndarray, f: np.ndarray, origin: np.ndarray, bad: np.ndarray, first: int,
+    max_rings: int, base: WindingFromBase,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int] | None:
+    """One round of :func:`local_cut_rounds` from ``first`` edge rings on (``origin``:
+    each face's index in ``base``'s mesh, or -1): ``(vertices, faces, origin, failing
+    faces, rings)``, or None when no ring count leaves a sound mesh with fewer failing
+    faces."""
     from repair.check import round_to_float32
     from repair.hairline import hairline_failures
     from repair.junk import probe_distance
@@ -172,9 +180,13 @@ def _local_round(
         near = _faces_meeting(cv, cf, lo - pad, hi + pad)
         if not _lids_sound(cv, cf, new, near):
             continue
-        left = hairline_failures(cv, cf, near)
+        now = np.r_[origin[lidded.kept], np.full(len(new), -1)]
+        gone = np.ones(len(base.f0), dtype=bool)
+        gone[now[now >= 0]] = False
+        added, removed = cf[now < 0], np.flatnonzero(gone)
+        left = hairline_failures(cv, cf, near, lambda q: base.at(q, cv, added, removed))  # noqa: B023
         if len(left) < len(bad):
-            return cv, cf, left, rings
+            return cv, cf, now, left, rings
     return None
 
 

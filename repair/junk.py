@@ -17,6 +17,8 @@ Units are mm; vertices float64 (n, 3), faces int64 (m, 3).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from repair.check import check_printable
@@ -25,7 +27,8 @@ from repair.report import RepairOutcome
 from repair.topology import edge_components
 
 __all__ = [
-    "without_internal_junk","PROBE_FRACTION", "drop_internal_junk", "face_winding_sides"]
+    "without_internal_junk", "PROBE_FRACTION", "WindingFromBase", "drop_internal_junk",
+    "face_winding_sides"]  # fmt: skip
 
 #: Probe distance off each face, as a fraction of the mesh's largest extent (mm):
 #: about 2 float32 ulps of the largest coordinate of a centred part.
@@ -125,15 +128,71 @@ def _winding(v: np.ndarray, f: np.ndarray, q: np.ndarray, expected: np.ndarray) 
     return w
 
 
+class WindingFromBase:
+    """Winding numbers of meshes made from a closed base mesh ``(v0, f0)`` by removing
+    some of its faces and adding others (vertices appended, none moved), at a few
+    points: libigl's fast winding number of the base (its tree built once), less the
+    same approximation over the base's faces near the points plus their exact solid
+    angles (a hair off a face the float32 sums err by up to a unit; the two trees sum
+    those faces alike), less the removed faces' exact solid angles, plus the added
+    faces'. Exact once rounded to an integer (within 0.03 on the corpus's probes)."""
+
+    def __init__(self, v0: np.ndarray, f0: np.ndarray) -> None:
+        self.v0 = np.ascontiguousarray(v0, dtype=np.float64)
+        self.f0 = np.ascontiguousarray(f0, dtype=np.int64)
+        self.tree = None  # built at the first query
+
+    def _build(self) -> None:
+        import igl
+
+        self.tree = igl.FastWindingNumberBVH()
+        self.tree.init(self.v0, self.f0)
+        a, b, c = (self.v0[self.f0[:, k]] for k in range(3))
+        r = NEAR_FRACTION * float(np.ptp(self.v0, axis=0).max())
+        self.lo = np.minimum(np.minimum(a, b), c) - r
+        self.hi = np.maximum(np.maximum(a, b), c) + r
+
+    def at(
+        self, q: np.ndarray, v: np.ndarray, added: np.ndarray, removed: np.ndarray
+    ) -> np.ndarray:
+        """Winding numbers at ``q`` of the base less its faces ``removed`` (indices)
+        plus the faces ``added`` (corners indexing ``v``, which starts with ``v0``)."""
+        import igl
+
+        q = np.ascontiguousarray(q, dtype=np.float64)
+        if len(q) == 0:
+            return np.zeros(0)
+        if self.tree is None:
+            self._build()
+        near = np.ones(len(self.f0), dtype=bool)
+        for k in range(3):  # a box near some probe along every axis: a superset
+            s = np.sort(q[:, k])
+            near &= np.searchsorted(s, self.hi[:, k], side="right") > np.searchsorted(
+                s, self.lo[:, k]
+            )
+        own = np.ascontiguousarray(self.f0[near])
+        w = np.asarray(self.tree.winding_number(q), dtype=np.float64)
+        if len(own):
+            w -= np.asarray(igl.fast_winding_number(self.v0, own, q), dtype=np.float64)
+            w += _solid_angle_sum(self.v0, own, q)
+        if len(removed):
+            w -= _solid_angle_sum(self.v0, self.f0[np.asarray(removed, dtype=np.int64)], q)
+        if len(added):
+            w += _solid_angle_sum(np.asarray(v, dtype=np.float64), added, q)
+        return w
+
+
 def face_winding_sides(
     vertices: np.ndarray, faces: np.ndarray, which: np.ndarray | None = None,
-    distance: float | None = None,
+    distance: float | None = None, winding: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Generalised winding number of the whole mesh just outside (centroid + d n) and
     just inside (centroid - d n) each face (or the faces ``which``), d = ``distance``
     (default :func:`probe_distance`) or a tenth of the face's height if less.
     libigl's ``winding_number`` (exact solid angles) or, for many probes against many
     faces, its hierarchical ``fast_winding_number`` (exact sums where it is unclear).
+    ``winding``: the winding numbers of this mesh at given points, when known a cheaper
+    way (:meth:`WindingFromBase.at`).
     Faces too thin to probe (height under 2^-20 of the probe distance: a probe off them
     would sit within floating-point noise of the face itself) and degenerate faces get
     NaN."""
@@ -155,7 +214,8 @@ def face_winding_sides(
     # Below this a probe is within floating-point noise of the face itself: unmeasured.
     ok &= height >= probe_distance(v) * 2.0**-20
     expected = np.r_[np.zeros(len(idx)), np.ones(len(idx))]
-    w = _winding(v, f, np.vstack([c + d * n, c - d * n]), expected)
+    q = np.vstack([c + d * n, c - d * n])
+    w = _winding(v, f, q, expected) if winding is None else winding(q)
     out, inside = w[: len(idx)], w[len(idx) :]
     out[~ok] = inside[~ok] = np.nan
     return out, inside
