@@ -319,26 +319,31 @@ def _cut_large(
     out: RepairOutcome, bad: np.ndarray, eps: float, base: WindingFromBase
 ) -> tuple[int, list[str]]:
     """Rounds of cuts checked near the cuts only (:func:`repair.hairline_cut.
-    local_cut_rounds`), then one local finish (:func:`repair.finish.finish`) of the round
-    that left the fewest failing faces (``base``: the winding numbers of ``out``'s
-    mesh): ``out`` updated in place when that is printable
-    and fewer faces fail (looked for again near folds if the finish changed the
-    surface). ``(faces left, methods)``."""
+    local_cut_rounds`; ``base``: the winding numbers of ``out``'s mesh), then the check
+    of the round that left the fewest failing faces: ``out`` updated in place when that
+    is printable. Where no two of its corners share a point, the rounds' local checks
+    found every crossing pair (none) and the rest of the check runs on that; else it is
+    welded and mended locally (:func:`repair.finish.finish`) and looked for failing
+    faces again near folds. ``(faces left, methods)``."""
+    from repair.check import verdict_given_pairs
     from repair.finish import finish
+    from repair.topology import weld_exact
 
     v, f, left, rounds = local_cut_rounds(out.vertices, out.faces, bad, MAX_FILL_ROUNDS,
                                           MAX_CUT_RINGS, base)  # fmt: skip
     if rounds == 0:
         return len(bad), []
     no_pairs = np.zeros((0, 2), dtype=np.int64)
-    tv, tf, verdict = finish(v, f, eps, out.tally, (out.vertices, out.faces, no_pairs),
-                             local_only=True)  # fmt: skip
-    if not verdict.ok:
+    tv, tf = weld_exact(v, f)
+    if len(tv) == len(v):
+        verdict = verdict_given_pairs(tv, tf, no_pairs)[0]
+    else:
+        tv, tf, verdict = finish(v, f, eps, out.tally, (out.vertices, out.faces, no_pairs),
+                                 local_only=True)  # fmt: skip
+        if verdict.ok:
+            left = len(hairline_failures(tv, tf, fold_suspects(tv, tf)))
+    if not verdict.ok or left >= len(bad):
         return len(bad), []
-    if not np.array_equal(np.sort(_face_keys(v, f)), np.sort(_face_keys(tv, tf))):
-        left = len(hairline_failures(tv, tf, fold_suspects(tv, tf)))
-        if left >= len(bad):
-            return len(bad), []
     out.vertices, out.faces, out.verdict = tv, tf, verdict
     return left, ["cut"] * rounds
 
