@@ -321,16 +321,19 @@ def _cut_large(
     """Rounds of cuts checked near the cuts only (:func:`repair.hairline_cut.
     local_cut_rounds`; ``base``: the winding numbers of ``out``'s mesh), then the check
     of the round that left the fewest failing faces: ``out`` updated in place when that
-    is printable. Where no two of its corners share a point, the rounds' local checks
-    found every crossing pair (none) and the rest of the check runs on that; else it is
-    welded and mended locally (:func:`repair.finish.finish`) and looked for failing
-    faces again near folds. ``(faces left, methods)``."""
+    is printable (and ``out.sections["hairline_gaps"]["lid_deviation_mm"]``: how far the
+    lids lie from the faces the cuts replaced, rounds summed). Where no two of its
+    corners share a point, the rounds' local checks found every crossing pair (none)
+    and the rest of the check runs on that; else it is welded and mended locally
+    (:func:`repair.finish.finish`) and looked for failing faces again near folds.
+    ``(faces left, methods)``."""
     from repair.check import verdict_given_pairs
     from repair.finish import finish
     from repair.topology import weld_exact
 
-    v, f, left, rounds = local_cut_rounds(out.vertices, out.faces, bad, MAX_FILL_ROUNDS,
-                                          MAX_CUT_RINGS, base)  # fmt: skip
+    v, f, left, rounds, reach = local_cut_rounds(
+        out.vertices, out.faces, bad, MAX_FILL_ROUNDS, MAX_CUT_RINGS, base
+    )
     if rounds == 0:
         return len(bad), []
     no_pairs = np.zeros((0, 2), dtype=np.int64)
@@ -345,6 +348,8 @@ def _cut_large(
     if not verdict.ok or left >= len(bad):
         return len(bad), []
     out.vertices, out.faces, out.verdict = tv, tf, verdict
+    # D (output -> input) near the lids: within this of the surface the cuts replaced.
+    out.sections["hairline_gaps"] = {"lid_deviation_mm": reach}
     return left, ["cut"] * rounds
 
 
@@ -361,9 +366,10 @@ def without_hairline_gaps(out: RepairOutcome, eps: float) -> RepairOutcome:
     (:func:`fill_hairline_gaps`); the one that leaves the mesh printable with the fewest
     faces failing the two-sided winding test (:func:`_one_round`) is taken; the round
     with the fewest is kept.
-    Meshes of more than :data:`MAX_FACES` faces are only cut or zipped, of more than
-    :data:`MAX_ZIP_FACES` only cut, and searched near folds only, if those are not more
-    than :data:`MAX_FOLD_FRACTION` of the faces (time).
+    Meshes of more than :data:`MAX_FACES` faces are only cut or zipped; of more than
+    :data:`MAX_ZIP_FACES` searched near thin folds only, if those are not more than
+    :data:`MAX_FOLD_FRACTION` of the faces, and only cut, in rounds checked near the cuts
+    (:func:`_cut_large`: time).
     Counted in ``out.sections["hairline_gaps"]``."""
     if not out.verdict.ok or len(out.faces) == 0:
         return out
@@ -386,5 +392,6 @@ def without_hairline_gaps(out: RepairOutcome, eps: float) -> RepairOutcome:
         out.sections["hairline_gaps"] = {
             "faces_found": found, "rounds": used, "faces_left": best,
             "reach_mm": float(FILL_REACH * probe_distance(out.vertices)),
+            **out.sections.get("hairline_gaps", {}),
         }  # fmt: skip
     return out

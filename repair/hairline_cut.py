@@ -45,13 +45,15 @@ def face_rings(eid: np.ndarray, n_edges: int, which: np.ndarray, rings: int) -> 
 class CutMesh:
     """A lidded mesh: ``vertices``, ``faces`` (the kept faces in their order, then the
     lids), ``kept`` and ``cut`` (indices of the input's faces kept, and cut out or
-    cancelled by a lid) and ``new`` (indices into ``faces`` of the lid faces)."""
+    cancelled by a lid), ``new`` (indices into ``faces`` of the lid faces) and ``radius``
+    (mm): every lid point lies within it of its hole's rim (:class:`repair.closure.Lid`)."""
 
     vertices: np.ndarray
     faces: np.ndarray
     kept: np.ndarray
     cut: np.ndarray
     new: np.ndarray
+    radius: float
 
 
 def cut_and_lid(
@@ -98,12 +100,13 @@ def _cut_and_lid(
     if len(loops) == 0 or sum(len(loop) for loop in loops) != open_edges:
         return None  # some hole is no simple loop: the lids would not close the shell
     new_v, lids = [v], []
-    n = len(v)
+    n, radius = len(v), 0.0
     for loop in loops:
         lid = loop_lid(v, loop, n)  # only a fan adds a vertex (its centre): index n
         lids.append(lid.triangles)
         new_v.append(lid.new_vertices)
         n += len(lid.new_vertices)
+        radius = max(radius, lid.radius)
     lid_f = np.vstack(lids)
     # Only a kept face on the holes' corners can be a lid's back-to-back twin.
     on_loop = np.zeros(n, dtype=bool)
@@ -117,13 +120,14 @@ def _cut_and_lid(
     kept = np.flatnonzero(keep)
     out_f = np.vstack([f[kept], lid_f])
     gone = np.flatnonzero(~keep)
-    return CutMesh(np.vstack(new_v), out_f, kept, gone, np.arange(len(kept), len(out_f)))
+    new = np.arange(len(kept), len(out_f))
+    return CutMesh(np.vstack(new_v), out_f, kept, gone, new, radius)
 
 
 def local_cut_rounds(
     vertices: np.ndarray, faces: np.ndarray, bad: np.ndarray, rounds: int, max_rings: int,
     base: WindingFromBase,
-) -> tuple[np.ndarray, np.ndarray, int, int]:
+) -> tuple[np.ndarray, np.ndarray, int, int, float]:
     """Up to ``rounds`` rounds of :func:`cut_and_lid` round the failing faces ``bad`` of
     the printable, float32-valued ``(vertices, faces)`` (1 edge ring, then more up to
     ``max_rings`` while the lids are not sound or fail no fewer faces; after a round
@@ -131,36 +135,39 @@ def local_cut_rounds(
     each checked near its cuts only (module docstring; ``base``: the winding numbers of
     ``(vertices, faces)``, from which each round's are taken). Returns the mesh of the
     round that left the fewest failing faces (the input when none left fewer), how many
-    it left, and the rounds taken to it: ``(vertices, faces, left, rounds)``. Not
-    checked as a whole."""
+    it left, the rounds taken to it and how far its surface lies from the input's where
+    the rounds changed it (mm; each round's lids from the faces they replace, summed):
+    ``(vertices, faces, left, rounds, reach)``. Not checked as a whole."""
     v, f = vertices, faces
     origin = np.arange(len(f))  # each face's index in ``faces``, or -1 (a lid)
-    best = (v, f, len(bad), 0)
-    first = 1
+    best = (v, f, len(bad), 0, 0.0)
+    first, radius = 1, 0.0
     for k in range(rounds):
         if len(bad) == 0:
             break
         step = _local_round(v, f, origin, bad, first, max_rings, base)
         if step is None:
             break  # nothing closed any: give up
-        v, f, origin, left, rings = step
+        v, f, origin, left, rings, reach = step
+        radius += reach
         # Wedges whose thin end a cut only moves along: cut wider at once next time.
         first = min(rings + 1, max_rings) if 2 * len(left) > len(bad) else rings
         bad = left
         if len(bad) < best[2]:
-            best = (v, f, len(bad), k + 1)
+            best = (v, f, len(bad), k + 1, radius)
     return best
 
 
 def _local_round(
     v: np.ndarray, f: np.ndarray, origin: np.ndarray, bad: np.ndarray, first: int,
     max_rings: int, base: WindingFromBase,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int] | None:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, float] | None:
     """One round of :func:`local_cut_rounds` from ``first`` edge rings on (``origin``:
     each face's index in ``base``'s mesh, or -1): ``(vertices, faces, origin, failing
-    faces, rings)``, or None when no ring count leaves a sound mesh with fewer failing
-    faces."""
+    faces, rings, how far the lids lie from the faces they replace in mm)``, or None
+    when no ring count leaves a sound mesh with fewer failing faces."""
     from repair.check import round_to_float32
+    from repair.deviation import max_deviation
     from repair.hairline import hairline_failures
     from repair.junk import probe_distance
     from repair.topology import edge_ids
@@ -186,7 +193,9 @@ def _local_round(
         added, removed = cf[now < 0], np.flatnonzero(gone)
         left = hairline_failures(cv, cf, near, lambda q: base.at(q, cv, added, removed))  # noqa: B023
         if len(left) < len(bad):
-            return cv, cf, now, left, rings
+            # How far the lids lie from the surface they replace (Attene's D, sampled).
+            reach = max_deviation(cv, cf[new], v, f[lidded.cut]) if len(new) else 0.0
+            return cv, cf, now, left, rings, reach
     return None
 
 

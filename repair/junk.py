@@ -83,26 +83,12 @@ def _exact_winding(v: np.ndarray, f: np.ndarray, q: np.ndarray) -> np.ndarray:
 
 
 def _near_exact_winding(v: np.ndarray, f: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Winding numbers at ``q`` (exact once rounded to an integer): the solid angles of
-    the faces near a probe (bounding box within :data:`NEAR_FRACTION` of the extent)
-    summed exactly (:func:`_solid_angle_sum`), those of the rest by libigl's
-    ``fast_winding_number``, which errs only near a face (float32 sums). A probe a hair
-    off a face costs the near faces only, not all of a large mesh's."""
-    import igl
-
-    r = NEAR_FRACTION * float(np.ptp(v, axis=0).max())
-    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
-    lo = np.minimum(np.minimum(a, b), c) - r
-    hi = np.maximum(np.maximum(a, b), c) + r
-    near = np.ones(len(f), dtype=bool)
-    for k in range(3):  # a box near some probe along every axis: a superset
-        s = np.sort(q[:, k])
-        near &= np.searchsorted(s, hi[:, k], side="right") > np.searchsorted(s, lo[:, k])
-    w = _solid_angle_sum(v, f[near], q)
-    if not near.all():
-        far = np.ascontiguousarray(f[~near])
-        w += np.asarray(igl.fast_winding_number(v, far, q), dtype=np.float64)
-    return w
+    """Winding numbers at ``q`` (exact once rounded to an integer): libigl's fast winding
+    number with the faces near the probes summed exactly (:class:`WindingFromBase` of
+    the mesh itself). A probe a hair off a face costs the near faces' exact sums, not all
+    of a large mesh's."""
+    none = np.zeros(0, dtype=np.int64)
+    return WindingFromBase(v, f).at(q, v, none.reshape(0, 3), none)
 
 
 def _winding(v: np.ndarray, f: np.ndarray, q: np.ndarray, expected: np.ndarray) -> np.ndarray:
