@@ -194,9 +194,15 @@ def _local_round(
         left = hairline_failures(cv, cf, near, lambda q: base.at(q, cv, added, removed))  # noqa: B023
         if len(left) < len(bad):
             # How far the lids lie from the surface they replace (Attene's D, sampled).
-            reach = max_deviation(cv, cf[new], v, f[lidded.cut]) if len(new) else 0.0
+            reach = max_deviation(*_compact(cv, cf[new]), *_compact(v, f[lidded.cut]))
             return cv, cf, now, left, rings, reach
     return None
+
+
+def _compact(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The vertices ``f`` uses and ``f`` re-indexed into them (same points)."""
+    used, inverse = np.unique(f.reshape(-1), return_inverse=True)
+    return v[used], inverse.reshape(-1, 3)
 
 
 def _cut_boxes(v: np.ndarray, f: np.ndarray, cut: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

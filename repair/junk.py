@@ -70,6 +70,8 @@ SPLIT_MAX_PROBES = 512
 #: Faces farther than this fraction of the mesh's extent from every probe are summed by
 #: libigl's hierarchical approximation (errors there are far below half a unit).
 NEAR_FRACTION = 2.0**-12
+#: Probes whose near faces are gathered at a time (neighbours along x).
+NEAR_RUN = 32
 
 
 def _exact_winding(v: np.ndarray, f: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -150,17 +152,21 @@ class WindingFromBase:
             return np.zeros(0)
         if self.tree is None:
             self._build()
-        near = np.ones(len(self.f0), dtype=bool)
-        for k in range(3):  # a box near some probe along every axis: a superset
-            s = np.sort(q[:, k])
-            near &= np.searchsorted(s, self.hi[:, k], side="right") > np.searchsorted(
-                s, self.lo[:, k]
-            )
-        own = np.ascontiguousarray(self.f0[near])
         w = np.asarray(self.tree.winding_number(q), dtype=np.float64)
-        if len(own):
-            w -= np.asarray(igl.fast_winding_number(self.v0, own, q), dtype=np.float64)
-            w += _solid_angle_sum(self.v0, own, q)
+        # Probes in runs along x: each run's near faces are few (a superset per run).
+        order = np.argsort(q[:, 0], kind="stable")
+        for s in range(0, len(q), NEAR_RUN):
+            run = order[s : s + NEAR_RUN]
+            near = np.ones(len(self.f0), dtype=bool)
+            for k in range(3):  # a box near some probe along every axis
+                x = np.sort(q[run, k])
+                near &= np.searchsorted(x, self.hi[:, k], side="right") > np.searchsorted(
+                    x, self.lo[:, k]
+                )
+            own = np.ascontiguousarray(self.f0[near])
+            if len(own):
+                w[run] -= np.asarray(igl.fast_winding_number(self.v0, own, q[run]))
+                w[run] += _solid_angle_sum(self.v0, own, q[run])
         if len(removed):
             w -= _solid_angle_sum(self.v0, self.f0[np.asarray(removed, dtype=np.int64)], q)
         if len(added):
