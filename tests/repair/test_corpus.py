@@ -42,9 +42,10 @@ NOTHING_PRINTABLE = {"Ghostkeeper_zero_size_cube.stl"}
 #: opposite ways, one far corner within 4 probe distances of the other face's plane;
 #: repair.hairline.fold_suspects: 636 of 111k faces), and are cut out and lidded in 4
 #: rounds checked near the cuts only (repair.hairline_cut.local_cut_rounds: a lid back to
-#: back with a face cancels with it, so no round needs a mend; one local finish at the
-#: end), the winding numbers summed exactly over the faces near each probe only
-#: (repair.junk._near_exact_winding): 50 -> 0, D 1.2e-3 mm, the hairline stage ~2 s CPU
+#: back with a face cancels with it, so no round needs a mend; one check at the end),
+#: the winding numbers from one fast-winding tree of the mesh before the cuts, the faces
+#: near each probe summed exactly (repair.junk.WindingFromBase): 50 -> 0, D 1.2e-3 mm
+#: (the lids lie within 2.5e-3 of the walls they replace), the hairline stage ~1.1 s CPU
 #: (cut-and-lid with a finish per round took 27 s in round 6).
 WINDING_KNOWN_FAILURES: set[str] = set()
 
