@@ -28,9 +28,12 @@ Units are mm; vertices float64 (n, 3), faces int64 (m, 3).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
-from repair.junk import face_winding_sides, failing_faces, probe_distance
+from repair.hairline_cut import cut_and_lid, face_rings, local_cut_rounds
+from repair.junk import WindingFromBase, face_winding_sides, failing_faces, probe_distance
 from repair.report import RepairOutcome, RepairTally
 
 __all__ = ["faces_near_points", "fill_hairline_gaps", "hairline_suspects", "hairline_failures",
@@ -50,12 +53,16 @@ MAX_ZIP_FACES = 40_000
 MAX_FILL_ROUNDS = 6
 #: A fold: an edge whose two faces' unit normals have a dot product below this.
 FOLD_DOT = -0.9
+#: A fold is thin where the far corner of one of its faces lies within this many probe
+#: distances of the other face's plane (mikedh_cycloidal's 47 failing faces lie within 2
+#: edge rings of such folds: 408 of its 111k faces, where folds of any width reach 67 %).
+FOLD_REACH = 4.0
 #: Edge rings round a fold searched for failing faces on meshes of more than
 #: :data:`MAX_ZIP_FACES` faces (counter's 24 failing faces lie within 2 rings of one).
 FOLD_RINGS = 2
-#: Large meshes with more of their faces near a fold are left as they are: the search
-#: among them costs seconds (mikedh_cycloidal's output: 67 % of 111k faces, 5.5 s CPU,
-#: and four rounds of cuts took it 382 -> 0 failing faces for ~25 s more; counter: 6 %).
+#: Large meshes with more of their faces near a thin fold are left as they are: the
+#: search among them would cost seconds (mikedh_cycloidal: 0.6 % of 111k faces, where
+#: folds of any width reach 67 %; counter: 0.2 %).
 MAX_FOLD_FRACTION = 0.1
 #: Edge rings round the failing faces cut out before lidding: 1, then up to this many
 #: where fewer do not help.
@@ -211,88 +218,53 @@ def faces_near_points(v: np.ndarray, f: np.ndarray, q: np.ndarray, r: float) -> 
 
 
 def hairline_failures(
-    vertices: np.ndarray, faces: np.ndarray, which: np.ndarray | None = None
+    vertices: np.ndarray, faces: np.ndarray, which: np.ndarray | None = None,
+    winding: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> np.ndarray:
     """Faces (of ``which``, default all) that fail the two-sided winding test
     (:func:`repair.junk.failing_faces`), looked for among :func:`hairline_suspects`
-    only."""
+    only; ``winding`` as in :func:`repair.junk.face_winding_sides`."""
     sus = hairline_suspects(vertices, faces, which)
     if len(sus) == 0:
         return sus
-    outside, inside = face_winding_sides(vertices, faces, sus)
+    outside, inside = face_winding_sides(vertices, faces, sus, winding=winding)
     return sus[failing_faces(outside, inside)]
 
 
-def _face_rings(eid: np.ndarray, n_edges: int, which: np.ndarray, rings: int) -> np.ndarray:
-    """Sorted faces within ``rings`` edge rings of the faces ``which`` (included);
-    ``eid``: the edge id of each face's 3 edges (m, 3)."""
-    sel = np.unique(np.asarray(which, dtype=np.int64))
-    for _ in range(rings):
-        hit = np.zeros(n_edges, dtype=bool)
-        hit[eid[sel].reshape(-1)] = True
-        sel = np.flatnonzero(hit[eid].any(axis=1))
-    return sel
-
-
 def fold_suspects(vertices: np.ndarray, faces: np.ndarray, rings: int = FOLD_RINGS) -> np.ndarray:
-    """Faces within ``rings`` edge rings of a fold -- an edge whose two faces face nearly
-    opposite ways (unit normals' dot below :data:`FOLD_DOT`), as where a slit narrows to
-    an edge or a blade's two sides meet -- or of a face lower than the probe distance (a
-    flat-bottomed slit's floor, a needle). A cheap stand-in for
-    :func:`hairline_suspects` on large meshes; it misses walls farther from such a place,
-    and slits between two shells."""
+    """Faces within ``rings`` edge rings of a thin fold -- an edge whose two faces face
+    nearly opposite ways (unit normals' dot below :data:`FOLD_DOT`) and close up there
+    (the far corner of one within :data:`FOLD_REACH` probe distances of the other's
+    plane), as where a slit narrows to an edge or a blade's two sides meet -- or of a
+    face lower than the probe distance (a flat-bottomed slit's floor, a needle). A cheap
+    stand-in for :func:`hairline_suspects` on large meshes; it misses walls farther from
+    such a place, and slits between two shells."""
     from repair.topology import edge_ids, paired_half_edges
 
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
     if len(f) == 0:
         return np.zeros(0, dtype=np.int64)
+    d = probe_distance(v)
     p = v[f]
     n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
     length = np.linalg.norm(n, axis=1, keepdims=True)
     longest = np.linalg.norm(p - p[:, [1, 2, 0]], axis=2).max(axis=1)
-    low = length[:, 0] < probe_distance(v) * longest  # height under the probe distance
+    low = length[:, 0] < d * longest  # height under the probe distance
     n = np.divide(n, length, out=np.zeros_like(n), where=length > 0)
     eid, counts = edge_ids(f)
     first, second, _ = paired_half_edges(eid)
+    folded = np.einsum("ij,ij->i", n[first // 3], n[second // 3]) < FOLD_DOT
+    first, second = first[folded], second[folded]
     a, b = first // 3, second // 3
-    folded = np.einsum("ij,ij->i", n[a], n[b]) < FOLD_DOT
-    seeds = np.r_[a[folded], b[folded], np.flatnonzero(low)]
-    return _face_rings(eid.reshape(-1, 3), len(counts), seeds, rings)
-
-
-def cut_and_lid(
-    vertices: np.ndarray, faces: np.ndarray, which: np.ndarray, rings: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """The closed, oriented ``(vertices, faces)`` with the faces ``which`` and ``rings``
-    edge rings round them cut out, and each hole this leaves lidded
-    (:func:`repair.closure.loop_lid`: a slit's or blade's two walls give way to one
-    surface across its mouth or base). Returns ``(vertices, faces, cut)`` (``cut``: the
-    indices of the faces cut out), not yet rounded; None when a hole is not a simple
-    loop."""
-    from repair.closure import loop_lid
-    from repair.loops import boundary_loops
-    from repair.topology import edge_ids
-
-    v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(faces, dtype=np.int64)
-    eid, counts = edge_ids(f)
-    cut = _face_rings(eid.reshape(-1, 3), len(counts), which, rings)
-    keep = np.ones(len(f), dtype=bool)
-    keep[cut] = False
-    kept = f[keep]
-    loops, _ = boundary_loops(kept)
-    open_edges = np.bincount(edge_ids(kept)[0]) == 1 if len(kept) else np.zeros(0, bool)
-    if len(loops) == 0 or sum(len(loop) for loop in loops) != int(open_edges.sum()):
-        return None  # some hole is no simple loop: the lids would not close the shell
-    new_v, new_f = [v], [kept]
-    n = len(v)
-    for loop in loops:
-        lid = loop_lid(v, loop, n)  # only a fan adds a vertex (its centre): index n
-        new_f.append(lid.triangles)
-        new_v.append(lid.new_vertices)
-        n += len(lid.new_vertices)
-    return np.vstack(new_v), np.vstack(new_f), cut
+    # Half-edge 3i + k runs from corner k to k + 1: the far corner is k + 2.
+    far_a = v[f[a, (first % 3 + 2) % 3]] - p[b, 0]
+    far_b = v[f[b, (second % 3 + 2) % 3]] - p[a, 0]
+    gap = np.minimum(np.abs(np.einsum("ij,ij->i", far_a, n[b])),
+                     np.abs(np.einsum("ij,ij->i", far_b, n[a])))  # fmt: skip
+    thin = gap < FOLD_REACH * d
+    seeds = np.r_[a[thin], b[thin], np.flatnonzero(low)]
+    return face_rings(eid.reshape(-1, 3), len(counts), seeds, rings)
 
 
 def _vertex_keys(v: np.ndarray) -> np.ndarray:
@@ -422,6 +394,65 @@ def _cut_round(
     return None
 
 
+def _close_rounds(out: RepairOutcome, bad: np.ndarray, eps: float) -> tuple[int, list[str]]:
+    """Rounds of :func:`_cut_round`, else :func:`_one_round`, on ``out`` (updated in
+    place to the round that left the fewest failing faces): ``(faces left, methods)``."""
+    best = len(bad)
+    used: list[str] = []
+    v, f = out.vertices, out.faces
+    # A slit that narrows to an edge (a wedge) closes from its narrow end: each round
+    # closes what the last one left within a hair of the other wall, further along it.
+    for _ in range(MAX_FILL_ROUNDS):
+        if len(bad) == 0:
+            break
+        step = _cut_round(v, f, bad, eps, out.tally) or _one_round(v, f, bad, eps, out.tally)
+        if step is None:
+            break  # nothing closed any, or every try added failing faces: give up
+        method, (v, f, verdict), bad = step
+        used.append(method)
+        if len(bad) < best:
+            out.vertices, out.faces, out.verdict, best = v, f, verdict, len(bad)
+    return best, used
+
+
+def _cut_large(
+    out: RepairOutcome, bad: np.ndarray, eps: float, base: WindingFromBase
+) -> tuple[int, list[str]]:
+    """Rounds of cuts checked near the cuts only (:func:`repair.hairline_cut.
+    local_cut_rounds`; ``base``: the winding numbers of ``out``'s mesh), then the check
+    of the round that left the fewest failing faces: ``out`` updated in place when that
+    is printable (and ``out.sections["hairline_gaps"]["lid_deviation_mm"]``: how far the
+    lids lie from the faces the cuts replaced, rounds summed). Where no two of its
+    corners share a point, the rounds' local checks found every crossing pair (none)
+    and the rest of the check runs on that; else it is welded and mended locally
+    (:func:`repair.finish.finish`) and looked for failing faces again near folds.
+    ``(faces left, methods)``."""
+    from repair.check import verdict_given_pairs
+    from repair.finish import finish
+    from repair.topology import weld_exact
+
+    v, f, left, rounds, reach = local_cut_rounds(
+        out.vertices, out.faces, bad, MAX_FILL_ROUNDS, MAX_CUT_RINGS, base
+    )
+    if rounds == 0:
+        return len(bad), []
+    no_pairs = np.zeros((0, 2), dtype=np.int64)
+    tv, tf = weld_exact(v, f)
+    if len(tv) == len(v):
+        verdict = verdict_given_pairs(tv, tf, no_pairs)[0]
+    else:
+        tv, tf, verdict = finish(v, f, eps, out.tally, (out.vertices, out.faces, no_pairs),
+                                 local_only=True)  # fmt: skip
+        if verdict.ok:
+            left = len(hairline_failures(tv, tf, fold_suspects(tv, tf)))
+    if not verdict.ok or left >= len(bad):
+        return len(bad), []
+    out.vertices, out.faces, out.verdict = tv, tf, verdict
+    # D (output -> input) near the lids: within this of the surface the cuts replaced.
+    out.sections["hairline_gaps"] = {"lid_deviation_mm": reach}
+    return left, ["cut"] * rounds
+
+
 def without_hairline_gaps(out: RepairOutcome, eps: float) -> RepairOutcome:
     """``out`` with its hairline slits, blades and needles closed, rounded to float32,
     checked and mended locally (:func:`repair.finish.finish`; a result that local mending
@@ -435,37 +466,32 @@ def without_hairline_gaps(out: RepairOutcome, eps: float) -> RepairOutcome:
     (:func:`fill_hairline_gaps`); the one that leaves the mesh printable with the fewest
     faces failing the two-sided winding test (:func:`_one_round`) is taken; the round
     with the fewest is kept.
-    Meshes of more than :data:`MAX_FACES` faces are only cut or zipped, of more than
-    :data:`MAX_ZIP_FACES` only cut, and searched near folds only, if those are not more
-    than :data:`MAX_FOLD_FRACTION` of the faces (time).
+    Meshes of more than :data:`MAX_FACES` faces are only cut or zipped; of more than
+    :data:`MAX_ZIP_FACES` searched near thin folds only, if those are not more than
+    :data:`MAX_FOLD_FRACTION` of the faces, and only cut, in rounds checked near the cuts
+    (:func:`_cut_large`: time).
     Counted in ``out.sections["hairline_gaps"]``."""
     if not out.verdict.ok or len(out.faces) == 0:
         return out
     large = len(out.faces) > MAX_ZIP_FACES
     which = fold_suspects(out.vertices, out.faces) if large else None
     if which is not None and len(which) > MAX_FOLD_FRACTION * len(out.faces):
-        return out  # folds everywhere: the search would cost seconds (cycloidal: 67 %)
-    bad = hairline_failures(out.vertices, out.faces, which)
-    found = best = len(bad)
-    used: list[str] = []
-    v, f = out.vertices, out.faces
-    # A slit that narrows to an edge (a wedge) closes from its narrow end: each round
-    # closes what the last one left within a hair of the other wall, further along it.
-    for _ in range(MAX_FILL_ROUNDS):
-        if len(bad) == 0:
-            break
-        step = _cut_round(v, f, bad, eps, out.tally)
-        if step is None and not large:
-            step = _one_round(v, f, bad, eps, out.tally)
-        if step is None:
-            break  # nothing closed any, or every try added failing faces: give up
-        method, (v, f, verdict), bad = step
-        used.append(method)
-        if len(bad) < best:
-            out.vertices, out.faces, out.verdict, best = v, f, verdict, len(bad)
+        return out  # thin folds everywhere: the search would cost seconds
+    if large:
+        # The winding numbers of each round's mesh from those of this one (tree built once).
+        base = WindingFromBase(out.vertices, out.faces)
+        none = np.zeros(0, dtype=np.int64)
+        bad = hairline_failures(out.vertices, out.faces, which,
+                                lambda q: base.at(q, out.vertices, none.reshape(0, 3), none))
+        best, used = _cut_large(out, bad, eps, base)
+    else:
+        bad = hairline_failures(out.vertices, out.faces)
+        best, used = _close_rounds(out, bad, eps)
+    found = len(bad)
     if found:
         out.sections["hairline_gaps"] = {
-            "faces_found": int(found), "rounds": used, "faces_left": int(best),
+            "faces_found": found, "rounds": used, "faces_left": best,
             "reach_mm": float(FILL_REACH * probe_distance(out.vertices)),
+            **out.sections.get("hairline_gaps", {}),
         }  # fmt: skip
     return out

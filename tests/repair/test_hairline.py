@@ -10,6 +10,7 @@ from repair.check import check_printable
 from repair.deviation import max_deviation
 from repair.hairline import (
     FILL_REACH,
+    MAX_ZIP_FACES,
     cut_and_lid,
     fold_suspects,
     hairline_failures,
@@ -157,3 +158,27 @@ def test_flat_faces_searched_plane_by_plane_give_the_trees_suspects():
     every = hairline_suspects(v, f)
     assert len(every) > 0
     assert np.array_equal(every, _suspects_by_tree(v, f))
+
+
+def test_a_large_mesh_is_cut_in_rounds_checked_near_the_cuts_and_then_passes():
+    """Over MAX_ZIP_FACES faces the slot is looked for near thin folds only and cut out
+    and lidded in rounds checked near the cuts (one local finish at the end): the
+    result is printable, no face fails the winding test, and the solid gained at most
+    the slot (the lids close its mouth)."""
+    import manifold3d as m3d
+
+    ball = m3d.Manifold.sphere(3.0, 384).translate([5.0, 5.0, 16.0])
+    v, f = _solid(_slotted_box() + ball)
+    assert len(f) > MAX_ZIP_FACES
+    before = check_printable(v, f)
+    found = _failing(v, f)
+    assert found > 0
+    out = RepairOutcome(v, f, before, "exact", 0.0, RepairTally(), HolesClosed())
+    out = without_hairline_gaps(out, 0.4)
+    verdict = check_printable(out.vertices, out.faces)
+    assert verdict.ok, verdict.failures()
+    assert _failing(out.vertices, out.faces) == 0
+    section = out.sections["hairline_gaps"]
+    assert section["faces_found"] == found and section["faces_left"] == 0
+    assert set(section["rounds"]) == {"cut"}
+    assert before.volume - 1e-9 <= verdict.volume <= before.volume + 10 * 8 * GAP + 1e-9

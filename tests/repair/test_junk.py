@@ -49,3 +49,37 @@ def test_the_repair_removes_thin_cavities_and_keeps_real_ones(tmp_path):
     assert np.isclose(signed_volume(w.vertices, w.faces), 1000.0 - 8.0)
     out, inside = face_winding_sides(w.vertices, w.faces)
     assert not failing_faces(out, inside).any()
+
+
+def test_winding_sides_of_a_few_faces_of_a_large_mesh_see_a_slit_thinner_than_the_probe():
+    """On a mesh of more than SPLIT_MIN_FACES faces, a few faces' winding sides are
+    summed exactly over the faces near their probes and approximately over the rest:
+    still right to the unit a hair off a face -- the walls of a slit 2^-20 mm wide see
+    solid on both sides (1|1), every other face 0|1."""
+    import manifold3d as m3d
+
+    from repair.junk import SPLIT_MIN_FACES
+    from repair.topology import weld_exact
+
+    gap = 2.0**-20
+    slotted = m3d.Manifold.cube([10, 10, 10]) - m3d.Manifold.cube([gap, 12, 8]).translate(
+        [5, -1, 3]
+    )
+    ball = m3d.Manifold.sphere(3.0, 384).translate([5.0, 5.0, 16.0])
+    mesh = (slotted + ball).to_mesh()
+    v, f = weld_exact(np.asarray(mesh.vert_properties, dtype=np.float64)[:, :3],
+                      np.asarray(mesh.tri_verts, dtype=np.int64))  # fmt: skip
+    assert len(f) >= SPLIT_MIN_FACES
+    p = v[f]
+    on_box = np.flatnonzero(p[:, :, 2].max(axis=1) <= 10.0)
+    rng = np.random.default_rng(3)
+    on_ball = rng.choice(np.flatnonzero(p[:, :, 2].min(axis=1) > 10.0), 100, replace=False)
+    which = np.r_[on_box, on_ball]
+    outside, inside = face_winding_sides(v, f, which)
+    q = p[which]
+    wall = ((np.abs(q[:, :, 0] - 5.0) <= gap).all(axis=1)
+            & (np.ptp(q[:, :, 2], axis=1) > 1.0))  # fmt: skip
+    assert wall.sum() >= 2
+    assert np.array_equal(np.rint(outside), np.where(wall, 1.0, 0.0))
+    assert np.all(np.rint(inside) == 1.0)
+    assert np.array_equal(failing_faces(outside, inside), wall)
