@@ -68,7 +68,9 @@ MAX_LID_AREA_FRACTION = 0.02
 #: lampshade) stays a sheet.
 MAX_LIDS_AREA_FRACTION = 0.05
 #: A shell whose holes are all one or two missing triangles (however large) is closed
-#: when they are at most this fraction of its faces: one missing from 34 faces or more.
+#: when they are at most this fraction of its faces -- or when its one hole is a single
+#: missing triangle (a loop of three edges, whose lid is that triangle), however few its
+#: faces: a 16-triangle CAD step missing one is a solid, not a sheet to thicken.
 MAX_MISSING_TRIANGLES = 0.03
 
 
@@ -370,12 +372,15 @@ def _missing_triangles(sizes: np.ndarray, labels: np.ndarray, n_faces: np.ndarra
     most :data:`MAX_MISSING_TRIANGLES` of its ``n_faces`` faces. Such a lid is the
     missing triangle itself (or one of two diagonals), whatever its size: a coarse CAD
     export missing a long face gets it back instead of being thickened into a hollow
-    skin."""
+    skin. A single missing triangle is closed whatever the shell's size (three faces or
+    more: a lone triangle's own rim is no hole); an open-topped box (two missing, a loop
+    of four) stays a sheet."""
     n = len(n_faces)
     loops = np.bincount(labels, minlength=n)
     few = np.bincount(labels, weights=sizes <= 4, minlength=n)
     missing = np.bincount(labels, weights=sizes - 2, minlength=n)
-    return (loops > 0) & (few == loops) & (missing <= MAX_MISSING_TRIANGLES * n_faces)
+    one = (missing == 1) & (n_faces >= 3)
+    return (loops > 0) & (few == loops) & ((missing <= MAX_MISSING_TRIANGLES * n_faces) | one)
 
 
 def _continues_facet(v: np.ndarray, rim: np.ndarray, loop: np.ndarray) -> bool:
