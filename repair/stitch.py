@@ -24,7 +24,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from repair.topology import EdgeTopology, connected_labels, edge_topology, half_edges
+from repair.topology import (
+    EdgeTopology,
+    connected_labels,
+    edge_topology,
+    half_edges,
+    paired_half_edges,
+)
 
 __all__ = ["Stitched", "stitch_cracks"]
 
@@ -67,17 +73,26 @@ def _boundary(f: np.ndarray, topology: EdgeTopology) -> tuple[np.ndarray, np.nda
     return np.flatnonzero(t.counts[t.eid] == 1), t.shells
 
 
+def _boundary_vertices(
+    f: np.ndarray, bnd: np.ndarray, patch: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The vertices on boundary half-edges ``bnd`` (either end: where a patch was
+    exported flipped, a rim vertex may start none of them) and a patch of each."""
+    he = half_edges(f)
+    ends = he[bnd].T.reshape(-1)
+    bv, first = np.unique(ends, return_index=True)
+    return bv, patch[np.tile(bnd, 2)[first] // 3]
+
+
 def _snap(
     v: np.ndarray, f: np.ndarray, gamma: float, topology: EdgeTopology, patch: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Faces with mutually nearest boundary vertices of different patches merged, each
     face's ``patch`` label (carried through), and how many pairs were merged."""
     bnd = _boundary(f, topology)[0]
-    he = half_edges(f)
-    bv, first = np.unique(he[bnd, 0], return_index=True)
+    bv, bpatch = _boundary_vertices(f, bnd, patch)
     if len(bv) < 2:
         return f, patch, 0
-    bpatch = patch[bnd[first] // 3]
     from scipy.spatial import cKDTree
 
     k = min(8, len(bv))
@@ -109,11 +124,10 @@ def _split_candidates(
     position along the half-edge)."""
     bnd, patch = _boundary(f, topology)
     he = half_edges(f)
-    bv, first = np.unique(he[bnd, 0], return_index=True)
     none = np.zeros(0, dtype=np.int64)
     if len(bnd) == 0:
         return none, none, np.zeros(0)
-    bpatch = patch[bnd[first] // 3]
+    bv, bpatch = _boundary_vertices(f, bnd, patch)
     a, b = v[he[bnd, 0]], v[he[bnd, 1]]
     length = np.linalg.norm(b - a, axis=1)
     from scipy.spatial import cKDTree
@@ -204,9 +218,38 @@ def stitch_cracks(
     b1, nonmanifold_after, misoriented_after = (
         after.boundary, after.nonmanifold, after.misoriented
     )
+    if misoriented_after > misoriented and nonmanifold_after <= nonmanifold and misoriented:
+        # An export with faces flipped (STL normals ignored): its patches meet
+        # misoriented once stitched, no worse when each can be turned to match its
+        # neighbours without folding back onto them. Not so for consistent patches: two
+        # shells facing the same way (a shell written twice, shifted) would be joined
+        # back to back at their holes.
+        misoriented_after = misoriented + _worse_oriented(v, f, original)
     if nonmanifold_after > nonmanifold or misoriented_after > misoriented or b1 >= b0:
         # Not a crack between consistent patches (crossing triangles of a soup, patches
         # facing the same way): stitching would make the surface worse; leave it.
         return original, Stitched(float(gamma), boundary_before=b0, boundary_after=b0,
                                   declined=True)  # fmt: skip
     return f, Stitched(float(gamma), snapped, inserted, b0, b1)
+
+
+def _worse_oriented(v: np.ndarray, f: np.ndarray, original: np.ndarray) -> int:
+    """Whether ``f``, every patch oriented consistently where it can be
+    (:func:`repair.thicken.orient_patches`), has more edges used twice the same way or
+    more faces folded back onto each other (:func:`_folds`: a stitch joining two shells
+    back to back) than the ``original`` faces so oriented (1 or 0)."""
+    from repair.thicken import orient_patches
+
+    now, before = orient_patches(f)[0], orient_patches(original)[0]
+    return int(edge_topology(now).misoriented > edge_topology(before).misoriented
+               or _folds(v, now) > _folds(v, before))  # fmt: skip
+
+
+def _folds(v: np.ndarray, f: np.ndarray) -> int:
+    """Edges of two faces whose unit normals are within ~8° of opposite: the faces lie
+    back to back (mm-free: angles only)."""
+    h1, h2, _ = paired_half_edges(edge_topology(f).eid)
+    p = v[f]
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    n /= np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
+    return int(np.count_nonzero(np.einsum("ij,ij->i", n[h1 // 3], n[h2 // 3]) < -0.99))
