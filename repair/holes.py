@@ -244,14 +244,16 @@ def _closed(
     f = f[~flaps]
     if len(flap_f):
         topo = edge_topology(f)
-    loops, labels, rims = traced_loops(f, topo)
+    loops, labels, rims = traced_loops(f, topo, singular=True)
     if not loops:
         return v, np.vstack([f, flap_f]), HolesClosed()
     comp, use, almost_closed, diag = _shells(v, f, max_boundary_fraction, topo)
-    # Lids only where they close the shell: every boundary edge of it is on a closable
-    # hole. Closing some holes of a shell that stays open would not make it solid (it is
+    # Lids only where they close the shell: every boundary edge of it (and edge of an
+    # odd number of faces, two solids' shared edge missing one) is on a closable hole.
+    # Closing some holes of a shell that stays open would not make it solid (it is
     # still a sheet, and is thickened), the lids would only add surface.
     n_bnd = np.bincount(comp, weights=(use == 1).sum(axis=1), minlength=len(diag))
+    n_bnd += _singular_rims(f, topo, loops, rims, labels, len(diag))
     perims = _perimeters(v, loops)
     small = almost_closed[labels] & (perims <= max_perimeter_fraction * diag[labels])
     # A lid can complete a facet of a shell of three faces or more (a tetrahedron missing
@@ -294,6 +296,23 @@ def _closed(
     out_v, lid_f = _lid_faces(v, lids)
     out_f = np.vstack([f, flap_f[~gone], *lid_f])
     return out_v, out_f, _tally(v, flap_f[gone], lids, exact)
+
+
+def _singular_rims(
+    f: np.ndarray, topo: EdgeTopology, loops: list[np.ndarray], rims: list[np.ndarray],
+    labels: np.ndarray, n: int,
+) -> np.ndarray:
+    """Per shell: how many edges of more than two faces its ``loops`` (rim faces
+    ``rims``, of shells ``labels``) run along (:func:`repair.loops.rim_half_edges`)."""
+    if topo.nonmanifold == 0:
+        return np.zeros(n)
+    at, _, nxt = _loop_steps(loops)
+    r = np.concatenate(rims)
+    # The rim half-edge of lid edge a->b runs b->a in its face: it starts at corner k.
+    k = np.argmax(f[r] == at[nxt][:, None], axis=1)
+    shared = topo.counts[topo.eid[3 * r + k]] > 2
+    owner = np.repeat(labels, [len(x) for x in rims])
+    return np.bincount(owner[shared], minlength=n).astype(np.float64)
 
 
 def _lid_faces(v: np.ndarray, lids: list[Lid]) -> tuple[np.ndarray, list[np.ndarray]]:

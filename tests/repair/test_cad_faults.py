@@ -173,3 +173,16 @@ def test_a_misoriented_export_written_twice_with_a_hole_is_not_joined_back_to_ba
     off = np.array([1.0, -2.0, 0.5]) * 1e-3  # mm
     v, holed = np.vstack([v, v + off]), np.vstack([holed, holed + len(v)])
     assert written_solid(v, holed, tmp_path) == pytest.approx(expected, rel=2e-3)
+
+
+@pytest.mark.parametrize("missing", [6, 8, 13, 16])
+def test_two_solids_sharing_an_edge_missing_a_triangle_on_it_get_it_back(missing, tmp_path):
+    # CGAL's two cubes share an edge of four faces; with one of those missing, the hole
+    # runs along two open edges and the shared edge (now of three faces), so it was not
+    # traced as a loop, and the cube came out a hollow skin (8,878 mm³ of 16,000). One
+    # half-edge of an edge of three faces is a rim edge too: the lid is the triangle.
+    v, f = real_model("cgal_cubes.obj", 20.0)
+    r = repair_mesh(v, f, 0.4)
+    expected = check_printable(r.vertices, r.faces).volume
+    holed = np.delete(f, missing, axis=0)
+    assert written_solid(v, holed, tmp_path) == pytest.approx(expected, rel=1e-3)
