@@ -37,6 +37,9 @@ __all__ = ["Stitched", "stitch_cracks"]
 #: How many rounds of edge splitting at most (a face with points on two of its edges
 #: needs two; each round splits one edge per face).
 _SPLIT_ROUNDS = 3
+#: A boundary vertex this close (relative to the coordinates' size) to the inside of a
+#: boundary edge of its own patch is a T-junction (float32 rounding leaves ~1e-7).
+_T_JUNCTION = 1e-6
 #: How many rounds of vertex snapping at most (a corner where k patches meet needs k - 1).
 _SNAP_ROUNDS = 4
 
@@ -138,13 +141,16 @@ def _split_candidates(
         return none, none, np.zeros(0)
     e = np.repeat(np.arange(len(bnd)), counts)
     p = np.concatenate([np.asarray(h, dtype=np.int64) for h in hits if h])
-    keep = bpatch[p] != patch[bnd[e] // 3]
-    e, p = e[keep], p[keep]
+    other = bpatch[p] != patch[bnd[e] // 3]
     ab = b[e] - a[e]
     t = np.einsum("ij,ij->i", v[bv[p]] - a[e], ab) / np.maximum(length[e] ** 2, 1e-300)
     d = np.linalg.norm(a[e] + t[:, None] * ab - v[bv[p]], axis=1)
     margin = 1e-6
-    keep = (d <= gamma) & (t > margin) & (t < 1 - margin)
+    # A T-junction: a vertex of the same patch on the edge, up to the rounding of its
+    # coordinates (an exporter split a face at a point of its neighbour's edge).
+    scale = np.maximum(np.abs(a[e]).max(axis=1), np.abs(b[e]).max(axis=1))
+    on_edge = d <= _T_JUNCTION * np.maximum(scale, 1.0)
+    keep = (d <= gamma) & (t > margin) & (t < 1 - margin) & (other | on_edge)
     e, p, t, d = e[keep], p[keep], t[keep], d[keep]
     if len(e) == 0:
         return none, none, np.zeros(0)
