@@ -142,15 +142,18 @@ def _split_candidates(
     e = np.repeat(np.arange(len(bnd)), counts)
     p = np.concatenate([np.asarray(h, dtype=np.int64) for h in hits if h])
     other = bpatch[p] != patch[bnd[e] // 3]
+    # Of its own patch only a vertex where the boundary runs straight on (most hits are
+    # neighbours round the same hole): a T-junction's slit passes straight through it.
+    sel = other | _straight(v, he[bnd])[bv[p]]
+    e, p, other = e[sel], p[sel], other[sel]
     ab = b[e] - a[e]
     t = np.einsum("ij,ij->i", v[bv[p]] - a[e], ab) / np.maximum(length[e] ** 2, 1e-300)
     d = np.linalg.norm(a[e] + t[:, None] * ab - v[bv[p]], axis=1)
     margin = 1e-6
     # A T-junction: a vertex of the same patch on the edge, up to the rounding of its
     # coordinates (an exporter split a face at a point of its neighbour's edge).
-    scale = np.maximum(np.abs(a[e]).max(axis=1), np.abs(b[e]).max(axis=1))
-    on_edge = d <= _T_JUNCTION * np.maximum(scale, 1.0)
-    keep = (d <= gamma) & (t > margin) & (t < 1 - margin) & (other | on_edge)
+    tight = _T_JUNCTION * np.maximum(np.abs(np.hstack([a, b])).max(axis=1), 1.0)  # per edge
+    keep = (d <= gamma) & (t > margin) & (t < 1 - margin) & (other | (d <= tight[e]))
     e, p, t, d = e[keep], p[keep], t[keep], d[keep]
     if len(e) == 0:
         return none, none, np.zeros(0)
@@ -159,6 +162,28 @@ def _split_candidates(
     e, p, t = e[order], p[order], t[order]
     one = np.r_[True, p[1:] != p[:-1]]
     return bnd[e[one]], bv[p[one]], t[one]
+
+
+def _straight(v: np.ndarray, rim: np.ndarray) -> np.ndarray:
+    """Per vertex: whether a boundary half-edge of ``rim`` (k, 2) comes into it and
+    another leaves it in the same direction (up to the rounding of its coordinates),
+    every in/out pair at a vertex looked at."""
+    order = np.argsort(rim[:, 0], kind="stable")
+    first = np.searchsorted(rim[order, 0], np.arange(len(v)))
+    count = np.bincount(rim[:, 0], minlength=len(v))[rim[:, 1]]  # out-edges at each end
+    i = np.repeat(np.arange(len(rim)), count)
+    j = order[np.repeat(first[rim[:, 1]], count) + np.arange(len(i))
+              - np.repeat(np.cumsum(count) - count, count)]  # fmt: skip
+    u = v[rim[i, 1]] - v[rim[i, 0]]
+    w = v[rim[j, 1]] - v[rim[j, 0]]
+    # The corner's distance from the line joining its neighbours, against the rounding
+    # of its coordinates (:data:`_T_JUNCTION`).
+    gap = np.linalg.norm(np.cross(u, w), axis=1) / np.maximum(np.linalg.norm(u + w, axis=1), 1e-300)
+    size = np.maximum(np.abs(v[rim[i, 1]]).max(axis=1), 1.0)
+    ok = (gap <= _T_JUNCTION * size) & (np.einsum("ij,ij->i", u, w) > 0)
+    out = np.zeros(len(v), dtype=bool)
+    out[rim[i[ok], 1]] = True
+    return out
 
 
 def _split_faces(f: np.ndarray, h: np.ndarray, p: np.ndarray, t: np.ndarray) -> np.ndarray:
