@@ -10,7 +10,9 @@ Two steps, on boundary (lamina) edges and vertices of different edge-connected p
 2. *split*: every boundary vertex still on the boundary that lies within γ of the inside
    of a boundary edge of another patch is inserted into that edge: the edge's face is
    split into a fan from its opposite corner, keeping its orientation. Both sides of a
-   crack then run through the same vertices and share their edges.
+   crack then run through the same vertices and share their edges. So is a T-junction
+   inside one patch: a vertex where the boundary runs straight on, lying on a boundary
+   edge of its own patch up to the rounding of its coordinates.
 
 No vertex moves by more than γ and every new triangle lies within γ of the face it
 replaces, so the deviation D of the stitch is at most γ. Vectorised: candidate pairs from
@@ -123,8 +125,9 @@ def _split_candidates(
     v: np.ndarray, f: np.ndarray, gamma: float, topology: EdgeTopology
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(half-edge, vertex, t)``: boundary vertices within γ of the inside of a boundary
-    edge of another patch (each vertex with its nearest such edge; ``t`` in (0, 1) the
-    position along the half-edge)."""
+    edge of another patch, or on one of their own patch (T-junctions, see the module
+    docstring); each vertex with its nearest such edge, ``t`` in (0, 1) the position
+    along the half-edge."""
     bnd, patch = _boundary(f, topology)
     he = half_edges(f)
     none = np.zeros(0, dtype=np.int64)
