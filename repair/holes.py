@@ -68,7 +68,9 @@ MAX_LID_AREA_FRACTION = 0.02
 #: lampshade) stays a sheet.
 MAX_LIDS_AREA_FRACTION = 0.05
 #: A shell whose holes are all one or two missing triangles (however large) is closed
-#: when they are at most this fraction of its faces: one missing from 34 faces or more.
+#: when they are at most this fraction of its faces -- or when its one hole is a single
+#: missing triangle (a loop of three edges, whose lid is that triangle), however few its
+#: faces: a 16-triangle CAD step missing one is a solid, not a sheet to thicken.
 MAX_MISSING_TRIANGLES = 0.03
 
 
@@ -242,14 +244,16 @@ def _closed(
     f = f[~flaps]
     if len(flap_f):
         topo = edge_topology(f)
-    loops, labels, rims = traced_loops(f, topo)
+    loops, labels, rims = traced_loops(f, topo, singular=True)
     if not loops:
         return v, np.vstack([f, flap_f]), HolesClosed()
     comp, use, almost_closed, diag = _shells(v, f, max_boundary_fraction, topo)
-    # Lids only where they close the shell: every boundary edge of it is on a closable
-    # hole. Closing some holes of a shell that stays open would not make it solid (it is
+    # Lids only where they close the shell: every boundary edge of it (and edge of an
+    # odd number of faces, two solids' shared edge missing one) is on a closable hole.
+    # Closing some holes of a shell that stays open would not make it solid (it is
     # still a sheet, and is thickened), the lids would only add surface.
     n_bnd = np.bincount(comp, weights=(use == 1).sum(axis=1), minlength=len(diag))
+    n_bnd += _singular_rims(f, topo, loops, rims, labels, len(diag))
     perims = _perimeters(v, loops)
     small = almost_closed[labels] & (perims <= max_perimeter_fraction * diag[labels])
     # A lid can complete a facet of a shell of three faces or more (a tetrahedron missing
@@ -292,6 +296,23 @@ def _closed(
     out_v, lid_f = _lid_faces(v, lids)
     out_f = np.vstack([f, flap_f[~gone], *lid_f])
     return out_v, out_f, _tally(v, flap_f[gone], lids, exact)
+
+
+def _singular_rims(
+    f: np.ndarray, topo: EdgeTopology, loops: list[np.ndarray], rims: list[np.ndarray],
+    labels: np.ndarray, n: int,
+) -> np.ndarray:
+    """Per shell: how many edges of more than two faces its ``loops`` (rim faces
+    ``rims``, of shells ``labels``) run along (:func:`repair.loops.rim_half_edges`)."""
+    if topo.nonmanifold == 0:
+        return np.zeros(n)
+    at, _, nxt = _loop_steps(loops)
+    r = np.concatenate(rims)
+    # The rim half-edge of lid edge a->b runs b->a in its face: it starts at corner k.
+    k = np.argmax(f[r] == at[nxt][:, None], axis=1)
+    shared = topo.counts[topo.eid[3 * r + k]] > 2
+    owner = np.repeat(labels, [len(x) for x in rims])
+    return np.bincount(owner[shared], minlength=n).astype(np.float64)
 
 
 def _lid_faces(v: np.ndarray, lids: list[Lid]) -> tuple[np.ndarray, list[np.ndarray]]:
@@ -370,12 +391,15 @@ def _missing_triangles(sizes: np.ndarray, labels: np.ndarray, n_faces: np.ndarra
     most :data:`MAX_MISSING_TRIANGLES` of its ``n_faces`` faces. Such a lid is the
     missing triangle itself (or one of two diagonals), whatever its size: a coarse CAD
     export missing a long face gets it back instead of being thickened into a hollow
-    skin."""
+    skin. A single missing triangle is closed whatever the shell's size (three faces or
+    more: a lone triangle's own rim is no hole); an open-topped box (two missing, a loop
+    of four) stays a sheet."""
     n = len(n_faces)
     loops = np.bincount(labels, minlength=n)
     few = np.bincount(labels, weights=sizes <= 4, minlength=n)
     missing = np.bincount(labels, weights=sizes - 2, minlength=n)
-    return (loops > 0) & (few == loops) & (missing <= MAX_MISSING_TRIANGLES * n_faces)
+    one = (missing == 1) & (n_faces >= 3)
+    return (loops > 0) & (few == loops) & ((missing <= MAX_MISSING_TRIANGLES * n_faces) | one)
 
 
 def _continues_facet(v: np.ndarray, rim: np.ndarray, loop: np.ndarray) -> bool:

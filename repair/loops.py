@@ -12,7 +12,7 @@ import numpy as np
 
 from repair.topology import EdgeTopology, edge_topology, half_edges
 
-__all__ = ["boundary_loops", "traced_loops"]
+__all__ = ["boundary_loops", "rim_half_edges", "traced_loops"]
 
 
 def boundary_loops(faces: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
@@ -34,16 +34,40 @@ def boundary_loops(faces: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
     return loops, labels
 
 
+def rim_half_edges(f: np.ndarray, topology: EdgeTopology, singular: bool = False) -> np.ndarray:
+    """The half-edges a hole's rim runs along: those of edges of one face; with
+    ``singular``, also one of each edge of an odd number of faces (3, 5, ...) whose
+    half-edges one way outnumber those the other way by one -- an edge of four faces
+    (two solids sharing it) that lost one of them. ``topology``: that of ``f``."""
+    eid, cnt = topology.eid, topology.counts
+    bnd = np.flatnonzero(cnt[eid] == 1)
+    if not singular or topology.nonmanifold == 0:
+        return bnd
+    he = half_edges(f)
+    odd = (cnt[eid] >= 3) & (cnt[eid] % 2 == 1)
+    if not odd.any():
+        return bnd
+    h = np.flatnonzero(odd)
+    up = he[h, 0] < he[h, 1]
+    fwd = np.bincount(eid[h], weights=up, minlength=len(cnt))
+    net = 2 * fwd - cnt  # half-edges low->high minus high->low, per edge
+    lone = h[np.abs(net[eid[h]]) == 1]
+    lone = lone[(he[lone, 0] < he[lone, 1]) == (net[eid[lone]] > 0)]  # the majority way
+    _, first = np.unique(eid[lone], return_index=True)
+    return np.sort(np.r_[bnd, lone[first]])
+
+
 def traced_loops(
-    f: np.ndarray, topology: EdgeTopology
+    f: np.ndarray, topology: EdgeTopology, singular: bool = False
 ) -> tuple[list[np.ndarray], np.ndarray, list[np.ndarray]]:
     """:func:`boundary_loops`, plus each loop's rim faces (one per loop edge);
-    ``topology``: that of ``f``."""
+    ``topology``: that of ``f``; ``singular``: a hole of three edges may run along an
+    edge of an odd number of faces too (:func:`rim_half_edges`)."""
     if len(f) == 0:
         return [], np.zeros(0, dtype=np.int64), []
     he = half_edges(f)  # (3m, 2) a->b
     eid, cnt = topology.eid, topology.counts
-    bnd = np.flatnonzero(cnt[eid] == 1)
+    bnd = rim_half_edges(f, topology, singular)
     if len(bnd) == 0:
         return [], np.zeros(0, dtype=np.int64), []
     comp = topology.shells
@@ -68,6 +92,8 @@ def traced_loops(
         if cur != start:
             continue  # an open chain: not a Jordan curve
         for loop in _simple_loops(src[walk].tolist(), walk):
+            if singular and len(loop) > 3 and (cnt[eid[bnd[loop]]] > 1).any():
+                continue  # along a shared edge only a missing triangle: a lid is sure
             loops.append(src[loop])
             rims.append(bnd[loop] // 3)
             labels.append(int(comp[bnd[start] // 3]))

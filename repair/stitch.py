@@ -10,7 +10,9 @@ Two steps, on boundary (lamina) edges and vertices of different edge-connected p
 2. *split*: every boundary vertex still on the boundary that lies within γ of the inside
    of a boundary edge of another patch is inserted into that edge: the edge's face is
    split into a fan from its opposite corner, keeping its orientation. Both sides of a
-   crack then run through the same vertices and share their edges.
+   crack then run through the same vertices and share their edges. So is a T-junction
+   inside one patch: a vertex where the boundary runs straight on, lying on a boundary
+   edge of its own patch up to the rounding of its coordinates.
 
 No vertex moves by more than γ and every new triangle lies within γ of the face it
 replaces, so the deviation D of the stitch is at most γ. Vectorised: candidate pairs from
@@ -24,13 +26,22 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from repair.topology import EdgeTopology, connected_labels, edge_topology, half_edges
+from repair.topology import (
+    EdgeTopology,
+    connected_labels,
+    edge_topology,
+    half_edges,
+    paired_half_edges,
+)
 
 __all__ = ["Stitched", "stitch_cracks"]
 
 #: How many rounds of edge splitting at most (a face with points on two of its edges
 #: needs two; each round splits one edge per face).
 _SPLIT_ROUNDS = 3
+#: A boundary vertex this close (relative to the coordinates' size) to the inside of a
+#: boundary edge of its own patch is a T-junction (float32 rounding leaves ~1e-7).
+_T_JUNCTION = 1e-6
 #: How many rounds of vertex snapping at most (a corner where k patches meet needs k - 1).
 _SNAP_ROUNDS = 4
 
@@ -67,17 +78,26 @@ def _boundary(f: np.ndarray, topology: EdgeTopology) -> tuple[np.ndarray, np.nda
     return np.flatnonzero(t.counts[t.eid] == 1), t.shells
 
 
+def _boundary_vertices(
+    f: np.ndarray, bnd: np.ndarray, patch: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The vertices on boundary half-edges ``bnd`` (either end: where a patch was
+    exported flipped, a rim vertex may start none of them) and a patch of each."""
+    he = half_edges(f)
+    ends = he[bnd].T.reshape(-1)
+    bv, first = np.unique(ends, return_index=True)
+    return bv, patch[np.tile(bnd, 2)[first] // 3]
+
+
 def _snap(
     v: np.ndarray, f: np.ndarray, gamma: float, topology: EdgeTopology, patch: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Faces with mutually nearest boundary vertices of different patches merged, each
     face's ``patch`` label (carried through), and how many pairs were merged."""
     bnd = _boundary(f, topology)[0]
-    he = half_edges(f)
-    bv, first = np.unique(he[bnd, 0], return_index=True)
+    bv, bpatch = _boundary_vertices(f, bnd, patch)
     if len(bv) < 2:
         return f, patch, 0
-    bpatch = patch[bnd[first] // 3]
     from scipy.spatial import cKDTree
 
     k = min(8, len(bv))
@@ -105,15 +125,15 @@ def _split_candidates(
     v: np.ndarray, f: np.ndarray, gamma: float, topology: EdgeTopology
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(half-edge, vertex, t)``: boundary vertices within γ of the inside of a boundary
-    edge of another patch (each vertex with its nearest such edge; ``t`` in (0, 1) the
-    position along the half-edge)."""
+    edge of another patch, or on one of their own patch (T-junctions, see the module
+    docstring); each vertex with its nearest such edge, ``t`` in (0, 1) the position
+    along the half-edge."""
     bnd, patch = _boundary(f, topology)
     he = half_edges(f)
-    bv, first = np.unique(he[bnd, 0], return_index=True)
     none = np.zeros(0, dtype=np.int64)
     if len(bnd) == 0:
         return none, none, np.zeros(0)
-    bpatch = patch[bnd[first] // 3]
+    bv, bpatch = _boundary_vertices(f, bnd, patch)
     a, b = v[he[bnd, 0]], v[he[bnd, 1]]
     length = np.linalg.norm(b - a, axis=1)
     from scipy.spatial import cKDTree
@@ -124,13 +144,19 @@ def _split_candidates(
         return none, none, np.zeros(0)
     e = np.repeat(np.arange(len(bnd)), counts)
     p = np.concatenate([np.asarray(h, dtype=np.int64) for h in hits if h])
-    keep = bpatch[p] != patch[bnd[e] // 3]
-    e, p = e[keep], p[keep]
+    other = bpatch[p] != patch[bnd[e] // 3]
+    # Of its own patch only a vertex where the boundary runs straight on (most hits are
+    # neighbours round the same hole): a T-junction's slit passes straight through it.
+    sel = other | _straight(v, he[bnd])[bv[p]]
+    e, p, other = e[sel], p[sel], other[sel]
     ab = b[e] - a[e]
     t = np.einsum("ij,ij->i", v[bv[p]] - a[e], ab) / np.maximum(length[e] ** 2, 1e-300)
     d = np.linalg.norm(a[e] + t[:, None] * ab - v[bv[p]], axis=1)
     margin = 1e-6
-    keep = (d <= gamma) & (t > margin) & (t < 1 - margin)
+    # A T-junction: a vertex of the same patch on the edge, up to the rounding of its
+    # coordinates (an exporter split a face at a point of its neighbour's edge).
+    tight = _T_JUNCTION * np.maximum(np.abs(np.hstack([a, b])).max(axis=1), 1.0)  # per edge
+    keep = (d <= gamma) & (t > margin) & (t < 1 - margin) & (other | (d <= tight[e]))
     e, p, t, d = e[keep], p[keep], t[keep], d[keep]
     if len(e) == 0:
         return none, none, np.zeros(0)
@@ -139,6 +165,28 @@ def _split_candidates(
     e, p, t = e[order], p[order], t[order]
     one = np.r_[True, p[1:] != p[:-1]]
     return bnd[e[one]], bv[p[one]], t[one]
+
+
+def _straight(v: np.ndarray, rim: np.ndarray) -> np.ndarray:
+    """Per vertex: whether a boundary half-edge of ``rim`` (k, 2) comes into it and
+    another leaves it in the same direction (up to the rounding of its coordinates),
+    every in/out pair at a vertex looked at."""
+    order = np.argsort(rim[:, 0], kind="stable")
+    first = np.searchsorted(rim[order, 0], np.arange(len(v)))
+    count = np.bincount(rim[:, 0], minlength=len(v))[rim[:, 1]]  # out-edges at each end
+    i = np.repeat(np.arange(len(rim)), count)
+    j = order[np.repeat(first[rim[:, 1]], count) + np.arange(len(i))
+              - np.repeat(np.cumsum(count) - count, count)]  # fmt: skip
+    u = v[rim[i, 1]] - v[rim[i, 0]]
+    w = v[rim[j, 1]] - v[rim[j, 0]]
+    # The corner's distance from the line joining its neighbours, against the rounding
+    # of its coordinates (:data:`_T_JUNCTION`).
+    gap = np.linalg.norm(np.cross(u, w), axis=1) / np.maximum(np.linalg.norm(u + w, axis=1), 1e-300)
+    size = np.maximum(np.abs(v[rim[i, 1]]).max(axis=1), 1.0)
+    ok = (gap <= _T_JUNCTION * size) & (np.einsum("ij,ij->i", u, w) > 0)
+    out = np.zeros(len(v), dtype=bool)
+    out[rim[i[ok], 1]] = True
+    return out
 
 
 def _split_faces(f: np.ndarray, h: np.ndarray, p: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -204,9 +252,38 @@ def stitch_cracks(
     b1, nonmanifold_after, misoriented_after = (
         after.boundary, after.nonmanifold, after.misoriented
     )
+    if misoriented_after > misoriented and nonmanifold_after <= nonmanifold and misoriented:
+        # An export with faces flipped (STL normals ignored): its patches meet
+        # misoriented once stitched, no worse when each can be turned to match its
+        # neighbours without folding back onto them. Not so for consistent patches: two
+        # shells facing the same way (a shell written twice, shifted) would be joined
+        # back to back at their holes.
+        misoriented_after = misoriented + _worse_oriented(v, f, original)
     if nonmanifold_after > nonmanifold or misoriented_after > misoriented or b1 >= b0:
         # Not a crack between consistent patches (crossing triangles of a soup, patches
         # facing the same way): stitching would make the surface worse; leave it.
         return original, Stitched(float(gamma), boundary_before=b0, boundary_after=b0,
                                   declined=True)  # fmt: skip
     return f, Stitched(float(gamma), snapped, inserted, b0, b1)
+
+
+def _worse_oriented(v: np.ndarray, f: np.ndarray, original: np.ndarray) -> int:
+    """Whether ``f``, every patch oriented consistently where it can be
+    (:func:`repair.thicken.orient_patches`), has more edges used twice the same way or
+    more faces folded back onto each other (:func:`_folds`: a stitch joining two shells
+    back to back) than the ``original`` faces so oriented (1 or 0)."""
+    from repair.thicken import orient_patches
+
+    now, before = orient_patches(f)[0], orient_patches(original)[0]
+    return int(edge_topology(now).misoriented > edge_topology(before).misoriented
+               or _folds(v, now) > _folds(v, before))  # fmt: skip
+
+
+def _folds(v: np.ndarray, f: np.ndarray) -> int:
+    """Edges of two faces whose unit normals are within ~8° of opposite: the faces lie
+    back to back (mm-free: angles only)."""
+    h1, h2, _ = paired_half_edges(edge_topology(f).eid)
+    p = v[f]
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    n /= np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
+    return int(np.count_nonzero(np.einsum("ij,ij->i", n[h1 // 3], n[h2 // 3]) < -0.99))
