@@ -277,6 +277,27 @@ def mend_intersections(
     return Mended(vv, allf, int(len(pairs)), int(len(bad)), int(dropped))
 
 
+def _angles_about(
+    v: np.ndarray, edge: np.ndarray, third: np.ndarray
+) -> np.ndarray | None:
+    """The angle (radians) about the directed ``edge`` (two vertex indices) of each
+    face's ``third`` corner (vertex indices), from the first's; None where a face has
+    collapsed onto the edge (a repeated corner, or its third corner exactly on the
+    edge's line: it has no side of the edge) or the edge onto a point: no angle."""
+    a, b = edge
+    if a == b or np.any((third == a) | (third == b)):
+        return None
+    axis = v[b] - v[a]
+    axis /= np.linalg.norm(axis)
+    d = v[third] - v[a]
+    if np.any(np.all(np.cross(d, axis) == 0, axis=1)):
+        return None
+    x = d[0] - axis * np.dot(d[0], axis)
+    x /= np.linalg.norm(x)
+    y = np.cross(axis, x)
+    return np.arctan2(d @ y, d @ x)
+
+
 def separate_singular_edges(
     vertices: np.ndarray, faces: np.ndarray, step: float
 ) -> tuple[np.ndarray, np.ndarray, int] | None:
@@ -287,7 +308,8 @@ def separate_singular_edges(
     edge-manifold. Faces keep their vertices elsewhere; nothing else moves.
 
     Returns ``(vertices, faces, edges separated)``, or None where the faces around an
-    edge do not alternate in orientation (not wedges of one closed solid)."""
+    edge do not alternate in orientation (not wedges of one closed solid) or one of them
+    has collapsed onto it (its third corner exactly on the edge's line: no side)."""
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
     he, eid = half_edges(f), edge_ids(f)[0]
@@ -304,15 +326,13 @@ def separate_singular_edges(
     bounds = np.r_[0, np.flatnonzero(np.diff(eid[on])) + 1, len(on)]
     for s, e in zip(bounds[:-1], bounds[1:], strict=True):  # one pass per singular edge
         hs = on[s:e]
-        a, b = he[hs[0]]
-        axis = v[b] - v[a]
-        axis /= np.linalg.norm(axis)
-        x = v[third[hs[0]]] - v[a]
-        x -= axis * np.dot(x, axis)
-        x /= np.linalg.norm(x)
-        y = np.cross(axis, x)
-        d = v[third[hs]] - v[a]
-        ang = np.arctan2(d @ y, d @ x)
+        ang = _angles_about(v, he[hs[0]], third[hs])
+        if ang is None:
+            # A face collapsed onto the edge (a repeated corner) has no side of it: which
+            # wedges its neighbours bound is undefined (its angle was NaN, or 0, and the
+            # wedges were paired by face order), so none are separated here.
+            return None
+        a = he[hs[0], 0]
         # A face running a->b has its outward normal towards increasing angle, so solid
         # lies from a face running b->a round to the next face (which must run a->b).
         forward = he[hs, 0] == a

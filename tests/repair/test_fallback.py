@@ -227,6 +227,9 @@ def test_a_self_crossing_closed_shell_falls_back_to_a_filled_printable_solid(tmp
 
 @pytest.mark.slow
 @pytest.mark.skipif(not (CORPUS / "mikedh_target.obj").exists(), reason="corpus not present")
+# Its union's float32 rounding collapses 2,055 faces onto edges shared by four faces;
+# separating those edges once sorted the faces by NaN angles (mend.py, "invalid value").
+@pytest.mark.filterwarnings("error::RuntimeWarning")
 def test_corpus_target_whose_slab_folds_falls_back_to_a_printable_file(tmp_path):
     out = tmp_path / "target.stl"
     report = repair_file(CORPUS / "mikedh_target.obj", out, epsilon=EPS, time_budget=NO_TIME)

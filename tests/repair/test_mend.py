@@ -19,7 +19,7 @@ from repair.rounding import (
     round_avoiding_crossings,
     round_finding_crossings,
 )
-from repair.topology import is_cycle, weld_exact
+from repair.topology import is_cycle, undirected_edges, weld_exact
 
 
 def test_overlapping_cubes_become_their_exact_union():
@@ -304,3 +304,18 @@ def test_faces_around_an_edge_that_do_not_alternate_are_left_alone():
     f = f.copy()
     f[:12] = f[:12, ::-1]
     assert separate_singular_edges(v, f, 1e-4) is None
+
+
+@pytest.mark.parametrize("first", [True, False])
+def test_a_face_collapsed_onto_a_touching_edge_leaves_it_alone(first):
+    # Two cubes touching along an edge, plus a face collapsed onto that edge (its third
+    # corner is one of the edge's ends: no area, no side of the edge), listed first or
+    # last among the faces around the edge. Its angle about the edge is undefined (it
+    # was NaN, or 0 from rounding noise): no pairing of wedges can be trusted.
+    v, f = _cubes_touching_along_an_edge()
+    edges, uses = undirected_edges(f)
+    a, b = edges[uses == 4][0]
+    collapsed = np.array([[a, b, a]])
+    f = np.vstack([collapsed, f]) if first else np.vstack([f, collapsed])
+    with np.errstate(all="raise"):
+        assert separate_singular_edges(v, f, 1e-4) is None
