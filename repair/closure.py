@@ -178,7 +178,8 @@ def triangle_reach(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
     nearest corner -- the circumradius, or the longest edge where that is smaller."""
     ab, bc, ca = (np.linalg.norm(x, axis=1) for x in (b - a, c - b, a - c))
     area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
-    circum = ab * bc * ca / np.maximum(4.0 * area, 1e-300)
+    with np.errstate(over="ignore"):  # a degenerate triangle's circumradius: inf
+        circum = ab * bc * ca / np.maximum(4.0 * area, 1e-300)
     return np.minimum(circum, np.maximum(np.maximum(ab, bc), ca))
 
 
