@@ -234,17 +234,17 @@ def check_printable_pairs(
     faces: np.ndarray,
     *,
     as_float32: bool = False,
-    meanwhile: Callable[[], object] | None = None,
+    unwanted: Callable[[], object] | None = None,
 ) -> tuple[Printability, np.ndarray]:
     """:func:`check_printable`, also returning the intersecting face pairs (k, 2) as
     indices into ``faces`` (into the welded faces when ``as_float32``), so that a repair
     loop does not test them twice.
 
-    ``meanwhile``: called (its value ignored) while the exact intersection test runs,
-    when everything else already says the mesh is a closed, edge-manifold, oriented
-    surface without degenerate or duplicate faces, and the test runs in forked children
-    (a large mesh, more than one CPU): work that would follow a printable verdict then
-    runs beside the test instead of after it."""
+    ``unwanted``: called (its value ignored) as soon as degenerate or duplicate faces or
+    the edge census show that the mesh is not printable, before the exact intersection
+    test is waited for: work started ahead for a printable verdict (the stage that would
+    follow it, in a forked child) stops there instead of competing with the test's
+    children for the CPUs."""
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces)
     if v.ndim != 2 or (v.size and v.shape[1] != 3):
@@ -267,7 +267,7 @@ def check_printable_pairs(
     m = len(f)
     if m == 0:
         return _empty_verdict(as_float32), np.zeros((0, 2), dtype=np.int64)
-    return _verdict(v, f, as_float32, meanwhile=meanwhile)
+    return _verdict(v, f, as_float32, unwanted=unwanted)
 
 
 def _empty_verdict(as_float32: bool) -> Printability:
@@ -299,7 +299,7 @@ def verdict_given_pairs(
 
 def _verdict(
     v: np.ndarray, f: np.ndarray, as_float32: bool, known_pairs: np.ndarray | None = None,
-    meanwhile: Callable[[], object] | None = None,
+    unwanted: Callable[[], object] | None = None,
 ) -> tuple[Printability, np.ndarray]:
     m = len(f)
     # Started before the faces are known proper and distinct, as they mostly are: a large
@@ -323,19 +323,21 @@ def _verdict(
         keep = np.flatnonzero(~degenerate)
         pending = early
         if n_degenerate or n_duplicate:
+            if unwanted is not None:
+                unwanted()
             early.cancel()
             fk = f[keep]
             if n_duplicate:
                 keep = keep[unique_faces(fk)]
                 fk = f[keep]
             pending = start_face_pairs(v, fk)  # in forked children on a large mesh
-    # The edge census (and ``meanwhile``) run here while the children test the pairs.
+    # The edge census runs here while the children test the pairs.
     boundary, nonmanifold, misoriented, components, labels = edge_stats(f)
     if pending is not None:
-        if meanwhile is not None and pending.running and n_degenerate == n_duplicate == 0 and (
-            boundary == nonmanifold == misoriented == 0
+        if unwanted is not None and n_degenerate == n_duplicate == 0 and (
+            boundary or nonmanifold or misoriented
         ):
-            meanwhile()
+            unwanted()
         pairs = keep[pending.result()]
 
     solid_so_far = (

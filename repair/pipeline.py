@@ -64,6 +64,7 @@ from repair.hairline import without_hairline_gaps
 from repair.holes import MAX_BOUNDARY_FRACTION, HolesClosed, close_small_holes
 from repair.hull_and_thicken import hull_and_thicken
 from repair.junk import without_internal_junk
+from repair.pending_pairs import BACKGROUND_MIN_FACES
 from repair.provenance import (
     carry_input_pairs,
     hull_face_sources,
@@ -84,6 +85,7 @@ from repair.scan import scan_cleanup
 from repair.stitch import stitch_cracks
 from repair.topology import EdgeTopology, edge_components, edge_topology, edge_topology_memo
 from repair.union import union_of_shells
+from repair.workers import cpu_workers
 
 __all__ = ["RepairError", "RepairResult", "repair_file", "repair_mesh"]
 
@@ -220,29 +222,36 @@ def _checked_input(
     clean: str,
 ) -> _Checked:
     """Stage 1 (``check_input``) on a new stage clock; with the surface features of the
-    input as it comes out unchanged (or None), found in a forked child while the exact
-    intersection test ran in others, when everything else said it was printable."""
+    input as it comes out unchanged (or None), found in a forked child beside the check
+    of a large mesh -- started first, on the CPU that the check's serial start (weld,
+    native imports) leaves idle, and stopped as soon as the check says the input is not
+    printable (the output is the input unchanged only when it is)."""
     clock = StageClock(progress)
     ahead: list[Forked] = []
+    if surface != "off" and clean != "scan" and len(f_in) >= BACKGROUND_MIN_FACES and (
+        cpu_workers() > 1
+    ):
+        v32 = round_to_float32(v_in)  # what round_input makes
 
-    def features() -> list | None:
-        from repair.surface.stage import features_of
+        def features() -> list | None:
+            from repair.surface.stage import features_of
 
-        try:
-            return features_of(v32, f_in, eps, surface)
-        except Exception:  # noqa: BLE001 -- the surface stage itself reports the failure
-            return None
+            try:
+                return features_of(v32, f_in, eps, surface)
+            except Exception:  # noqa: BLE001 -- the surface stage itself reports the failure
+                return None
 
-    v32 = round_to_float32(v_in) if surface != "off" else None  # what round_input makes
-    # Found in a child of its own: the parent's share of the check is the longest here.
-    rounded = round_input(v_in, f_in,
-                          (lambda: ahead.append(Forked(features))) if surface != "off" else None)
-    found = None
-    for job in ahead:
-        if rounded.verdict.ok and clean != "scan":  # the input comes out unchanged
-            found = job.result()
-        else:
+        ahead.append(Forked(features))
+
+    def unwanted() -> None:
+        for job in ahead:
             job.cancel()
+
+    rounded = round_input(v_in, f_in, unwanted if ahead else None)
+    found = None
+    if ahead and rounded.verdict.ok:  # the input comes out unchanged
+        found = ahead[0].result()
+    unwanted()  # a no-op once the result was read
     clock.lap("check_input", 0.1)
     return clock, rounded, found
 

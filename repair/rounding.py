@@ -247,14 +247,14 @@ class RoundedInput:
 
 
 def round_input(
-    vertices: np.ndarray, faces: np.ndarray, meanwhile: Callable[[], object] | None = None
+    vertices: np.ndarray, faces: np.ndarray, unwanted: Callable[[], object] | None = None
 ) -> RoundedInput:
     """Round the input to float32 and check it. Solid parts come out on their rounded
     corners either way; rounding the input first (as an STL input already is) keeps the
-    arrangement from having to round twice. ``meanwhile``: as in
+    arrangement from having to round twice. ``unwanted``: as in
     :func:`repair.check.check_printable_pairs`."""
     v32 = round_to_float32(vertices)
     moved = v32 - vertices
     rounding = float(np.sqrt(np.max(np.einsum("ij,ij->i", moved, moved))))
-    verdict, pairs = check_printable_pairs(v32, faces, as_float32=True, meanwhile=meanwhile)
+    verdict, pairs = check_printable_pairs(v32, faces, as_float32=True, unwanted=unwanted)
     return RoundedInput(v32, faces, rounding, verdict, pairs)

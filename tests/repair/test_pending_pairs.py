@@ -1,7 +1,7 @@
 """repair.pending_pairs: the intersection test started in forked children gives the pairs
-of a test in one process; the check runs ``meanwhile`` beside it only on a mesh that is
-printable but for the test, and the repair's surface features found then are those the
-surface stage finds afterwards."""
+of a test in one process; the check calls ``unwanted`` only on a mesh that is not
+printable before the test decides, and the repair's surface features found beside the
+check are those the surface stage finds afterwards."""
 
 from __future__ import annotations
 
@@ -37,23 +37,23 @@ def test_pairs_started_in_children_are_those_of_one_whole_test():
     assert not pending.running and pending.result() is found
 
 
-def test_meanwhile_runs_only_beside_the_test_of_a_mesh_printable_but_for_it():
+def test_unwanted_is_called_only_when_the_mesh_is_not_printable_but_for_the_test():
     v, f = sphere(6, 10.0)  # 81920 faces, closed
     assert len(f) >= BACKGROUND_MIN_FACES
     calls: list[int] = []
-    verdict, pairs = check_printable_pairs(v, f, meanwhile=lambda: calls.append(1))
-    assert verdict.ok and len(pairs) == 0
-    assert calls == ([1] if cpu_workers() > 1 else [])
-    # Two crossing spheres: printable but for the test; it runs and the verdict says no.
+    verdict, pairs = check_printable_pairs(v, f, unwanted=lambda: calls.append(1))
+    assert verdict.ok and len(pairs) == 0 and calls == []
+    # Two crossing spheres: printable but for the test; only the verdict says no.
     v2, f2 = concat((v, f), sphere(4, 10.0, centre=(5.0, 0.0, 0.0)))
+    verdict, pairs = check_printable_pairs(v2, f2, unwanted=lambda: calls.append(1))
+    assert not verdict.ok and verdict.intersecting_pairs == len(pairs) > 0 and calls == []
+    # A hole: the edge census already says no.
+    verdict, _ = check_printable_pairs(v, f[1:], unwanted=lambda: calls.append(1))
+    assert not verdict.closed and calls == [1]
+    # A copy of a face: said before the census.
     calls.clear()
-    verdict, pairs = check_printable_pairs(v2, f2, meanwhile=lambda: calls.append(1))
-    assert not verdict.ok and verdict.intersecting_pairs == len(pairs) > 0
-    assert calls == ([1] if cpu_workers() > 1 else [])
-    # A hole: the edge census already says no, nothing runs beside the test.
-    calls.clear()
-    verdict, _ = check_printable_pairs(v, f[1:], meanwhile=lambda: calls.append(1))
-    assert not verdict.closed and calls == []
+    verdict, _ = check_printable_pairs(v, np.vstack([f, f[:1]]), unwanted=lambda: calls.append(1))
+    assert verdict.duplicate_faces == 1 and calls == [1]
 
 
 def test_surface_found_beside_the_check_is_what_the_stage_finds_after_it():
