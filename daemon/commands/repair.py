@@ -41,7 +41,10 @@ def register(subparsers) -> None:
                    "[repair] time_budget's default)")  # fmt: skip
     p.add_argument("--report", metavar="R.json", help="write the repair report as JSON")
     p.add_argument("--json", action="store_true", help="print the report as JSON on stdout")
-    p.set_defaults(func=run)
+    # Output and report are written (the STL synced) when run returns, and the forked
+    # workers have exited: the interpreter's teardown, freeing every module and the
+    # mesh's arrays one by one (~0.08 s of CPU after a 500k-triangle repair), is skipped.
+    p.set_defaults(func=run, quick_exit=True)
 
 
 class _ProgressLine:
