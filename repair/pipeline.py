@@ -225,7 +225,8 @@ def _checked_input(
     input as it comes out unchanged (or None), found in a forked child beside the check
     of a large mesh -- started first, on the CPU that the check's serial start (weld,
     native imports) leaves idle, and stopped as soon as the check says the input is not
-    printable (the output is the input unchanged only when it is)."""
+    printable (the output is the input unchanged only when it is); an input with an edge
+    not used by exactly two faces has the child stop itself after its first step."""
     clock = StageClock(progress)
     ahead: list[Forked] = []
     if surface != "off" and clean != "scan" and len(f_in) >= BACKGROUND_MIN_FACES and (
@@ -237,7 +238,7 @@ def _checked_input(
             from repair.surface.stage import features_of
 
             try:
-                return features_of(v32, f_in, eps, surface)
+                return features_of(v32, f_in, eps, surface, closed_only=True)
             except Exception:  # noqa: BLE001 -- the surface stage itself reports the failure
                 return None
 

@@ -97,14 +97,16 @@ class SurfaceResult:
 
 
 def find_features(vertices: np.ndarray, faces: np.ndarray, *, tolerance: float,
-                  kinds: tuple[str, ...]) -> list[tuple[Surface, np.ndarray]]:
-    """(fitted surface, face indices) of every region that is one of ``kinds``."""
+                  kinds: tuple[str, ...], eid: np.ndarray | None = None
+                  ) -> list[tuple[Surface, np.ndarray]]:
+    """(fitted surface, face indices) of every region that is one of ``kinds``. ``eid``:
+    the faces' :func:`repair.topology.edge_ids`, if the caller has them."""
     v = np.asarray(vertices, dtype=float)
     f = np.asarray(faces, dtype=np.int64)
     if not kinds or len(f) == 0:
         return []
     normals, areas, centroids = geometry = face_geometry(v, f)
-    labels = face_regions(v, f, geometry=geometry)
+    labels = face_regions(v, f, geometry=geometry, eid=eid)
     order = np.argsort(labels, kind="stable")
     cuts = np.flatnonzero(np.diff(labels[order])) + 1
     found = []

@@ -49,11 +49,12 @@ def _face_columns(vertices: np.ndarray, faces: np.ndarray
 
 def face_regions(vertices: np.ndarray, faces: np.ndarray,
                  max_angle_deg: float = MAX_ANGLE_DEG,
-                 geometry: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
-                 ) -> np.ndarray:
+                 geometry: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+                 eid: np.ndarray | None = None) -> np.ndarray:
     """Region label (0..k-1) of each face: components of the face graph whose edges join
     facets turning by at most ``max_angle_deg``, with consistent curvature. ``geometry``:
-    the faces' :func:`face_geometry`, if the caller has it."""
+    the faces' :func:`face_geometry`, ``eid`` their :func:`repair.topology.edge_ids`, if
+    the caller has them."""
     v = np.asarray(vertices, dtype=float)
     f = np.asarray(faces, dtype=np.int64)
     if geometry is None:
@@ -63,7 +64,8 @@ def face_regions(vertices: np.ndarray, faces: np.ndarray,
         normals, centroids = ([np.ascontiguousarray(x[:, d]) for d in range(3)]
                               for x in (geometry[0], geometry[2]))
         proper = (normals[0] != 0) | (normals[1] != 0) | (normals[2] != 0)
-    eid, _ = edge_ids(f)
+    if eid is None:
+        eid, _ = edge_ids(f)
     first, second, _ = paired_half_edges(eid)
     fa, fb = first // 3, second // 3
     # Coordinate by coordinate (1-D gathers): the same sums of products as on rows.

@@ -9,6 +9,7 @@ import numpy as np
 from repair.check import check_printable, round_to_float32
 from repair.report import RepairOutcome
 from repair.surface.features import MODES, find_features, refine_surfaces, surface_tolerance
+from repair.topology import edge_ids
 
 
 def surface_stage(
@@ -74,8 +75,16 @@ def feature_lines(section: dict | None) -> list[str]:
     return out
 
 
-def features_of(vertices: np.ndarray, faces: np.ndarray, epsilon: float, mode: str) -> list:
+def features_of(vertices: np.ndarray, faces: np.ndarray, epsilon: float, mode: str, *,
+                closed_only: bool = False) -> list | None:
     """What :func:`surface_stage` finds to refine on these arrays (``mode`` not "off"):
-    computed ahead, e.g. while the input check runs, and handed to it as ``found``."""
+    computed ahead, e.g. while the input check runs, and handed to it as ``found``.
+    ``closed_only``: None, found first, when an edge is not used by exactly two faces --
+    such an input is not printable, so it never reaches the stage unchanged."""
+    eid = None
+    if closed_only:
+        eid, counts = edge_ids(faces)
+        if len(counts) == 0 or np.any(counts != 2):
+            return None
     return find_features(vertices, faces, tolerance=surface_tolerance(epsilon),
-                         kinds=MODES[mode])
+                         kinds=MODES[mode], eid=eid)

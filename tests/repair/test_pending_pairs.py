@@ -21,6 +21,7 @@ from repair.pending_pairs import BACKGROUND_MIN_FACES, start_face_pairs  # noqa:
 from repair.pipeline import repair_mesh  # noqa: E402
 from repair.rows import unique_rows  # noqa: E402
 from repair.surface.features import refine_surfaces  # noqa: E402
+from repair.surface.stage import features_of  # noqa: E402
 from repair.workers import cpu_workers  # noqa: E402
 
 
@@ -78,3 +79,16 @@ def test_a_test_started_on_faces_the_check_must_not_test_starts_again_without_th
     verdict, pairs = check_printable_pairs(v, with_bad)
     assert verdict.duplicate_faces == 1 and verdict.degenerate_faces == 1
     assert np.array_equal(np.sort(pairs, axis=1), proper) and len(proper) > 100
+
+
+def test_features_found_ahead_stop_on_an_open_mesh_and_are_the_search_on_a_closed_one():
+    v, f = plate.plate(12)
+    v32 = round_to_float32(v)
+    ahead = features_of(v32, f, 0.4, "holes", closed_only=True)
+    search = features_of(v32, f, 0.4, "holes")
+    assert ahead and [(s.kind, g.tolist()) for s, g in ahead] == [
+        (s.kind, g.tolist()) for s, g in search
+    ]
+    # One face less: an edge used once, never printable, so never unchanged: nothing found.
+    assert features_of(v32, f[1:], 0.4, "holes", closed_only=True) is None
+    assert features_of(v32, f[1:], 0.4, "holes")  # without the flag the search runs
