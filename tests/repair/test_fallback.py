@@ -99,7 +99,9 @@ def test_corpus_soup_falls_back_to_a_printable_file(tmp_path):
     assert report["fallback"]["approximated_triangles"] == report["before"]["triangles"]
     mesh = load_mesh(out)
     assert check_printable(mesh.vertices, mesh.faces, as_float32=True).ok
-    assert 0 < report["deviation"] <= 0.55 * EPS + 1e-6
+    # Slabs and blocks: D <= 0.55 eps; a sheet thickened by its level set, as on the exact
+    # path: up to eps / sqrt(2) (sheet_level_set).
+    assert 0 < report["deviation"] <= EPS / np.sqrt(2)
     src = load_mesh(CORPUS / "mikedh_soup.stl")
     assert covered_fraction(src.vertices, src.faces, mesh.vertices, mesh.faces) >= 0.99
 
@@ -294,6 +296,8 @@ def test_corpus_target_whose_slab_folds_falls_back_to_a_printable_file(tmp_path)
     assert report["path"] == "fallback", report["summary"]
     mesh = load_mesh(out)
     assert check_printable(mesh.vertices, mesh.faces, as_float32=True).ok
-    assert 0 < report["deviation"] <= 0.55 * EPS + 1e-6
+    # Slabs and blocks: D <= 0.55 eps; a sheet thickened by its level set, as on the exact
+    # path: up to eps / sqrt(2) (sheet_level_set).
+    assert 0 < report["deviation"] <= EPS / np.sqrt(2)
     src = load_mesh(CORPUS / "mikedh_target.obj")
     assert covered_fraction(src.vertices, src.faces, mesh.vertices, mesh.faces) >= 0.99
