@@ -7,28 +7,37 @@ directions within the shell, a non-zero volume -- is kept
 exactly (turned outward if it was inside out). Open sheets, non-manifold shells and
 wires are replaced by an approximation of their eps-Minkowski sum: Attene's slabs
 (:func:`repair.thicken.sheet_slabs`: offset copies at +-eps/2 along the vertex normals,
-walls along the boundary, per-face eps-blocks where a slab would fold) and eps-prisms
+walls along the boundary, per-face eps-blocks where a slab would fold; where those
+blocks would be many, the sheet's eps/2 level set instead, unless that result does not
+print) and eps-prisms
 (:data:`repair.wires.SIDES` sides) around wires. The solids and the slabs are united by
 manifold3d's robust booleans -- Attene's exact arrangement and outer hull, what takes
 the time, are skipped -- then finished as the exact path's result is
 (:func:`repair.finish.finish`: rounded to float32, checked exactly, mended locally).
 
-A closed shell that crosses itself is kept too, and the faces where it does (the
-"knots", with the faces that share a corner with them) are covered by eps-blocks
-(:func:`repair.thicken.face_blocks`: each face's Minkowski sum with an eps-double
-pyramid, convex): manifold3d does not resolve a solid's own crossings, but every
-crossing lies inside the knots' blocks, so the union's surface there is the blocks'.
-A sheet whose slab would cross itself gets eps-blocks in place of the slab. The
-union's cavities (negative shells, unreachable from outside: Attene's outer hull keeps
-none) are filled.
+A closed shell that crosses itself is kept too. Its crossings are resolved exactly
+and locally first (:func:`repair.mend.mend_intersections`: only the crossing faces
+are cut, along their exact intersection curves; a piece is kept where the winding
+number is non-zero on one side only, so a lobe turned inside out stays solid):
+manifold3d's booleans assume their input does not cross itself, and its constructor
+re-meshes a knotted solid -- on admesh_basic.stl it swapped edges across a wall that
+overlaps itself, cutting 0.77M mm³ out up to 40 mm deep. Where the mended surface is
+not a closed edge-manifold solid (and separating the lobes that touch along an edge,
+a few float32 ulps, does not make it one), the shell is kept as it is and the faces
+where it crosses itself (the "knots", with the faces that share a corner with them)
+are covered by eps-blocks instead (:func:`repair.thicken.face_blocks`: each face's
+Minkowski sum with an eps-double pyramid, convex). A sheet whose slab would
+cross itself gets eps-blocks in place of the slab. The union's cavities (negative
+shells, unreachable from outside: Attene's outer hull keeps none) are filled.
 
-Slab points lie within ``MITER_LIMIT * eps/2`` of the input and block points within
-eps/2, so the deviation D of the thickened parts is about eps/2 (measured and
+Slab points lie within ``MITER_LIMIT * eps/2`` of the input, block points within
+eps/2 and level-set points a little beyond (0.59 eps on mikedh_target, as on the exact
+path), so the deviation D of the thickened parts is about eps/2 (measured and
 reported); exact shells keep their triangles where nothing crosses them, D = 0 there
-(lids of closed holes aside).
+(lids of closed holes aside), and a mended knot's pieces lie on its own faces.
 
 Units are mm; vertices float64 (n, 3), faces int64 (m, 3). Vectorised numpy; one
-manifold3d batch union.
+manifold3d batch union; CGAL (libigl) on the knots only.
 """
 
 from __future__ import annotations
@@ -42,6 +51,7 @@ from repair.clean import drop_unreferenced
 from repair.errors import RepairError
 from repair.finish import finish
 from repair.holes import HolesClosed
+from repair.mend import mend_intersections, separate_singular_edges
 from repair.meshes import concat_meshes, shell_volumes, surface_area
 from repair.report import RepairOutcome, RepairTally
 from repair.rows import unique_rows
@@ -50,6 +60,7 @@ from repair.topology import (
     connected_labels,
     edge_components,
     edge_ids,
+    edge_stats,
     paired_half_edges,
 )
 from repair.union import manifold_union, speck_volume
@@ -65,8 +76,10 @@ __all__ = [
 
 #: What the fallback does, as the report states it.
 APPROXIMATION = (
-    "closed solid shells kept exact (eps-blocks over the faces where one crosses itself), "
-    "the other parts replaced by their eps-Minkowski sum (eps-thick slabs or blocks, "
+    "closed solid shells kept exact (where one crosses itself, its crossings resolved "
+    "exactly, or else covered by eps-blocks), "
+    "the other parts replaced by their eps-Minkowski sum (eps-thick slabs, blocks or "
+    "level sets, "
     "eps-prisms around wires), united by manifold3d, cavities filled"
 )
 
@@ -76,7 +89,9 @@ class ShellSplit:
     """The faces of the shells kept exactly (rows of the input's, turned outward), the
     indices of the faces that are approximated, and how many shells of each; of the
     kept ones, how many are closed solids that cross themselves, and ``knots``: the
-    indices of their faces that cross a face of the same shell."""
+    indices of their faces that cross a face of the same shell; ``knotted``: which rows
+    of ``exact_faces`` are of such a shell, and ``knot_pairs``: those crossings, as
+    pairs of rows of ``exact_faces``."""
 
     exact_faces: np.ndarray
     offending: np.ndarray
@@ -84,6 +99,8 @@ class ShellSplit:
     offending_shells: int
     crossing_solids: int
     knots: np.ndarray
+    knotted: np.ndarray
+    knot_pairs: np.ndarray
 
 
 def _shell_labels(faces: np.ndarray) -> np.ndarray:
@@ -102,7 +119,8 @@ def split_exact_shells(
     f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     if len(f) == 0:
         empty = np.zeros(0, dtype=np.int64)
-        return ShellSplit(np.zeros((0, 3), dtype=np.int64), empty, 0, 0, 0, empty)
+        return ShellSplit(np.zeros((0, 3), dtype=np.int64), empty, 0, 0, 0, empty,
+                          np.zeros(0, dtype=bool), np.zeros((0, 2), dtype=np.int64))  # fmt: skip
     label = _shell_labels(f)
     n = int(label.max()) + 1
     bad = np.zeros(n, dtype=bool)
@@ -119,33 +137,72 @@ def split_exact_shells(
     volume = shell_volumes(np.asarray(vertices, dtype=np.float64), f, label, n)
     bad |= volume == 0.0
     crossing = np.zeros(n, dtype=bool)
-    knots = np.zeros(0, dtype=np.int64)
+    p = np.zeros((0, 2), dtype=np.int64)
     if pairs is not None and len(pairs):
-        p = np.asarray(pairs, dtype=np.int64)
+        p = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
         p = p[label[p[:, 0]] == label[p[:, 1]]]
+        p = p[~bad[label[p[:, 0]]]]
         crossing[label[p[:, 0]]] = True
-        knots = np.unique(p[~bad[label[p[:, 0]]]])
     keep = ~bad[label]
+    row = np.cumsum(keep) - 1  # input face -> row of exact_faces
     exact = f[keep].copy()
     inside_out = volume[label[keep]] < 0
     exact[inside_out] = exact[inside_out][:, ::-1]
     return ShellSplit(exact, np.flatnonzero(~keep), int(np.count_nonzero(~bad)),
                       int(np.count_nonzero(bad)), int(np.count_nonzero(crossing & ~bad)),
-                      knots)  # fmt: skip
+                      np.unique(p), crossing[label[keep]], row[p])  # fmt: skip
 
 
 def minkowski_pieces(
-    vertices: np.ndarray, faces: np.ndarray, segments: np.ndarray, eps: float
+    vertices: np.ndarray, faces: np.ndarray, segments: np.ndarray, eps: float,
+    strict: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Closed pieces whose union approximates the eps-Minkowski sum of the faces and
     segments: the faces' slabs (eps-blocks for a sheet whose slab would cross itself:
-    manifold3d does not resolve a piece's own crossings) and an eps-prism per segment."""
+    manifold3d does not resolve a piece's own crossings; unless ``strict``, the sheet's
+    eps/2 level set where the blocks would be many, :func:`repair.thicken.sheet_slabs`)
+    and an eps-prism per segment."""
     parts = []
     if len(faces):
-        parts.append(sheet_slabs(vertices, faces, eps, strict=True))
+        parts.append(sheet_slabs(vertices, faces, eps, strict=strict))
     if segments is not None and len(segments):
         parts.append(cylinders(segments, eps))
     return concat_meshes(parts)
+
+
+def _mended_solids(
+    v: np.ndarray, split: ShellSplit
+) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]] | None:
+    """The kept solids, those that cross themselves with their crossings resolved
+    exactly (:func:`repair.mend.mend_intersections`, non-zero winding: only the knots
+    are cut and sorted; where lobes then touch along an edge, each gets its own copy of
+    it a few float32 ulps apart, :func:`repair.mend.separate_singular_edges`), and the
+    mended pieces that bound no solid (a fold whose two layers cancel: sheets to
+    thicken); None when the mended shells are still not closed edge-manifold solids.
+    The solids that do not cross themselves keep their faces."""
+    none = (np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64))
+    if len(split.knot_pairs) == 0:
+        return (v, split.exact_faces), none
+    own = np.flatnonzero(split.knotted)
+    at = np.full(len(split.exact_faces), -1, dtype=np.int64)
+    at[own] = np.arange(len(own))
+    sv, sf = drop_unreferenced(v, split.exact_faces[own])
+    mended = mend_intersections(sv, sf, at[split.knot_pairs], nonzero=True,
+                                outside_sheets=True)  # fmt: skip
+    mv, mf = mended.vertices, mended.faces
+    if len(mf) == 0:
+        return None
+    boundary, nonmanifold, misoriented, _, _ = edge_stats(mf)
+    if nonmanifold and not (boundary or misoriented):
+        separated = separate_singular_edges(mv, mf, float(np.abs(mv).max()) * 2.0**-17)
+        if separated is None:
+            return None
+        mv, mf, _ = separated
+        boundary, nonmanifold, misoriented, _, _ = edge_stats(mf)
+    if boundary or nonmanifold or misoriented:
+        return None
+    solids = concat_meshes([(v, split.exact_faces[~split.knotted]), (mv, mf)])
+    return solids, (mended.vertices, mended.sheets)
 
 
 def _knot_blocks(
@@ -168,20 +225,34 @@ def fallback_repair(
     the caller to measure."""
     t0 = time.perf_counter()
     split = split_exact_shells(v, f, pairs)
-    pv, pf = minkowski_pieces(v, f[split.offending], segments, eps)
-    kv, kf = _knot_blocks(v, f, split.knots, eps)
-    fused = manifold_union([(v, split.exact_faces), (pv, pf), (kv, kf)],
-                           min_volume=speck_volume(eps))  # fmt: skip
-    if fused is None:
-        raise _failed(reason, "manifold3d rejected a part")
-    fused, cavities = _without_cavities(*fused)
-    tally = RepairTally(sheet_triangles=len(split.offending), wires=len(segments),
-                        sheet_area=surface_area(v, f[split.offending]))  # fmt: skip
-    # Rounded to float32 and checked; where rounding made faces cross or collapse, mended
-    # locally, as the exact path's result is.
-    out_v, out_f, verdict = finish(*fused, eps, tally)
-    if not verdict.ok:
-        raise _failed(reason, "; ".join(verdict.failures()))
+    mended = _mended_solids(v, split)
+    if mended is None:  # kept as they are, their knots covered by eps-blocks
+        solids, folds = (v, split.exact_faces), (v, f[:0])
+        kv, kf = _knot_blocks(v, f, split.knots, eps)
+    else:
+        (solids, folds), (kv, kf) = mended, (np.zeros((0, 3)), f[:0])
+    # The approximated faces (rows of sv, sf): the offending shells', then the folds'.
+    sv, sf = concat_meshes([(v, f[split.offending]), folds])
+    # A sheet whose slab folds in many places is thickened by its level set, as on the
+    # exact path (one solid: far cheaper to unite than thousands of eps-blocks; D up to
+    # ~0.59 eps against the blocks' 0.55); where that does not print, by the blocks.
+    for strict in (False, True) if len(sf) else (True,):
+        pv, pf = minkowski_pieces(sv, sf, segments, eps, strict=strict)
+        tally = RepairTally(sheet_triangles=len(sf), wires=len(segments),
+                            sheet_area=surface_area(sv, sf))  # fmt: skip
+        fused = manifold_union([solids, (pv, pf), (kv, kf)], min_volume=speck_volume(eps))
+        if fused is None:
+            failure = "manifold3d rejected a part"
+            continue
+        fused, cavities = _without_cavities(*fused)
+        # Rounded to float32 and checked; where rounding made faces cross or collapse,
+        # mended locally, as the exact path's result is.
+        out_v, out_f, verdict = finish(*fused, eps, tally)
+        if verdict.ok:
+            break
+        failure = "; ".join(verdict.failures())
+    else:
+        raise _failed(reason, failure)
     out = RepairOutcome(out_v, out_f, verdict, "fallback", 0.0, tally, HolesClosed())
     out.sections["fallback"] = {
         "reason": reason,
@@ -191,7 +262,10 @@ def fallback_repair(
         "approximated_triangles": int(len(split.offending)),
         "self_crossing_shells": split.crossing_solids,
         "knot_triangles": int(len(split.knots)),
+        "knots_blocked": bool(len(kf)),
+        "knot_fold_triangles": int(len(folds[1])),
         "cavities_filled": cavities,
+        "strict_slabs": strict,
         "wires": int(len(segments)),
         "seconds": round(time.perf_counter() - t0, 4),
     }

@@ -58,6 +58,9 @@ class Mended:
     pairs: int
     faces_rearranged: int
     pieces_dropped: int
+    #: With ``outside_sheets``: the dropped pieces that bound no solid (outside on both
+    #: sides, or coincident copies that cancel; one copy each), rows into ``vertices``.
+    sheets: np.ndarray | None = None
 
 
 #: Ray directions tried in turn when a ray grazes an edge or a vertex (irrational-ish).
@@ -180,8 +183,11 @@ def classify_patches(
     faces: np.ndarray,
     candidates: np.ndarray | None = None,
     weight: np.ndarray | None = None,
+    *,
+    nonzero: bool = False,
 ) -> tuple[np.ndarray, int]:
-    """Keep the boundary of the solid a closed polyhedral surface encloses (winding > 0).
+    """Keep the boundary of the solid a closed polyhedral surface encloses (winding > 0;
+    with ``nonzero``, winding != 0: a lobe turned inside out is solid too).
 
     ``faces`` must form a polyhedron (no two faces cross) whose faces, with their
     orientation, make closed cycles. Every manifold patch (:func:`manifold_patches`) has
@@ -192,14 +198,25 @@ def classify_patches(
 
     Returns ``(faces, faces_dropped)``.
     """
+    out, keep, _ = _sorted_patches(vertices, faces, candidates, weight, nonzero)
+    return out[keep], int(np.count_nonzero(~keep))
+
+
+def _sorted_patches(
+    vertices: np.ndarray, faces: np.ndarray, candidates: np.ndarray | None,
+    weight: np.ndarray | None, nonzero: bool,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`classify_patches`' work: every face, turned to face the outside where kept;
+    the mask of those kept, and of the faces outside on both sides."""
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
+    none = np.zeros(len(f), dtype=bool)
     if len(f) == 0:
-        return f, 0
+        return f, none, none
     lab = manifold_patches(f)
     n = int(lab.max()) + 1
     if n == 1:
-        return f, 0
+        return f, ~none, none
     p = v[f]
     area = np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
     order = np.lexsort((-area, lab))
@@ -209,27 +226,31 @@ def classify_patches(
         judged[lab[np.asarray(candidates, dtype=bool)]] = True
         rep = rep[judged[lab[rep]]]
     front, back = side_windings(v, f, rep, weight)
-    inside_f, inside_b = front > 0, back > 0
+    inside_f, inside_b = (front != 0, back != 0) if nonzero else (front > 0, back > 0)
     keep_patch = np.ones(n, dtype=bool)
     flip_patch = np.zeros(n, dtype=bool)
+    outside = np.zeros(n, dtype=bool)
     keep_patch[lab[rep]] = inside_f ^ inside_b
     flip_patch[lab[rep]] = inside_f & ~inside_b
-    keep = keep_patch[lab]
+    outside[lab[rep]] = ~inside_f & ~inside_b
     out = f.copy()
     fl = flip_patch[lab]
     out[fl] = out[fl][:, ::-1]
-    return out[keep], int(np.count_nonzero(~keep))
+    return out, keep_patch[lab], outside[lab]
 
 
 def mend_intersections(
-    vertices: np.ndarray, faces: np.ndarray, pairs: np.ndarray | None = None
+    vertices: np.ndarray, faces: np.ndarray, pairs: np.ndarray | None = None, *,
+    nonzero: bool = False, outside_sheets: bool = False,
 ) -> Mended:
     """Resolve the self-intersections of a closed, oriented surface locally.
 
     ``pairs`` (k, 2) are the intersecting face pairs if already known (else computed with
     :func:`repair.intersections.intersecting_face_pairs`). Returns the mended surface: exact
     intersection points in float64 (round and check again before writing), faces not
-    involved unchanged.
+    involved unchanged. The solid kept is where the winding number is > 0, or != 0 with
+    ``nonzero`` (see :func:`classify_patches`); ``outside_sheets``: also say which
+    dropped pieces bound no solid (``Mended.sheets``), for the caller to thicken.
     """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
@@ -271,10 +292,30 @@ def mend_intersections(
     ok = ~degenerate_mask(vv, allf)
     allf, new = allf[ok], new[ok]
     keep, weight = net_faces(allf)
+    cancelled = _cancelled_copies(allf, keep) if outside_sheets else None
     allf, new = allf[keep], new[keep]
-    allf, dropped = classify_patches(vv, allf, new, weight)
-    vv, allf = drop_unreferenced(vv, allf)
-    return Mended(vv, allf, int(len(pairs)), int(len(bad)), int(dropped))
+    allf, kept, outside = _sorted_patches(vv, allf, new, weight, nonzero)
+    sheets = None if cancelled is None else np.vstack([cancelled, allf[outside]])
+    dropped = int(np.count_nonzero(~kept))
+    allf = allf[kept]
+    if sheets is not None:
+        both = drop_unreferenced(vv, np.vstack([allf, sheets]))
+        vv, allf, sheets = both[0], both[1][: len(allf)], both[1][len(allf) :]
+    else:
+        vv, allf = drop_unreferenced(vv, allf)
+    return Mended(vv, allf, int(len(pairs)), int(len(bad)), dropped, sheets)
+
+
+def _cancelled_copies(faces: np.ndarray, kept: np.ndarray) -> np.ndarray:
+    """One copy of each set of coincident faces that :func:`repair.clean.net_faces`
+    dropped because their orientations cancel (``kept``: its indices)."""
+    key = face_keys(faces)
+    gone = np.ones(len(faces), dtype=bool)
+    gone[kept] = False
+    gone &= ~np.isin(key, key[kept])
+    idx = np.flatnonzero(gone)
+    _, first = unique_ints(key[idx], return_index=True)
+    return faces[idx[first]]
 
 
 def _angles_about(
