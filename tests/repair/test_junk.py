@@ -118,6 +118,8 @@ def test_a_slit_wall_fails_even_where_the_float32_sums_read_the_expected_value()
     the expected one found 2 of them on these placements."""
     import igl
 
+    from repair.junk import probe_distance
+
     fooled = 0
     for seed in (2, 3, 4):
         v, f, wall = _slit_box_on_the_bed(seed)
@@ -126,7 +128,7 @@ def test_a_slit_wall_fails_even_where_the_float32_sums_read_the_expected_value()
         outside, inside = face_winding_sides(v, f)
         assert np.array_equal(failing_faces(outside, inside), wall)
         # The trap: the float32 sums read 0|1 at some of the walls' failing probes.
-        d = face_winding_sides.__globals__["probe_distance"](v)
+        d = probe_distance(v)
         p = v[f[wall]]
         n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
         n /= np.linalg.norm(n, axis=1, keepdims=True)
@@ -137,3 +139,28 @@ def test_a_slit_wall_fails_even_where_the_float32_sums_read_the_expected_value()
         expected = np.r_[np.zeros(4), np.ones(4)]
         fooled += int(np.sum((np.abs(fast - expected) <= 0.05) & (np.rint(exact) != expected)))
     assert fooled > 0
+
+
+def test_only_probes_another_face_comes_near_can_read_other_than_0_and_1():
+    """What the fast path rests on: on a printable mesh a probe's winding number (exact,
+    libigl's float64 winding_number) differs from 0 outside / 1 inside only where some
+    other face comes nearer to it than its own (repair.junk._crowded)."""
+    import igl
+
+    from repair.junk import _crowded, probe_distance
+
+    v, f, wall = _slit_box_on_the_bed(3)
+    p = v[f]
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    length = np.linalg.norm(n, axis=1)
+    longest = np.linalg.norm(p - p[:, [1, 2, 0]], axis=2).max(axis=1)
+    d = np.minimum(probe_distance(v), 0.1 * length / longest)
+    n /= length[:, None]
+    c = p.mean(axis=1)
+    q = np.vstack([c + d[:, None] * n, c - d[:, None] * n])
+    owner = np.r_[np.arange(len(f)), np.arange(len(f))]
+    crowded = _crowded(v, f, q, owner, np.r_[d, d])
+    off = np.rint(igl.winding_number(v, f, q)) != np.r_[np.zeros(len(f)), np.ones(len(f))]
+    assert off.any() and crowded.sum() < len(f) // 10
+    assert not (off & ~crowded).any()
+    assert wall[owner[off]].all()
