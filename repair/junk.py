@@ -93,12 +93,16 @@ def _near_exact_winding(v: np.ndarray, f: np.ndarray, q: np.ndarray) -> np.ndarr
     return WindingFromBase(v, f).at(q, v, none.reshape(0, 3), none)
 
 
-def _winding(v: np.ndarray, f: np.ndarray, q: np.ndarray, expected: np.ndarray) -> np.ndarray:
+def _winding(
+    v: np.ndarray, f: np.ndarray, q: np.ndarray, expected: np.ndarray,
+    doubtful: Callable[[], np.ndarray] | None = None,
+) -> np.ndarray:
     """Winding numbers at ``q``: exact (:func:`_exact_winding`) for a modest
     probes x faces product; else libigl's hierarchical ``fast_winding_number``, which is
-    approximate and a hair off a face can be wrong by a whole unit, so every probe where
-    it differs from the ``expected`` value is summed again exactly (few, on a good
-    mesh)."""
+    approximate and a hair off a face can be wrong by a whole unit (float32 sums), so
+    every probe where it differs from the ``expected`` value, and every probe
+    ``doubtful()`` marks, is summed again exactly. The fast value is kept only where it
+    is the expected one and the probe is not doubtful."""
     import igl
 
     v = np.ascontiguousarray(v, dtype=np.float64)
@@ -109,11 +113,40 @@ def _winding(v: np.ndarray, f: np.ndarray, q: np.ndarray, expected: np.ndarray) 
     if len(f) >= SPLIT_MIN_FACES and len(q) <= SPLIT_MAX_PROBES:
         return _near_exact_winding(v, f, q)
     w = np.asarray(igl.fast_winding_number(v, f, q), dtype=np.float64)
-    recheck = np.flatnonzero(np.abs(w - expected) > 0.05)
-    for s in range(0, len(recheck), 256):
-        part = recheck[s : s + 256]
+    recheck = np.abs(w - expected) > 0.05
+    if doubtful is not None:
+        recheck |= doubtful()
+    part = np.flatnonzero(recheck)
+    if len(part):
         w[part] = _exact_winding(v, f, q[part])
     return w
+
+
+def _crowded(
+    v: np.ndarray, f: np.ndarray, q: np.ndarray, owner: np.ndarray, reach: np.ndarray
+) -> np.ndarray:
+    """Which probes ``q`` (each ``reach`` mm off its face ``owner``) have another face
+    nearer than ``reach``: libigl's exact nearest-face query (a float64 AABB tree), over
+    the faces whose box comes that near some probe when the probes are few. Its own face
+    lies exactly ``reach`` away, so a nearer face is what the query finds.
+
+    On a printable mesh (closed, oriented, not self-intersecting, shells nested right:
+    :func:`repair.check.check_printable`) the winding number is 0 just outside every
+    face and 1 just inside, so a probe's winding number is that plus the signed
+    crossings of the segment from its face to it -- and a face crossing that segment
+    lies nearer than ``reach``. Every other probe's winding number is the expected one,
+    whatever a float32 approximation reads there."""
+    import igl
+
+    from repair.hairline import faces_near_points
+
+    if len(q) == 0:
+        return np.zeros(0, dtype=bool)
+    rest = (faces_near_points(v, f, q, float(reach.max())) if 8 * len(q) < len(f)
+            else np.arange(len(f)))  # fmt: skip
+    sub = f if len(rest) == len(f) else np.ascontiguousarray(f[rest])
+    sq, nearest, _ = igl.point_mesh_squared_distance(q, v, sub)
+    return (rest[nearest] != owner) & (sq < reach * reach)
 
 
 class WindingFromBase:
@@ -182,7 +215,11 @@ def face_winding_sides(
     just inside (centroid - d n) each face (or the faces ``which``), d = ``distance``
     (default :func:`probe_distance`) or a tenth of the face's height if less.
     libigl's ``winding_number`` (exact solid angles) or, for many probes against many
-    faces, its hierarchical ``fast_winding_number`` (exact sums where it is unclear).
+    faces, its hierarchical ``fast_winding_number`` -- kept only where it reads the
+    expected 0 or 1 at a probe no other face comes nearer to than its own
+    (:func:`_crowded`: on a printable mesh the winding number there is the expected one);
+    every other probe is summed exactly (a float32 sum a hair off a face can be a unit
+    wrong either way, so reading the expected value proves nothing there).
     ``winding``: the winding numbers of this mesh at given points, when known a cheaper
     way (:meth:`WindingFromBase.at`).
     Faces too thin to probe (height under 2^-20 of the probe distance: a probe off them
@@ -207,7 +244,11 @@ def face_winding_sides(
     ok &= height >= probe_distance(v) * 2.0**-20
     expected = np.r_[np.zeros(len(idx)), np.ones(len(idx))]
     q = np.vstack([c + d * n, c - d * n])
-    w = _winding(v, f, q, expected) if winding is None else winding(q)
+    if winding is None:
+        reach, owner = np.r_[d[:, 0], d[:, 0]], np.r_[idx, idx]
+        w = _winding(v, f, q, expected, lambda: _crowded(v, f, q, owner, reach))
+    else:
+        w = winding(q)
     out, inside = w[: len(idx)], w[len(idx) :]
     out[~ok] = inside[~ok] = np.nan
     return out, inside
