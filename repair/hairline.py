@@ -34,6 +34,8 @@ import numpy as np
 
 from repair.hairline_cut import cut_and_lid, face_rings, local_cut_rounds
 from repair.junk import WindingFromBase, face_winding_sides, failing_faces, probe_distance
+from repair.probe_grid import probes_near_faces
+from repair.probe_grid import unit_normals as _unit_normals
 from repair.report import RepairOutcome, RepairTally
 
 __all__ = ["faces_near_points", "fill_hairline_gaps", "hairline_suspects", "hairline_failures",
@@ -68,10 +70,11 @@ MAX_FOLD_FRACTION = 0.1
 #: where fewer do not help.
 MAX_CUT_RINGS = 3
 #: Faces in a plane shared by at least this many are searched for hairline suspects
-#: plane by plane (:func:`_near_in_planes`), the rest by libigl's tree: on a CAD model's
-#: flat faces the tree's boxes overlap (box: 0.083 s for the tree, 0.019 s without them).
+#: plane by plane (:func:`_near_in_planes`), the rest in a grid of cells (or libigl's
+#: tree): on a CAD model's flat faces the boxes overlap (box: 0.083 s for the tree,
+#: 0.019 s without them).
 PLANE_FACES = 16
-#: Meshes of fewer faces are searched by the tree alone: finding their planes costs more
+#: Meshes of fewer faces are searched by the grid (or tree) alone: finding their planes costs more
 #: than it saves (rabbit's 1.5k faces: 0.4 ms of a 7 ms search).
 PLANE_MIN_MESH = 2048
 
@@ -84,7 +87,9 @@ def hairline_suspects(
     winding sides can be wrong on a printable mesh of one nesting level; also every face
     too thin to be probed at ``d`` (its own probe is nearer). Faces of a plane shared by
     :data:`PLANE_FACES` or more (:func:`_shared_planes`) are searched plane by plane
-    (:func:`_near_in_planes`); the others by a libigl AABB distance query."""
+    (:func:`_near_in_planes`); the others in a grid of cells
+    (:func:`repair.probe_grid.probes_near_faces`), or where long faces crowd its cells
+    by a libigl AABB distance query."""
     import igl
 
     v = np.ascontiguousarray(vertices, dtype=np.float64)
@@ -115,18 +120,13 @@ def hairline_suspects(
         # all 88k of counter's faces is most of the query's cost), the same distances.
         rest = faces_near_points(v, f, q, 2 * d)
     if len(rest):
-        sub = f if len(rest) == len(f) else np.ascontiguousarray(f[rest])
-        sq, nearest, _ = igl.point_mesh_squared_distance(q, v, sub)
-        near |= (rest[nearest] != owner) & (sq < (0.999 * d) ** 2)
+        by_grid = probes_near_faces(v, f, rest, q, c, n, idx, d)
+        if by_grid is None:  # long faces crowd the cells: the tree is cheaper there
+            sub = f if len(rest) == len(f) else np.ascontiguousarray(f[rest])
+            sq, nearest, _ = igl.point_mesh_squared_distance(q, v, sub)
+            by_grid = (rest[nearest] != owner) & (sq < (0.999 * d) ** 2)
+        near |= by_grid
     return idx[near.reshape(2, m).any(axis=0) | (length == 0)]
-
-
-def _unit_normals(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Unit normals of the triangles ``p`` (m, 3, 3) (zero for a degenerate one) and their
-    cross products' lengths (twice the areas, mm²)."""
-    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    length = np.linalg.norm(n, axis=1)
-    return np.divide(n, length[:, None], out=np.zeros_like(n), where=length[:, None] > 0), length
 
 
 def _shared_planes(v: np.ndarray, f: np.ndarray, n: np.ndarray, length: np.ndarray) -> np.ndarray:

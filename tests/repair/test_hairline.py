@@ -182,3 +182,38 @@ def test_a_large_mesh_is_cut_in_rounds_checked_near_the_cuts_and_then_passes():
     assert section["faces_found"] == found and section["faces_left"] == 0
     assert set(section["rounds"]) == {"cut"}
     assert before.volume - 1e-9 <= verdict.volume <= before.volume + 10 * 8 * GAP + 1e-9
+
+
+def _slotted_ball():
+    """A ball (each face a plane of its own) with a slot GAP wide cut into it: walls of
+    one shell a hair apart, curved where they meet the ball."""
+    import manifold3d as m3d
+
+    ball = m3d.Manifold.sphere(5.0, 96).translate([5.0, 5.0, 5.0])
+    return _solid(ball - m3d.Manifold.cube([GAP, 12, 6]).translate([5, -1, 2]))
+
+
+def test_the_grid_search_finds_the_trees_suspects_on_a_curved_mesh(monkeypatch):
+    """Faces in no shared plane are searched in a grid of cells (probes against the faces
+    listed in their cell, box, plane, then exact distance): the suspects are exactly
+    those of one libigl distance query of every probe against every face; and the same
+    when the grid gives way to the tree."""
+    import repair.hairline as hairline
+    import repair.probe_grid as probe_grid
+
+    v, f = _slotted_ball()
+    assert check_printable(v, f).ok
+    d = probe_distance(v)
+    p = v[f]
+    n, length = hairline._unit_normals(p)
+    assert np.all(hairline._shared_planes(v, f, n, length) < 0)
+    idx = np.arange(len(f))
+    c = p.mean(axis=1)
+    q = np.vstack([c + d * n, c - d * n])
+    assert probe_grid.probes_near_faces(v, f, idx, q, c, n, idx, d) is not None  # it ran
+    every = hairline_suspects(v, f)
+    assert len(every) > 0
+    assert np.array_equal(every, _suspects_by_tree(v, f))
+    monkeypatch.setattr(probe_grid, "GRID_PAIRS_PER_FACE", 0)
+    assert probe_grid.probes_near_faces(v, f, idx, q, c, n, idx, d) is None
+    assert np.array_equal(hairline_suspects(v, f), every)
