@@ -140,13 +140,15 @@ def _suspects_by_tree(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     return np.flatnonzero(other.any(axis=0) | (length[:, 0] == 0))
 
 
-def test_flat_faces_searched_plane_by_plane_give_the_trees_suspects():
+def test_flat_faces_searched_plane_by_plane_give_the_trees_suspects(monkeypatch):
     """A CAD-like model whose faces mostly lie in a few shared planes (the slotted box,
     its triangles split finer) and a ball above it (each face a plane of its own): the
-    planes are searched plane by plane, the ball by the tree, and the suspects are
-    exactly those of the whole tree."""
+    planes are searched plane by plane, the ball by the grid, and the suspects are
+    exactly those of the whole tree -- the probes compared with each plane, or sorted
+    along each direction when its planes are many."""
     import manifold3d as m3d
 
+    import repair.hairline as hairline
     from repair.hairline import PLANE_MIN_MESH, _shared_planes, _unit_normals
 
     bv, bf = _solid(_slotted_box().refine(8))
@@ -158,6 +160,8 @@ def test_flat_faces_searched_plane_by_plane_give_the_trees_suspects():
     every = hairline_suspects(v, f)
     assert len(every) > 0
     assert np.array_equal(every, _suspects_by_tree(v, f))
+    monkeypatch.setattr(hairline, "PLANE_SLAB_TESTS", 0)
+    assert np.array_equal(hairline_suspects(v, f), every)
 
 
 def test_a_large_mesh_is_cut_in_rounds_checked_near_the_cuts_and_then_passes():
