@@ -34,7 +34,7 @@ import numpy as np
 
 from repair.hairline_cut import cut_and_lid, face_rings, local_cut_rounds
 from repair.junk import WindingFromBase, face_winding_sides, failing_faces, probe_distance
-from repair.probe_grid import probes_near_faces
+from repair.probe_grid import probes_near_faces, slivers_probed_clear
 from repair.probe_grid import unit_normals as _unit_normals
 from repair.report import RepairOutcome, RepairTally
 
@@ -237,6 +237,8 @@ def hairline_failures(
     (:func:`repair.junk.failing_faces`), looked for among :func:`hairline_suspects`
     only; ``winding`` as in :func:`repair.junk.face_winding_sides`."""
     sus = hairline_suspects(vertices, faces, which)
+    if len(sus):  # slivers next to a bent neighbour, mostly: probed closer, clear
+        sus = sus[~slivers_probed_clear(vertices, faces, sus, probe_distance(vertices))]
     if len(sus) == 0:
         return sus
     outside, inside = face_winding_sides(vertices, faces, sus, winding=winding)

@@ -19,7 +19,8 @@ import numpy as np
 from repair.deviation import point_triangle_d2
 from repair.rows import ranges, sort_with_positions
 
-__all__ = ["GRID_BIG_TESTS", "GRID_PAIRS_PER_FACE", "probes_near_faces", "unit_normals"]
+__all__ = ["GRID_BIG_TESTS", "GRID_PAIRS_PER_FACE", "probes_near_faces", "slivers_probed_clear",
+           "unit_normals"]
 
 #: The grid gives way to libigl's tree when its cells would pair each face asked about
 #: with more faces than this on average (meshes of crowded small faces beside large ones:
@@ -28,6 +29,8 @@ GRID_PAIRS_PER_FACE = 24
 #: ... or when the faces too large for the cells (boxes over 27 cells), each tested box
 #: against every face asked about, would take more box tests than this.
 GRID_BIG_TESTS = 1 << 21
+#: :func:`slivers_probed_clear` decides nothing beyond this many (probe, face) box tests.
+SLIVER_TESTS = 1 << 22
 
 
 def unit_normals(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -135,3 +138,53 @@ def _centroids_in_boxes(
         b_big, b_own = np.nonzero(inside)
         own, box = np.r_[own, b_own], np.r_[box, big[b_big]]
     return own, box
+
+
+def slivers_probed_clear(v: np.ndarray, f: np.ndarray, which: np.ndarray, d: float) -> np.ndarray:
+    """Mask over the faces ``which``: those the two-sided winding test
+    (:func:`repair.junk.face_winding_sides`, probe distance ``d``) cannot fail. A sliver
+    (height under 10 d) is probed only a tenth of its height off its centroid; no other
+    face within 1.01 times that of either probe (exact distances), the segment from the
+    face to the probe crosses nothing, so the winding number there is the one just off
+    the face: 0 outside, 1 inside, on a printable mesh -- where the probe is far enough
+    off the face (height at least d / 64) for the test's sums to say so. Faces too thin
+    to be probed at all are never counted as failing. Other faces: False (not decided
+    here)."""
+    from repair.hairline import faces_near_points
+
+    p = v[f[which]]
+    n, length = unit_normals(p)
+    longest = np.linalg.norm(p - p[:, [1, 2, 0]], axis=2).max(axis=1)
+    height = np.divide(length, longest, out=np.zeros_like(longest), where=longest > 0)
+    unprobed = ~((length > 0) & (height >= d * 2.0**-20))
+    # Probed nearer than 1/640 of d, a face's own solid angle is rounding noise (its
+    # sides may read anything, as on the test itself): those are left to it.
+    sliver = np.flatnonzero(~unprobed & (0.1 * height < d) & (height >= d / 64))
+    clear = unprobed.copy()
+    if len(sliver) == 0:
+        return clear
+    di = 0.1 * height[sliver]
+    c = p[sliver].mean(axis=1)
+    q = np.vstack([c + di[:, None] * n[sliver], c - di[:, None] * n[sliver]])
+    r = np.r_[di, di] * 1.01 + 2.0**-48 * float(np.abs(v).max())
+    owner = np.r_[which[sliver], which[sliver]]
+    near_faces = faces_near_points(v, f, q, float(r.max()))
+    if len(near_faces) * len(q) > SLIVER_TESTS:
+        return clear  # probes spread over a large mesh: not worth deciding here
+    tri = v[f[near_faces]]
+    lo, hi = tri.min(axis=1), tri.max(axis=1)
+    hit = np.zeros(len(q), dtype=bool)
+    for s in range(0, len(q), 64):  # probes x faces near any, box-tested first
+        k = np.arange(s, min(s + 64, len(q)))
+        pk, fk = np.nonzero(((q[k, None] >= lo[None] - r[k, None, None])
+                             & (q[k, None] <= hi[None] + r[k, None, None])).all(axis=2))
+        pk = k[pk]
+        other = near_faces[fk] != owner[pk]
+        pk, fk = pk[other], fk[other]
+        t = tri[fk]
+        with np.errstate(invalid="ignore"):  # a needle's distance may come out NaN: near
+            d2 = point_triangle_d2(q[pk], t[:, 0], t[:, 1], t[:, 2])
+        hit[pk[~(d2 > r[pk] ** 2)]] = True
+    m = len(sliver)
+    clear[sliver] = ~(hit[:m] | hit[m:])
+    return clear

@@ -221,3 +221,21 @@ def test_the_grid_search_finds_the_trees_suspects_on_a_curved_mesh(monkeypatch):
     monkeypatch.setattr(probe_grid, "GRID_PAIRS_PER_FACE", 0)
     assert probe_grid.probes_near_faces(v, f, idx, q, c, n, idx, d) is None
     assert np.array_equal(hairline_suspects(v, f), every)
+
+
+def test_slivers_probed_clear_are_never_failing_and_the_rest_of_the_suspects_fail():
+    """The winding test probes a sliver a tenth of its height off it: where no other face
+    comes that near its probes it cannot fail, and is not tested. On slotted solids (the
+    slot's floor and ends are slivers GAP wide; the ball's cuts leave slivers along the
+    slot's mouth) some suspects are cleared, none of them failing, and the failures are
+    those of the winding test of every face."""
+    from repair.probe_grid import slivers_probed_clear
+
+    for v, f in (_solid(_slotted_box()), _slotted_ball()):
+        outside, inside = face_winding_sides(v, f)
+        every = np.flatnonzero(failing_faces(outside, inside))
+        suspects = hairline_suspects(v, f)
+        clear = slivers_probed_clear(v, f, suspects, probe_distance(v))
+        assert clear.any() and len(every) > 0
+        assert not np.isin(suspects[clear], every).any()
+        assert np.array_equal(np.sort(hairline_failures(v, f)), every)
