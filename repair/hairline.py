@@ -34,7 +34,7 @@ import numpy as np
 
 from repair.hairline_cut import cut_and_lid, face_rings, local_cut_rounds
 from repair.junk import WindingFromBase, face_winding_sides, failing_faces, probe_distance
-from repair.probe_grid import probes_near_faces, slivers_probed_clear
+from repair.probe_grid import faces_near_points, probes_near_faces, slivers_probed_clear
 from repair.probe_grid import unit_normals as _unit_normals
 from repair.report import RepairOutcome, RepairTally
 
@@ -212,21 +212,6 @@ def _near_in_planes(
     d2 = point_triangle_d2(q[pts], tri[:, 0], tri[:, 1], tri[:, 2])
     near[pts[d2 < (0.999 * d) ** 2]] = True
     return near
-
-
-def faces_near_points(v: np.ndarray, f: np.ndarray, q: np.ndarray, r: float) -> np.ndarray:
-    """Faces whose bounding box, grown by ``r`` (mm), holds some point of ``q`` along
-    each axis (a point within ``r`` of a face is: not always the same point per axis,
-    a superset). Per axis one sort of the points and two searches."""
-    keep = np.ones(len(f), dtype=bool)
-    for k in range(3):
-        x = np.ascontiguousarray(v[:, k])
-        a, b, c = x[f[:, 0]], x[f[:, 1]], x[f[:, 2]]  # 1-D gathers: faster than rows
-        lo = np.minimum(np.minimum(a, b), c) - r
-        hi = np.maximum(np.maximum(a, b), c) + r
-        s = np.sort(q[:, k])
-        keep &= np.searchsorted(s, hi, side="right") > np.searchsorted(s, lo, side="left")
-    return np.flatnonzero(keep)
 
 
 def hairline_failures(

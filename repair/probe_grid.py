@@ -19,8 +19,8 @@ import numpy as np
 from repair.deviation import point_triangle_d2
 from repair.rows import ranges, sort_with_positions
 
-__all__ = ["GRID_BIG_TESTS", "GRID_PAIRS_PER_FACE", "probes_near_faces", "slivers_probed_clear",
-           "unit_normals"]
+__all__ = ["GRID_BIG_TESTS", "GRID_PAIRS_PER_FACE", "faces_near_points", "probes_near_faces",
+           "slivers_probed_clear", "unit_normals"]
 
 #: The grid gives way to libigl's tree when its cells would pair each face asked about
 #: with more faces than this on average (meshes of crowded small faces beside large ones:
@@ -140,6 +140,21 @@ def _centroids_in_boxes(
     return own, box
 
 
+def faces_near_points(v: np.ndarray, f: np.ndarray, q: np.ndarray, r: float) -> np.ndarray:
+    """Faces whose bounding box, grown by ``r`` (mm), holds some point of ``q`` along
+    each axis (a point within ``r`` of a face is: not always the same point per axis,
+    a superset). Per axis one sort of the points and two searches."""
+    keep = np.ones(len(f), dtype=bool)
+    for k in range(3):
+        x = np.ascontiguousarray(v[:, k])
+        a, b, c = x[f[:, 0]], x[f[:, 1]], x[f[:, 2]]  # 1-D gathers: faster than rows
+        lo = np.minimum(np.minimum(a, b), c) - r
+        hi = np.maximum(np.maximum(a, b), c) + r
+        s = np.sort(q[:, k])
+        keep &= np.searchsorted(s, hi, side="right") > np.searchsorted(s, lo, side="left")
+    return np.flatnonzero(keep)
+
+
 def slivers_probed_clear(v: np.ndarray, f: np.ndarray, which: np.ndarray, d: float) -> np.ndarray:
     """Mask over the faces ``which``: those the two-sided winding test
     (:func:`repair.junk.face_winding_sides`, probe distance ``d``) cannot fail. A sliver
@@ -150,8 +165,6 @@ def slivers_probed_clear(v: np.ndarray, f: np.ndarray, which: np.ndarray, d: flo
     off the face (height at least d / 64) for the test's sums to say so. Faces too thin
     to be probed at all are never counted as failing. Other faces: False (not decided
     here)."""
-    from repair.hairline import faces_near_points
-
     p = v[f[which]]
     n, length = unit_normals(p)
     longest = np.linalg.norm(p - p[:, [1, 2, 0]], axis=2).max(axis=1)
