@@ -28,7 +28,7 @@ __all__ = ["GRID_BIG_TESTS", "GRID_PAIRS_PER_FACE", "faces_near_points", "probes
 GRID_PAIRS_PER_FACE = 24
 #: ... or when the faces too large for the cells (boxes over 27 cells), each tested box
 #: against every face asked about, would take more box tests than this.
-GRID_BIG_TESTS = 1 << 21
+GRID_BIG_TESTS = 1 << 19
 #: :func:`slivers_probed_clear` decides nothing beyond this many (probe, face) box tests.
 SLIVER_TESTS = 1 << 22
 
