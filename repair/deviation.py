@@ -183,12 +183,12 @@ def _point_mesh_d2(pts: np.ndarray, v: np.ndarray, f: np.ndarray) -> np.ndarray:
 def _faces_within_vertex_reach(pts: np.ndarray, v: np.ndarray, f: np.ndarray) -> np.ndarray | None:
     """For a few points (``len(pts) x`` corners at most ``2^22``): the faces that can hold
     a point's nearest surface point -- those whose box, grown by ``r``, holds a point along
-    every axis (:func:`repair.hairline.faces_near_points`), ``r`` the largest distance
+    every axis (:func:`repair.probe_grid.faces_near_points`), ``r`` the largest distance
     from a point to its nearest corner of a face (no nearer face can be farther). Building
     libigl's tree on all of counter's 84k faces for its 60 sample points cost 0.12 s; None
     when the points are too many for the brute-force corner distances or the faces found
     are most of them."""
-    from repair.hairline import faces_near_points
+    from repair.probe_grid import faces_near_points
 
     corners = v[unique_ints(f.reshape(-1))]
     if len(pts) * len(corners) > 2**22:

@@ -34,6 +34,8 @@ import numpy as np
 
 from repair.hairline_cut import cut_and_lid, face_rings, local_cut_rounds
 from repair.junk import WindingFromBase, face_winding_sides, failing_faces, probe_distance
+from repair.probe_grid import faces_near_points, probes_near_faces, slivers_probed_clear
+from repair.probe_grid import unit_normals as _unit_normals
 from repair.report import RepairOutcome, RepairTally
 
 __all__ = ["faces_near_points", "fill_hairline_gaps", "hairline_suspects", "hairline_failures",
@@ -68,10 +70,14 @@ MAX_FOLD_FRACTION = 0.1
 #: where fewer do not help.
 MAX_CUT_RINGS = 3
 #: Faces in a plane shared by at least this many are searched for hairline suspects
-#: plane by plane (:func:`_near_in_planes`), the rest by libigl's tree: on a CAD model's
-#: flat faces the tree's boxes overlap (box: 0.083 s for the tree, 0.019 s without them).
+#: plane by plane (:func:`_near_in_planes`), the rest in a grid of cells (or libigl's
+#: tree): on a CAD model's flat faces the boxes overlap (box: 0.083 s for the tree,
+#: 0.019 s without them).
 PLANE_FACES = 16
-#: Meshes of fewer faces are searched by the tree alone: finding their planes costs more
+#: Up to this many (probe, plane) offset tests per direction, the probes are compared
+#: with each plane of it rather than sorted along it (box: 10 directions, 87 planes).
+PLANE_SLAB_TESTS = 1 << 22
+#: Meshes of fewer faces are searched by the grid (or tree) alone: finding their planes costs more
 #: than it saves (rabbit's 1.5k faces: 0.4 ms of a 7 ms search).
 PLANE_MIN_MESH = 2048
 
@@ -84,7 +90,9 @@ def hairline_suspects(
     winding sides can be wrong on a printable mesh of one nesting level; also every face
     too thin to be probed at ``d`` (its own probe is nearer). Faces of a plane shared by
     :data:`PLANE_FACES` or more (:func:`_shared_planes`) are searched plane by plane
-    (:func:`_near_in_planes`); the others by a libigl AABB distance query."""
+    (:func:`_near_in_planes`); the others in a grid of cells
+    (:func:`repair.probe_grid.probes_near_faces`), or where long faces crowd its cells
+    by a libigl AABB distance query."""
     import igl
 
     v = np.ascontiguousarray(vertices, dtype=np.float64)
@@ -115,18 +123,13 @@ def hairline_suspects(
         # all 88k of counter's faces is most of the query's cost), the same distances.
         rest = faces_near_points(v, f, q, 2 * d)
     if len(rest):
-        sub = f if len(rest) == len(f) else np.ascontiguousarray(f[rest])
-        sq, nearest, _ = igl.point_mesh_squared_distance(q, v, sub)
-        near |= (rest[nearest] != owner) & (sq < (0.999 * d) ** 2)
+        by_grid = probes_near_faces(v, f, rest, q, c, n, idx, d)
+        if by_grid is None:  # long faces crowd the cells: the tree is cheaper there
+            sub = f if len(rest) == len(f) else np.ascontiguousarray(f[rest])
+            sq, nearest, _ = igl.point_mesh_squared_distance(q, v, sub)
+            by_grid = (rest[nearest] != owner) & (sq < (0.999 * d) ** 2)
+        near |= by_grid
     return idx[near.reshape(2, m).any(axis=0) | (length == 0)]
-
-
-def _unit_normals(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Unit normals of the triangles ``p`` (m, 3, 3) (zero for a degenerate one) and their
-    cross products' lengths (twice the areas, mm²)."""
-    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    length = np.linalg.norm(n, axis=1)
-    return np.divide(n, length[:, None], out=np.zeros_like(n), where=length[:, None] > 0), length
 
 
 def _shared_planes(v: np.ndarray, f: np.ndarray, n: np.ndarray, length: np.ndarray) -> np.ndarray:
@@ -183,38 +186,32 @@ def _near_in_planes(
     for k in range(len(first)):
         g = np.flatnonzero(way == k)
         proj = q @ nrm[g[0]]
+        lo, hi = off[g] - reach[g], off[g] + reach[g]
+        if len(g) * len(q) <= PLANE_SLAB_TESTS:  # a few planes: each probe against each
+            row, pi = np.nonzero((proj > lo[:, None]) & (proj < hi[:, None]))
+            hits.append(pi)
+            groups.append(g[row])
+            continue
         order = np.argsort(proj)
         sp = proj[order]
-        lo = np.searchsorted(sp, off[g] - reach[g], side="right")
-        hi = np.searchsorted(sp, off[g] + reach[g], side="left")
+        lo = np.searchsorted(sp, lo, side="right")
+        hi = np.searchsorted(sp, hi, side="left")
         hits.append(order[ranges(lo, np.maximum(hi - lo, 0))])
         groups.append(np.repeat(g, np.maximum(hi - lo, 0)))
     pi, gi = np.concatenate(hits), np.concatenate(groups)
     pts = np.repeat(pi, sizes[gi])
-    fac = gf[ranges(starts[gi], sizes[gi])]
-    keep = fac != owner[pts]
-    pts, fac = pts[keep], fac[keep]
-    tri = v[f[fac]]
-    inside = ((q[pts] >= tri.min(axis=1) - d) & (q[pts] <= tri.max(axis=1) + d)).all(axis=1)
-    pts, tri = pts[inside], tri[inside]
+    pos = ranges(starts[gi], sizes[gi])  # into gf
+    keep = gf[pos] != owner[pts]
+    pts, pos = pts[keep], pos[keep]
+    # The faces' boxes, then the pairs' (a reduction over the corners of each pair's
+    # triangle took a third of the search on box).
+    lo = np.minimum(np.minimum(p[:, 0], p[:, 1]), p[:, 2])
+    hi = np.maximum(np.maximum(p[:, 0], p[:, 1]), p[:, 2])
+    inside = ((q[pts] >= lo[pos] - d) & (q[pts] <= hi[pos] + d)).all(axis=1)
+    pts, tri = pts[inside], p[pos[inside]]
     d2 = point_triangle_d2(q[pts], tri[:, 0], tri[:, 1], tri[:, 2])
     near[pts[d2 < (0.999 * d) ** 2]] = True
     return near
-
-
-def faces_near_points(v: np.ndarray, f: np.ndarray, q: np.ndarray, r: float) -> np.ndarray:
-    """Faces whose bounding box, grown by ``r`` (mm), holds some point of ``q`` along
-    each axis (a point within ``r`` of a face is: not always the same point per axis,
-    a superset). Per axis one sort of the points and two searches."""
-    keep = np.ones(len(f), dtype=bool)
-    for k in range(3):
-        x = np.ascontiguousarray(v[:, k])
-        a, b, c = x[f[:, 0]], x[f[:, 1]], x[f[:, 2]]  # 1-D gathers: faster than rows
-        lo = np.minimum(np.minimum(a, b), c) - r
-        hi = np.maximum(np.maximum(a, b), c) + r
-        s = np.sort(q[:, k])
-        keep &= np.searchsorted(s, hi, side="right") > np.searchsorted(s, lo, side="left")
-    return np.flatnonzero(keep)
 
 
 def hairline_failures(
@@ -225,6 +222,8 @@ def hairline_failures(
     (:func:`repair.junk.failing_faces`), looked for among :func:`hairline_suspects`
     only; ``winding`` as in :func:`repair.junk.face_winding_sides`."""
     sus = hairline_suspects(vertices, faces, which)
+    if len(sus):  # slivers next to a bent neighbour, mostly: probed closer, clear
+        sus = sus[~slivers_probed_clear(vertices, faces, sus, probe_distance(vertices))]
     if len(sus) == 0:
         return sus
     outside, inside = face_winding_sides(vertices, faces, sus, winding=winding)

@@ -151,28 +151,44 @@ def _near(
     return grid.near(which), grid
 
 
+#: When the faces asked about are at least 1 / this of all, :func:`_boxes_meeting` takes
+#: the faces touching theirs without a box test (fewer: marking the corners of all faces
+#: costs more than it saves; bunny's 115 of 16k: 3.4 ms instead of 3.1).
+TOUCH_FIRST = 16
+
+
 def _boxes_meeting(v: np.ndarray, f: np.ndarray, which: np.ndarray) -> np.ndarray:
     """Sorted indices of the faces whose bounding box meets (closed boxes, exact
     comparisons) that of a face in ``which``, those included: two faces that share a
-    point share it in both boxes, so no other face can meet one of ``which``."""
-    cand = np.arange(len(f))
+    point share it in both boxes, so no other face can meet one of ``which``. Faces with
+    a corner at a corner of one of ``which`` meet it there: when ``which`` are many, only
+    the others are tested box against box (rabbit: 0.6k of its 1.5k faces against 505
+    changed ones, 3.0 ms instead of 5.4)."""
+    out = np.zeros(len(f), dtype=bool)
+    if TOUCH_FIRST * len(which) >= len(f):
+        at_corner = np.zeros(len(v), dtype=bool)
+        at_corner[f[which].reshape(-1)] = True
+        out = at_corner[f].any(axis=1)
+    cand = np.flatnonzero(~out)
+    w = [v[f[which], k] for k in range(3)]  # (len(which), 3) corners per axis
+    w_lo = [x.min(axis=1) for x in w]
+    w_hi = [x.max(axis=1) for x in w]
     lo, hi = [], []
     for k in range(3):  # axis by axis, first against the box of all of ``which``
         x = v[:, k]
         x0, x1, x2 = x[f[cand, 0]], x[f[cand, 1]], x[f[cand, 2]]
         lo_k = np.minimum(np.minimum(x0, x1), x2)
         hi_k = np.maximum(np.maximum(x0, x1), x2)
-        w_lo, w_hi = lo_k[np.searchsorted(cand, which)], hi_k[np.searchsorted(cand, which)]
-        keep = (lo_k <= w_hi.max()) & (hi_k >= w_lo.min())
+        keep = (lo_k <= w_hi[k].max()) & (hi_k >= w_lo[k].min())
         cand = cand[keep]
         lo = [a[keep] for a in lo] + [lo_k[keep]]
         hi = [a[keep] for a in hi] + [hi_k[keep]]
-    at = np.searchsorted(cand, which)
     hit = np.ones((len(cand), len(which)), dtype=bool)
     for k in range(3):
-        hit &= lo[k][:, None] <= hi[k][at][None, :]
-        hit &= hi[k][:, None] >= lo[k][at][None, :]
-    return cand[hit.any(axis=1)]
+        hit &= lo[k][:, None] <= w_hi[k][None, :]
+        hit &= hi[k][:, None] >= w_lo[k][None, :]
+    out[cand[hit.any(axis=1)]] = True
+    return np.flatnonzero(out)
 
 
 def crossings_after_change(

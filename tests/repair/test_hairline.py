@@ -140,13 +140,15 @@ def _suspects_by_tree(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     return np.flatnonzero(other.any(axis=0) | (length[:, 0] == 0))
 
 
-def test_flat_faces_searched_plane_by_plane_give_the_trees_suspects():
+def test_flat_faces_searched_plane_by_plane_give_the_trees_suspects(monkeypatch):
     """A CAD-like model whose faces mostly lie in a few shared planes (the slotted box,
     its triangles split finer) and a ball above it (each face a plane of its own): the
-    planes are searched plane by plane, the ball by the tree, and the suspects are
-    exactly those of the whole tree."""
+    planes are searched plane by plane, the ball by the grid, and the suspects are
+    exactly those of the whole tree -- the probes compared with each plane, or sorted
+    along each direction when its planes are many."""
     import manifold3d as m3d
 
+    import repair.hairline as hairline
     from repair.hairline import PLANE_MIN_MESH, _shared_planes, _unit_normals
 
     bv, bf = _solid(_slotted_box().refine(8))
@@ -158,6 +160,8 @@ def test_flat_faces_searched_plane_by_plane_give_the_trees_suspects():
     every = hairline_suspects(v, f)
     assert len(every) > 0
     assert np.array_equal(every, _suspects_by_tree(v, f))
+    monkeypatch.setattr(hairline, "PLANE_SLAB_TESTS", 0)
+    assert np.array_equal(hairline_suspects(v, f), every)
 
 
 def test_a_large_mesh_is_cut_in_rounds_checked_near_the_cuts_and_then_passes():
@@ -182,3 +186,56 @@ def test_a_large_mesh_is_cut_in_rounds_checked_near_the_cuts_and_then_passes():
     assert section["faces_found"] == found and section["faces_left"] == 0
     assert set(section["rounds"]) == {"cut"}
     assert before.volume - 1e-9 <= verdict.volume <= before.volume + 10 * 8 * GAP + 1e-9
+
+
+def _slotted_ball():
+    """A ball (each face a plane of its own) with a slot GAP wide cut into it: walls of
+    one shell a hair apart, curved where they meet the ball."""
+    import manifold3d as m3d
+
+    ball = m3d.Manifold.sphere(5.0, 96).translate([5.0, 5.0, 5.0])
+    return _solid(ball - m3d.Manifold.cube([GAP, 12, 6]).translate([5, -1, 2]))
+
+
+def test_the_grid_search_finds_the_trees_suspects_on_a_curved_mesh(monkeypatch):
+    """Faces in no shared plane are searched in a grid of cells (probes against the faces
+    listed in their cell, box, plane, then exact distance): the suspects are exactly
+    those of one libigl distance query of every probe against every face; and the same
+    when the grid gives way to the tree."""
+    import repair.hairline as hairline
+    import repair.probe_grid as probe_grid
+
+    v, f = _slotted_ball()
+    assert check_printable(v, f).ok
+    d = probe_distance(v)
+    p = v[f]
+    n, length = hairline._unit_normals(p)
+    assert np.all(hairline._shared_planes(v, f, n, length) < 0)
+    idx = np.arange(len(f))
+    c = p.mean(axis=1)
+    q = np.vstack([c + d * n, c - d * n])
+    assert probe_grid.probes_near_faces(v, f, idx, q, c, n, idx, d) is not None  # it ran
+    every = hairline_suspects(v, f)
+    assert len(every) > 0
+    assert np.array_equal(every, _suspects_by_tree(v, f))
+    monkeypatch.setattr(probe_grid, "GRID_PAIRS_PER_FACE", 0)
+    assert probe_grid.probes_near_faces(v, f, idx, q, c, n, idx, d) is None
+    assert np.array_equal(hairline_suspects(v, f), every)
+
+
+def test_slivers_probed_clear_are_never_failing_and_the_rest_of_the_suspects_fail():
+    """The winding test probes a sliver a tenth of its height off it: where no other face
+    comes that near its probes it cannot fail, and is not tested. On slotted solids (the
+    slot's floor and ends are slivers GAP wide; the ball's cuts leave slivers along the
+    slot's mouth) some suspects are cleared, none of them failing, and the failures are
+    those of the winding test of every face."""
+    from repair.probe_grid import slivers_probed_clear
+
+    for v, f in (_solid(_slotted_box()), _slotted_ball()):
+        outside, inside = face_winding_sides(v, f)
+        every = np.flatnonzero(failing_faces(outside, inside))
+        suspects = hairline_suspects(v, f)
+        clear = slivers_probed_clear(v, f, suspects, probe_distance(v))
+        assert clear.any() and len(every) > 0
+        assert not np.isin(suspects[clear], every).any()
+        assert np.array_equal(np.sort(hairline_failures(v, f)), every)

@@ -167,6 +167,28 @@ def test_faces_near_a_few_changed_ones_are_exactly_those_whose_box_meets_one():
         assert np.isin(near, FaceGrid(v, f).near(which)).all()
 
 
+def test_faces_near_many_changed_ones_of_a_small_mesh_are_exactly_those_whose_box_meets_one():
+    # Many changed faces (a sixteenth or more): the faces touching them are taken without
+    # a box test, the others tested box against box; the same faces either way.
+    from repair.rounding import TOUCH_FIRST
+
+    v, f = concat(sphere(3, 10.0), sphere(2, 6.0, (8.3, 1.7, -2.1)))
+    p = v[f]
+    lo, hi = p.min(axis=1), p.max(axis=1)
+    rng = np.random.default_rng(3)
+    for k in (len(f) // TOUCH_FIRST, len(f) // 4, len(f)):
+        changed = np.zeros(len(f), dtype=bool)
+        changed[rng.choice(len(f), k, replace=False)] = True
+        which = np.flatnonzero(changed)
+        assert TOUCH_FIRST * len(which) >= len(f)
+        assert len(which) * len(f) <= DIRECT_BOX_TESTS
+        near, grid = _near(v, f, changed, None)
+        assert grid is None
+        meets = (lo[None] <= hi[which, None]) & (hi[None] >= lo[which, None])
+        assert np.array_equal(near, np.flatnonzero(meets.all(axis=2).any(axis=0)))
+        assert len(near) < len(f) or k == len(f)
+
+
 def test_crossings_after_a_local_change_are_those_a_whole_test_finds():
     v, f = _two_crossing_spheres()
     before = _whole_test(v, f)
