@@ -13,7 +13,7 @@ import numpy as np
 
 from repair.check import Printability, degenerate_face_mask
 from repair.rows import unique_ints, unique_rows
-from repair.topology import face_keys, half_edges, unique_faces, weld_exact
+from repair.topology import edge_components, face_keys, half_edges, unique_faces, weld_exact
 
 __all__ = [
     "Cleaned",
@@ -25,6 +25,7 @@ __all__ = [
     "hanging_needles",
     "needle_mask",
     "net_faces",
+    "orient_needles",
 ]
 
 #: A face is flat at float32 resolution when its height over its longest side is under
@@ -54,13 +55,16 @@ def needle_mask(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return twice_area < NEEDLE_ULPS * ulp * np.maximum(longest, 1e-300)
 
 
-def hanging_needles(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+def hanging_needles(
+    vertices: np.ndarray, faces: np.ndarray, flat: np.ndarray | None = None
+) -> np.ndarray:
     """The faces flat at float32 resolution (:func:`needle_mask`) that hang off the
     surface: the longest side is an edge at least two other (not flat) faces share, and
     no other face uses the two short sides -- a needle on an edge the surface already
     closes adds nothing printable, and dropping it opens no edge. A thin face that closes
-    a crack (a T-junction's filler) stays. Returns a bool mask per face."""
-    flat = needle_mask(vertices, faces)
+    a crack (a T-junction's filler) stays. ``flat``: :func:`needle_mask`, if known.
+    Returns a bool mask per face."""
+    flat = needle_mask(vertices, faces) if flat is None else flat
     if not np.any(flat):
         return flat
     f = np.asarray(faces, dtype=np.int64)
@@ -78,6 +82,41 @@ def hanging_needles(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     out = np.zeros(len(f), dtype=bool)
     out[np.flatnonzero(flat)[hangs]] = True
     return out
+
+
+def orient_needles(
+    vertices: np.ndarray, faces: np.ndarray, flat: np.ndarray | None = None
+) -> tuple[np.ndarray, int]:
+    """Faces with each edge-connected group of needles (``flat``: :func:`needle_mask`)
+    turned to match the faces around it, and how many were turned.
+
+    A face flat at float32 resolution has no orientation of its own: an exporter's
+    zero-area filler of a T-junction's slit, written the wrong way round, makes every
+    edge it shares with the surface misoriented and the slit an inconsistent seam the
+    stitch cannot close. A group is turned when more of its edges are used the same way
+    than the opposite way by the other faces (ties stay), so that each edge it shares
+    is then used once each way. No vertex moves: the surface is the same point set."""
+    f = np.asarray(faces, dtype=np.int64)
+    flat = needle_mask(vertices, f) if flat is None else flat
+    idx = np.flatnonzero(flat)
+    if len(idx) == 0:
+        return f, 0
+    group = edge_components(f[idx])
+    n = int(f.max()) + 1
+    he = half_edges(f)
+    others = np.sort((he[:, 0] * n + he[:, 1])[np.repeat(~flat, 3)])
+    mine = half_edges(f[idx])
+
+    def used(key: np.ndarray) -> np.ndarray:
+        return np.searchsorted(others, key, "right") - np.searchsorted(others, key, "left")
+
+    score = used(mine[:, 0] * n + mine[:, 1]) - used(mine[:, 1] * n + mine[:, 0])
+    turn = idx[np.bincount(np.repeat(group, 3), weights=score)[group] > 0]
+    if len(turn) == 0:
+        return f, 0
+    out = f.copy()
+    out[turn] = out[turn][:, ::-1]
+    return out, len(turn)
 
 
 def net_faces(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -196,8 +235,8 @@ class Cleaned:
 
 def clean_soup(vertices: np.ndarray, faces: np.ndarray, *, solid: bool = False) -> Cleaned:
     """Weld exactly equal vertices, move degenerate faces to segments, drop the needles
-    flat at float32 resolution that hang off the surface (:func:`hanging_needles`), keep
-    one layer.
+    flat at float32 resolution that hang off the surface (:func:`hanging_needles`), turn
+    the others to match their neighbours (:func:`orient_needles`), keep one layer.
 
     With ``solid=True`` (closed oriented input) coincident faces cancel by orientation
     (:func:`cancel_opposite_faces`) instead, and flat faces are not dropped.
@@ -208,8 +247,11 @@ def clean_soup(vertices: np.ndarray, faces: np.ndarray, *, solid: bool = False) 
     f = f[~deg]
     # An input's needles only: a solid's own clean (a union's result and prisms) keeps
     # its faces as the union made them.
-    needles = np.zeros(len(f), dtype=bool) if solid else hanging_needles(v, f)
-    f = f[~needles]
+    needles = np.zeros(len(f), dtype=bool)
+    if not solid:
+        flat = needle_mask(v, f)
+        needles = hanging_needles(v, f, flat)
+        f = orient_needles(v, f[~needles], flat[~needles])[0]
     keep = cancel_opposite_faces(f) if solid else unique_faces(f)
     dup = len(f) - len(keep)
     f = f[keep]
@@ -223,10 +265,14 @@ def clean_checked(vertices: np.ndarray, faces: np.ndarray, verdict: Printability
     coordinates (``as_float32``, welded the same way): when that check found no
     degenerate and no duplicate face, and no needle hangs off the welded surface
     (:func:`hanging_needles`), there is nothing to remove: the welded input is the
-    cleaned input."""
+    cleaned input (its needles turned to match their neighbours where the check found
+    misoriented edges: :func:`orient_needles`)."""
     if verdict.degenerate_faces == 0 and verdict.duplicate_faces == 0:
         v, f = weld_exact(vertices, faces)
-        if not np.any(hanging_needles(v, f)):
+        flat = needle_mask(v, f)
+        if not np.any(hanging_needles(v, f, flat)):
+            if verdict.misoriented_edges:
+                f = orient_needles(v, f, flat)[0]
             v, f = drop_unreferenced(v, f)
             return Cleaned(v, f, np.zeros((0, 2, 3)), 0, 0)
     return clean_soup(vertices, faces)
