@@ -114,7 +114,8 @@ def point_triangle_d2(q: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray
         t_bc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
         den = va + vb + vc
         v, w = vb / den, vc / den
-    inner = a + ab * v[:, None] + ac * w[:, None]
+        # NaN on a zero-area triangle (den 0): an edge or corner region is chosen below.
+        inner = a + ab * v[:, None] + ac * w[:, None]
     conds = [
         (d1 <= 0) & (d2 <= 0),
         (d3 >= 0) & (d4 <= d3),
