@@ -124,8 +124,9 @@ def point_triangle_d2(q: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray
         (vb <= 0) & (d2 >= 0) & (d6 <= 0),
         (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0),
     ]
-    choices = [a, b, a + ab * t_ab[:, None], c, a + ac * t_ac[:, None],
-               b + (c - b) * t_bc[:, None]]  # fmt: skip
+    with np.errstate(invalid="ignore"):  # a collapsed edge's t is inf or NaN, not chosen
+        choices = [a, b, a + ab * t_ab[:, None], c, a + ac * t_ac[:, None],
+                   b + (c - b) * t_bc[:, None]]  # fmt: skip
     closest = inner
     for cond, choice in zip(conds[::-1], choices[::-1], strict=True):  # the first region that holds
         closest = np.where(cond[:, None], choice, closest)
