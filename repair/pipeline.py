@@ -41,16 +41,13 @@ state: every call is independent (the daemon runs it in a child process).
 
 from __future__ import annotations
 
-import functools
 import json
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from threadpoolctl import ThreadpoolController
 
 from repair.budget import Meshed, run_within_budget
 from repair.check import round_to_float32
@@ -85,7 +82,7 @@ from repair.scan import scan_cleanup
 from repair.stitch import stitch_cracks
 from repair.topology import EdgeTopology, edge_components, edge_topology, edge_topology_memo
 from repair.union import union_of_shells
-from repair.workers import cpu_workers
+from repair.workers import blas_controller, cpu_workers
 
 __all__ = ["RepairError", "RepairResult", "repair_file", "repair_mesh"]
 
@@ -147,47 +144,8 @@ def repair_mesh(
     # (3,) products), where waking OpenBLAS's threads costs far more than it saves
     # (np.dot of 10k doubles: 6 ms instead of 6 us on a busy machine), and one thread
     # sums in one order on any machine. Parallel work is done by forked workers.
-    with _blas_controller().limit(limits=1, user_api="blas"), edge_topology_memo():
+    with blas_controller().limit(limits=1, user_api="blas"), edge_topology_memo():
         return _repair_mesh(vertices, faces, epsilon, progress, clean, surface, time_budget)
-
-
-@functools.cache
-def _blas_controller() -> ThreadpoolController:
-    """The process's BLAS libraries, found once: finding them walks every loaded shared
-    library (2-3 ms a repair, a tenth of a 1k-triangle model's), while setting their
-    thread count takes microseconds. Found after SciPy's own OpenBLAS is loaded next to
-    NumPy's (:func:`_load_scipy_blas`), so both are limited."""
-    _load_scipy_blas()
-    return ThreadpoolController()
-
-
-def _load_scipy_blas() -> None:
-    """Load the OpenBLAS a SciPy wheel bundles (``scipy.libs/``) as a plain shared
-    library, without importing ``scipy.linalg``: that import costs ~0.3 s of CPU (it pulls
-    in ``numpy.testing`` and ``numpy.f2py``), a tenth of a command-line repair of a clean
-    500k-triangle model, while the repair itself uses SciPy's BLAS only in a scan's
-    fairing, if ever. When SciPy later loads the same file, the dynamic loader hands it the
-    library already loaded -- the one the controller limits. A SciPy built otherwise (a
-    system BLAS) is imported as before."""
-    import ctypes
-    import glob
-    import importlib.util
-    import os
-
-    if "scipy.linalg" in sys.modules:
-        return
-    spec = importlib.util.find_spec("scipy")
-    found = []
-    if spec is not None and spec.origin:
-        libs = os.path.join(os.path.dirname(os.path.dirname(spec.origin)), "scipy.libs")
-        found = sorted(glob.glob(os.path.join(libs, "libscipy_openblas*.so*")))
-    if found:
-        try:
-            ctypes.CDLL(found[0])
-            return
-        except OSError:
-            pass
-    import scipy.linalg  # noqa: F401
 
 
 def _repair_mesh(

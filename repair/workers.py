@@ -10,14 +10,20 @@ the parent. Results come back in job order, whatever the number of CPUs.
 
 from __future__ import annotations
 
+import functools
 import io
 import os
+import sys
 from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
+from threadpoolctl import ThreadpoolController
 
-__all__ = ["MAX_WORKERS", "balanced_shares", "cpu_workers", "die_with_parent", "map_forked"]
+__all__ = [
+    "MAX_WORKERS", "balanced_shares", "blas_controller", "cpu_workers", "die_with_parent",
+    "map_forked",
+]
 
 #: At most this many processes per call.
 MAX_WORKERS = 4
@@ -141,3 +147,42 @@ def balanced_shares(sizes: Sequence[int], k: int) -> list[list[int]]:
         shares[s].append(j)
         load[s] += sizes[j]
     return [sorted(s) for s in shares]
+
+
+@functools.cache
+def blas_controller() -> ThreadpoolController:
+    """The process's BLAS libraries, found once: finding them walks every loaded shared
+    library (2-3 ms a repair, a tenth of a 1k-triangle model's), while setting their
+    thread count takes microseconds. Found after SciPy's own OpenBLAS is loaded next to
+    NumPy's (:func:`_load_scipy_blas`), so both are limited."""
+    _load_scipy_blas()
+    return ThreadpoolController()
+
+
+def _load_scipy_blas() -> None:
+    """Load the OpenBLAS a SciPy wheel bundles (``scipy.libs/``) as a plain shared
+    library, without importing ``scipy.linalg``: that import costs ~0.3 s of CPU (it pulls
+    in ``numpy.testing`` and ``numpy.f2py``), a tenth of a command-line repair of a clean
+    500k-triangle model, while the repair itself uses SciPy's BLAS only in a scan's
+    fairing, if ever. When SciPy later loads the same file, the dynamic loader hands it the
+    library already loaded -- the one the controller limits. A SciPy built otherwise (a
+    system BLAS) is imported as before."""
+    import ctypes
+    import glob
+    import importlib.util
+    import os
+
+    if "scipy.linalg" in sys.modules:
+        return
+    spec = importlib.util.find_spec("scipy")
+    found = []
+    if spec is not None and spec.origin:
+        libs = os.path.join(os.path.dirname(os.path.dirname(spec.origin)), "scipy.libs")
+        found = sorted(glob.glob(os.path.join(libs, "libscipy_openblas*.so*")))
+    if found:
+        try:
+            ctypes.CDLL(found[0])
+            return
+        except OSError:
+            pass
+    import scipy.linalg  # noqa: F401

@@ -441,11 +441,12 @@ def test_a_fresh_process_limits_scipys_blas_without_importing_scipy_linalg():
         import sys
         from mesh_helpers import box, concat
         from threadpoolctl import threadpool_info
-        from repair.pipeline import _blas_controller, repair_mesh
+        from repair.pipeline import repair_mesh
+        from repair.workers import blas_controller
         v, f = concat(box(), box((0.5, 0.3, 0.2), (1.5, 1.3, 1.2)))
         repair_mesh(v, f, 0.4)
         print("linalg" if "scipy.linalg" in sys.modules else "no linalg")
-        with _blas_controller().limit(limits=1, user_api="blas"):
+        with blas_controller().limit(limits=1, user_api="blas"):
             import scipy.linalg
             scipy.linalg.solve([[2.0, 1.0], [1.0, 3.0]], [1.0, 2.0])
             print(sorted((i["prefix"], i["num_threads"]) for i in threadpool_info()
