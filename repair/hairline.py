@@ -38,7 +38,7 @@ from repair.probe_grid import faces_near_points, probes_near_faces, slivers_prob
 from repair.probe_grid import unit_normals as _unit_normals
 from repair.report import RepairOutcome, RepairTally
 
-__all__ = ["faces_near_points", "fill_hairline_gaps", "hairline_suspects", "hairline_failures",
+__all__ = ["fill_hairline_gaps", "hairline_suspects", "hairline_failures",
            "without_hairline_gaps"]  # fmt: skip
 
 #: How far the filling prisms reach either side of a failing face, in probe distances.

@@ -23,6 +23,7 @@ import numpy as np
 
 from repair.check import check_printable
 from repair.meshes import shell_volumes
+from repair.probe_grid import faces_near_points
 from repair.report import RepairOutcome
 from repair.topology import edge_components
 
@@ -137,8 +138,6 @@ def _crowded(
     lies nearer than ``reach``. Every other probe's winding number is the expected one,
     whatever a float32 approximation reads there."""
     import igl
-
-    from repair.hairline import faces_near_points
 
     if len(q) == 0:
         return np.zeros(0, dtype=bool)

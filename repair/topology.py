@@ -242,9 +242,9 @@ def edge_topology(faces: np.ndarray) -> EdgeTopology:
     memo = _MEMO.get()
     if memo is None:
         return _edge_topology(f)
-    for t in memo:
-        if t.of(f):
-            return t
+    known = _memoized(f)
+    if known is not None:
+        return known
     t = _edge_topology(f.copy())
     for a in (t.faces, t.eid, t.counts, t.shells):
         a.flags.writeable = False

@@ -170,7 +170,6 @@ def _load_scipy_blas() -> None:
     import ctypes
     import glob
     import importlib.util
-    import os
 
     if "scipy.linalg" in sys.modules:
         return
