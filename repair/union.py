@@ -139,7 +139,7 @@ def union_of_shells(
 
 def manifold_union(
     parts: list[tuple[np.ndarray, np.ndarray]], *, collapse: bool = True,
-    min_volume: float = 0.0,
+    min_volume: float = 0.0, shells: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """Union of closed oriented pieces -- the solid outer hull first (welded here), then
     sheet slabs, ledge prisms and wire cylinders (each already an indexed closed solid)
@@ -149,7 +149,9 @@ def manifold_union(
     2^-17 of the part's size); off, the faces the union did not cut stay as they were,
     and the result keeps manifold3d's float64 coordinates for the caller to round.
     ``min_volume`` (mm³): shells of the result enclosing less than that, solid or
-    cavity, are left out (see :func:`without_specks`)."""
+    cavity, are left out (see :func:`without_specks`). ``shells``: the solid of each face
+    of the first part, where its edge-connected components are not (closed shells that
+    share an edge: one manifold3d solid each, not one non-manifold piece)."""
     solids = []
     try:
         for i, (v, f) in enumerate(parts):
@@ -157,7 +159,9 @@ def manifold_union(
                 continue
             # The solid hull is welded; slabs, prisms and cylinders are each indexed
             # closed solids -- welding would fuse coincident corners of different ones.
-            pieces = _manifolds_of(*drop_unreferenced(*(weld_exact(v, f) if i == 0 else (v, f))))
+            labels = shells if i == 0 else None
+            pieces = _manifolds_of(*drop_unreferenced(*(weld_exact(v, f) if i == 0 else (v, f))),
+                                   labels)  # fmt: skip
             if pieces is None:
                 return None
             solids.extend(pieces)
