@@ -55,7 +55,7 @@ from repair.mend import mend_intersections, separate_singular_edges
 from repair.meshes import concat_meshes, shell_volumes, surface_area
 from repair.report import RepairOutcome, RepairTally
 from repair.rows import unique_rows
-from repair.thicken import face_blocks, sheet_slabs
+from repair.thicken import face_blocks, orient_patches, sheet_slabs
 from repair.topology import (
     connected_labels,
     edge_components,
@@ -224,6 +224,9 @@ def fallback_repair(
     Raises :class:`RepairError` when its float32 result is not printable; D is left for
     the caller to measure."""
     t0 = time.perf_counter()
+    # Orientation is exact and cheap: a closed shell with some faces flipped is turned
+    # consistent here and kept exact, not thickened (an unorientable one still is).
+    f = orient_patches(f)[0]
     split = split_exact_shells(v, f, pairs)
     mended = _mended_solids(v, split)
     if mended is None:  # kept as they are, their knots covered by eps-blocks

@@ -301,3 +301,28 @@ def test_corpus_target_whose_slab_folds_falls_back_to_a_printable_file(tmp_path)
     assert 0 < report["deviation"] <= EPS / np.sqrt(2)
     src = load_mesh(CORPUS / "mikedh_target.obj")
     assert covered_fraction(src.vertices, src.faces, mesh.vertices, mesh.faces) >= 0.99
+
+
+def test_corpus_flipped_faces_are_turned_not_thickened(tmp_path):
+    # A closed 12-triangle box, some of whose faces are listed the wrong way round
+    # (every edge used twice, some twice in the same direction). Orientation is exact:
+    # the fallback turns them consistent and keeps the box as it is, D at float32
+    # rounding scale -- it once replaced the box by its eps-slab (48 triangles, D =
+    # eps/2).
+    name = "admesh_normal-directions-bad.stl"
+    if not (CORPUS / name).exists():
+        pytest.skip("corpus not present")
+    src = load_mesh(CORPUS / name)
+    sv, sf = np.asarray(src.vertices, dtype=np.float64), np.asarray(src.faces, np.int64)
+    out = tmp_path / "out.stl"
+    report = repair_file(CORPUS / name, out, epsilon=EPS, time_budget=NO_TIME)
+    assert report["path"] == "fallback", report["summary"]
+    assert report["fallback"]["approximated_triangles"] == 0
+    assert report["fallback"]["exact_shells"] == 1
+    assert report["deviation"] < 1e-6
+    mesh = load_mesh(out)
+    v, f = np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, np.int64)
+    assert check_printable(v, f, as_float32=True).ok
+    # The input's triangles, each on its own corners, now all facing outward.
+    assert _sorted_triangles(v[f]) == _sorted_triangles(sv[sf])
+    assert _volume(v, f) > 0
