@@ -326,3 +326,32 @@ def test_corpus_flipped_faces_are_turned_not_thickened(tmp_path):
     # The input's triangles, each on its own corners, now all facing outward.
     assert _sorted_triangles(v[f]) == _sorted_triangles(sv[sf])
     assert _volume(v, f) > 0
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not (CORPUS / "mikedh_cycloidal.ply").exists(), reason="corpus not present")
+def test_corpus_cycloidal_kept_shells_unite_without_crossing_themselves():
+    # A gear exported as 117 closed shells that overlap (54,780 crossing pairs), some
+    # sharing an edge with another. The fallback keeps them exact and unites them with
+    # manifold3d, one solid per shell: handed over as edge-connected pieces, the shells
+    # sharing an edge made one non-manifold piece, whose union crossed itself (7,955
+    # pairs) and cost the finish ~3k faces of CGAL arrangement.
+    from repair.clean import clean_checked
+    from repair.fallback import _shell_labels
+    from repair.intersections import intersecting_face_pairs
+    from repair.rounding import round_input
+    from repair.topology import undirected_edges
+    from repair.union import manifold_union
+
+    src = load_mesh(CORPUS / "mikedh_cycloidal.ply")
+    r = round_input(np.asarray(src.vertices, np.float64), np.asarray(src.faces, np.int64))
+    c = clean_checked(r.vertices, r.faces, r.verdict)
+    split = split_exact_shells(c.vertices, c.faces)
+    assert split.exact_shells >= 100
+    _, uses = undirected_edges(split.exact_faces)
+    assert np.count_nonzero(uses > 2) > 0  # shells that share an edge
+    shells = _shell_labels(split.exact_faces)
+    united = manifold_union([(c.vertices, split.exact_faces)], collapse=False, shells=shells)
+    assert united is not None
+    uv, uf = united
+    assert len(intersecting_face_pairs(uv, uf)) == 0
