@@ -3,7 +3,8 @@ within its time budget, or cannot make the model printable.
 
 The cleaned input (:mod:`repair.clean`, with small holes closed) is split by shell. A
 shell that is already a solid -- closed, every edge used twice and in opposite
-directions within the shell, a non-zero volume -- is kept
+directions within the shell once its faces are oriented consistently (orientation is
+exact: faces listed the wrong way round are turned), a non-zero volume -- is kept
 exactly (turned outward if it was inside out). Open sheets, non-manifold shells and
 wires are replaced by an approximation of their eps-Minkowski sum: Attene's slabs
 (:func:`repair.thicken.sheet_slabs`: offset copies at +-eps/2 along the vertex normals,
@@ -11,9 +12,10 @@ walls along the boundary, per-face eps-blocks where a slab would fold; where tho
 blocks would be many, the sheet's eps/2 level set instead, unless that result does not
 print) and eps-prisms
 (:data:`repair.wires.SIDES` sides) around wires. The solids and the slabs are united by
-manifold3d's robust booleans -- Attene's exact arrangement and outer hull, what takes
-the time, are skipped -- then finished as the exact path's result is
-(:func:`repair.finish.finish`: rounded to float32, checked exactly, mended locally).
+manifold3d's robust booleans (one solid per shell, where shells share an edge) --
+Attene's exact arrangement and outer hull, what takes the time, are skipped -- then
+finished as the exact path's result is (:func:`repair.finish.finish`: rounded to
+float32, checked exactly, mended locally).
 
 A closed shell that crosses itself is kept too. Its crossings are resolved exactly
 and locally first (:func:`repair.mend.mend_intersections`: only the crossing faces
