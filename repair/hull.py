@@ -55,12 +55,35 @@ def _remesh_all(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray, n
     ``f``, intersecting pairs found)."""
     import igl.copyleft.cgal as cgal
 
+    v = np.ascontiguousarray(v, dtype=np.float64)
+    k = _integer_scale(v)
     vv, ff, pairs, birth, im = cgal.remesh_self_intersections(
-        np.ascontiguousarray(v, dtype=np.float64), np.ascontiguousarray(f, dtype=np.int64),
-        stitch_all=True, cutoff=2**31 - 1,
+        np.ldexp(v, k), np.ascontiguousarray(f, dtype=np.int64), stitch_all=True,
+        cutoff=2**31 - 1,
     )  # fmt: skip
     ff = np.asarray(im, dtype=np.int64)[np.asarray(ff, dtype=np.int64)]
-    return np.asarray(vv, dtype=np.float64), ff, np.asarray(birth, dtype=np.int64), len(pairs)
+    vv = np.ldexp(np.asarray(vv, dtype=np.float64), -k)
+    return vv, ff, np.asarray(birth, dtype=np.int64), len(pairs)
+
+
+def _integer_scale(v: np.ndarray) -> int:
+    """The power of two ``k`` that makes every coordinate of ``v`` an integer of at most
+    53 bits (0 if none does, or they already are). Scaling by a power of two is exact,
+    and so is rounding the arrangement's exact points back (the same doubles, scaled),
+    but CGAL's exact rationals of integer input stay shorter: mikedh_soup's arrangement
+    took 1.86 s of CPU against 2.16 (medians of 6). Only the faces' triangulation
+    differs (CGAL projects each face into its plane by a basis that does not scale)."""
+    x = np.abs(v[v != 0])
+    if len(x) == 0:
+        return 0
+    m, e = np.frexp(x)  # x = m 2^e, m in [0.5, 1)
+    bits = np.ldexp(m, 53).astype(np.int64)  # exact: 53-bit integers
+    low = (bits & -bits).astype(np.float64)  # lowest set bit
+    lowest = int((np.frexp(low)[1] - 1 + e - 53).min())  # exponent of the lowest bit
+    k = -lowest
+    if k <= 0 or int(np.frexp(x.max())[1]) + k > 53:
+        return 0
+    return k
 
 
 def _remesh(

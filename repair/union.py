@@ -25,6 +25,14 @@ from repair.topology import edge_components, edge_stats, weld_exact
 __all__ = ["ShellUnion", "manifold_union", "speck_volume", "union_of_shells", "without_specks"]
 
 
+#: From this many solids on, :func:`manifold_union` unites them in :data:`UNION_SHARES`
+#: shares side by side on the CPUs: mikedh_soup's 162 solids took 1.13 s of CPU to unite
+#: in one manifold3d batch, 0.69 s here (one share and the shares' union) and 0.5 s in
+#: a child; mikedh_teapot's 534 slabs 1.03 s, 0.56 + 0.44 s.
+SHARED_MIN_SOLIDS = 64
+UNION_SHARES = 2
+
+
 def speck_volume(epsilon: float) -> float:
     """The volume (mm³) below which a shell of a thickened union is a speck: a cube of
     1 % of eps on a side, far below what a nozzle of diameter eps can print."""
@@ -167,7 +175,7 @@ def manifold_union(
             solids.extend(pieces)
         if not solids:
             return None
-        out = _sum_of(solids)
+        out = _sum_of(solids) if len(solids) < SHARED_MIN_SOLIDS else _sum_in_shares(solids)
         # Collapse what float32 cannot hold apart anyway: slivers and sub-ulp features.
         if collapse:
             size = max(float(np.abs(np.asarray(p[0])).max()) for p in parts if len(p[1]))
@@ -202,6 +210,42 @@ def without_specks(
     if keep.all() or not keep.any():
         return v, f
     return drop_unreferenced(v, f[keep[labels]])
+
+
+def _sum_in_shares(solids: list):
+    """:func:`_sum_of` many solids as the union of the unions of :data:`UNION_SHARES`
+    shares of them (neighbours, about equal in triangles), taken side by side on the
+    CPUs (:func:`repair.workers.map_forked`). Each share's union comes back as its float64
+    mesh, one solid (its cavity shells with it), whatever the CPUs: the same output for
+    any number of them."""
+    from repair.workers import balanced_shares, cpu_workers, map_forked
+
+    # Shares of neighbouring solids (cut across the longest side of their boxes' centres):
+    # two halves of a thickened surface side by side meet along one cut, not everywhere.
+    box = np.array([s.bounding_box() for s in solids], dtype=np.float64).reshape(-1, 2, 3)
+    centre = box.mean(axis=1)
+    order = np.argsort(centre[:, np.argmax(np.ptp(centre, axis=0))], kind="stable")
+    tris = np.cumsum(np.array([s.num_tri() for s in solids])[order])
+    cut = np.searchsorted(tris, tris[-1] * np.arange(1, UNION_SHARES) / UNION_SHARES)
+    groups = [g.tolist() for g in np.split(order, cut) if len(g)]
+    if len(groups) < 2:  # one solid holds most triangles: nothing to share
+        return _sum_of(solids)
+
+    def unite(share: list[int]) -> tuple[np.ndarray, np.ndarray]:
+        mesh = _sum_of([solids[i] for i in share]).to_mesh64()
+        return np.asarray(mesh.vert_properties)[:, :3], np.asarray(mesh.tri_verts)
+
+    jobs = balanced_shares([1] * len(groups), min(cpu_workers(), len(groups)))  # CPUs
+    parts = []
+    for v, f in map_forked(unite, groups, jobs):
+        if len(f):
+            part = _manifolds_of(v, f, np.zeros(len(f), dtype=np.int64), float64=True)
+            if part is None:
+                raise ValueError("manifold3d rejected a share's union")
+            parts.extend(part)
+    if not parts:
+        raise ValueError("the union is empty")
+    return _sum_of(parts)
 
 
 def _sum_of(solids: list):

@@ -187,3 +187,30 @@ def test_hull_taken_again_with_known_pairs_is_the_hull_taken_from_scratch():
     bv, bf, bp = before
     assert np.array_equal(bp, intersecting_face_pairs(bv, bf))
     assert hull_again(v32, f, None, [], 0.4, RepairTally())[2] is None
+
+
+def test_arrangement_of_float32_input_scaled_to_integers_has_the_same_points():
+    # CGAL's exact arithmetic is cheaper on integers: float32 coordinates are scaled by
+    # a power of two that makes them integers, and the points scaled back are the very
+    # doubles an unscaled arrangement gives; only each face's triangulation may differ.
+    import igl.copyleft.cgal as cgal
+
+    from repair.hull import _integer_scale, _remesh_all
+
+    def face_areas(v, f):
+        p = v[f]
+        return 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+
+    rng = np.random.default_rng(7)
+    v = rng.uniform(0.0, 10.0, (90, 3)).astype(np.float32).astype(np.float64)
+    f = np.arange(90).reshape(-1, 3)
+    assert _integer_scale(v) > 0
+    assert _integer_scale(v + 0.1) == 0  # 53 significant bits: no integer fits
+    vv, ff, birth, n = _remesh_all(v, f)
+    wv, wf, pairs, wb, im = cgal.remesh_self_intersections(v, f, stitch_all=True, cutoff=2**31 - 1)
+    wf = np.asarray(im)[np.asarray(wf)]
+    assert n == len(pairs) > 10
+    assert np.array_equal(np.unique(vv, axis=0), np.unique(np.asarray(wv), axis=0))
+    area = np.bincount(birth, face_areas(vv, ff), minlength=len(f))
+    direct = np.bincount(np.asarray(wb), face_areas(np.asarray(wv), wf), minlength=len(f))
+    assert np.allclose(area, direct, rtol=1e-12, atol=0)
