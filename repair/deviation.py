@@ -420,7 +420,7 @@ def _faces_reaching(
                      axis=0)  # fmt: skip
         before = len(live)
         live = live[~(top < below * below)]
-        if 4 * len(live) > 3 * before:  # most faces reach it: the samples will tell
+        if 16 * len(live) > 15 * before:  # nearly all faces reach it: the samples will tell
             break
     return live
 
