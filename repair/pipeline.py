@@ -410,13 +410,15 @@ def _exact_path(
     """Exact arrangement, outer hull, thickening, finished, with the input face each
     written face is believed to be a piece of (or -1); raises :class:`RepairError`
     when nothing can be reached from outside or the result cannot be made printable."""
+    # The shells of the lidded input, while the union's census of them is still memoized
+    # (the hull's stages would push it out).
+    shell_in = edge_components(lidded.faces) if len(lidded.faces) else None
     hull_v, hull_f, first_hull, hull_birth, united = hull_and_thicken(
         lidded.vertices, lidded.faces, eps, tally, cleaned.segments, pairs=lidded.pairs
     )
     clock.lap("hull_and_thicken", 0.6)
     dropped = 0
-    if len(lidded.faces):
-        shell_in = edge_components(lidded.faces)
+    if shell_in is not None:
         seen = np.unique(shell_in[hull_birth]) if len(hull_birth) else []
         dropped = int(shell_in.max()) + 1 - len(seen)
     if len(hull_f) == 0:

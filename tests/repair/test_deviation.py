@@ -137,3 +137,25 @@ def test_exact_path_sources_are_pieces_of_their_input_faces_and_d_stays_bounded(
     sampled = float(np.sqrt(igl.point_mesh_squared_distance(pts, v, f)[0].max()))
     tol = 2.0**-21 * float(np.abs(ov).max())
     assert sampled <= with_hint <= max(plain, tol)
+
+
+def test_samples_left_out_by_their_bounds_never_change_d():
+    """D measures only the samples whose corner bounds reach the largest distance found
+    (repair.deviation._max_sample_distance): on a thickened sheet -- the input's faces
+    offset 0.2 mm, a few corners pushed farther -- and on a noisy copy it is exactly the
+    largest distance of all the samples, measured one by one."""
+    import igl
+
+    from repair.deviation import _surface_samples, max_deviation
+
+    m = trimesh.creation.icosphere(subdivisions=4, radius=20.0)  # 5120 triangles
+    v, f = np.asarray(m.vertices), np.asarray(m.faces, dtype=np.int64)
+    offset = v * (20.2 / 20.0)
+    offset[[7, 300, 1500]] *= 1.05  # bumps: D is found near them, 1.2 mm out
+    rng = np.random.default_rng(8)
+    noisy = v + rng.normal(scale=0.05, size=v.shape)
+    for out in (offset, noisy):
+        for max_points in (0, 400_000):
+            pts = _surface_samples(out, f, max_points)
+            every = float(np.sqrt(igl.point_mesh_squared_distance(pts, v, f)[0].max()))
+            assert max_deviation(out, f, v, f, max_points=max_points) == every
