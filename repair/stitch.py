@@ -2,12 +2,17 @@
 within γ of each other are joined before the outer hull is computed, so a cracked closed
 surface comes out closed with its intended genus instead of thickened along the crack.
 
-Two steps, on boundary (lamina) edges and vertices of different edge-connected patches:
+Three steps, on boundary (lamina) edges and vertices of different edge-connected patches:
 
-1. *snap*: a boundary vertex whose nearest boundary vertex of another patch (within γ)
-   has it as its nearest too is merged with it (the lower index is kept, so coordinates
-   stay those of the input: float32 values stay float32 values);
-2. *split*: every boundary vertex still on the boundary that lies within γ of the inside
+1. *snap rims*: a boundary edge matched with one of another patch running the other way
+   within γ (each the other's closest such edge) has its ends merged with that edge's
+   (the lower index is kept, so coordinates stay those of the input: float32 values
+   stay float32 values). Edges, not vertices: two vertices of the intact surface may lie
+   closer together than a crack's noise, and only the right copies share a rim edge;
+2. *snap*: a boundary vertex still on the boundary whose nearest boundary vertex of
+   another patch (within γ) has it as its nearest too is merged with it (corners where
+   three patches meet, patches exported flipped);
+3. *split*: every boundary vertex still on the boundary that lies within γ of the inside
    of a boundary edge of another patch is inserted into that edge: the edge's face is
    split into a fan from its opposite corner, keeping its orientation. Both sides of a
    crack then run through the same vertices and share their edges. So is a T-junction
@@ -90,10 +95,14 @@ def _boundary_vertices(
 
 
 def _snap(
-    v: np.ndarray, f: np.ndarray, gamma: float, topology: EdgeTopology, patch: np.ndarray
+    v: np.ndarray, f: np.ndarray, gamma: float, topology: EdgeTopology, patch: np.ndarray,
+    matched: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Faces with mutually nearest boundary vertices of different patches merged, each
-    face's ``patch`` label (carried through), and how many pairs were merged."""
+    face's ``patch`` label (carried through), and how many pairs were merged. Two
+    vertices both ``matched`` (merged by :func:`_snap_rims`: each has found its copy)
+    are not: left on the boundary, they are the ends of a crack that runs on, and their
+    nearest is a vertex of another shell (a body written twice, shifted)."""
     bnd = _boundary(f, topology)[0]
     bv, bpatch = _boundary_vertices(f, bnd, patch)
     if len(bv) < 2:
@@ -110,15 +119,78 @@ def _snap(
     i = np.flatnonzero(has)
     mutual = i[nearest[nearest[i]] == i]
     a, b = mutual, nearest[mutual]
-    a, b = a[a < b], b[a < b]
+    sel = (a < b) & ~(matched[bv[a]] & matched[bv[b]])
+    a, b = a[sel], b[sel]
     if len(a) == 0:
         return f, patch, 0
-    labels = connected_labels(len(v), bv[a], bv[b])
-    keep = np.full(labels.max() + 1, len(v))
-    np.minimum.at(keep, labels, np.arange(len(v)))
+    out, ok = _merged(len(v), f, bv[a], bv[b])
+    return out[ok], patch[ok], len(a)
+
+
+def _merged(n: int, f: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``f`` with the vertices joined by pairs ``a[i] -- b[i]`` (of ``n``) merged into the
+    lowest index of each group, and which faces keep three distinct corners."""
+    labels = connected_labels(n, a, b)
+    keep = np.full(labels.max() + 1, n)
+    np.minimum.at(keep, labels, np.arange(n))
     out = keep[labels][f]
     ok = (out[:, 0] != out[:, 1]) & (out[:, 1] != out[:, 2]) & (out[:, 2] != out[:, 0])
-    return out[ok], patch[ok], len(a)
+    return out, ok
+
+
+def _snap_rims(
+    v: np.ndarray, f: np.ndarray, gamma: float, topology: EdgeTopology, patch: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Faces with the ends of matched rim edges merged, and which vertices were merged.
+
+    A boundary half-edge ``s -> e`` of one patch matches one ``e' -> s'`` of another
+    (opposite direction, as the two sides of a crack of a consistently oriented surface
+    run) with ``|s - s'|`` and ``|e - e'|`` within γ; each takes the match of least summed
+    distance, and mutual matches are kept. Where two vertices of the intact surface lie
+    closer than the crack's noise (a CAD step's sliver: 3e-5 mm apart, noise 1e-4 mm),
+    nearest vertices are the wrong copies but only the right ones are joined by a rim
+    edge. A group of merged vertices that would collapse a face is left apart."""
+    bnd = _boundary(f, topology)[0]
+    none = np.zeros(len(v), dtype=bool)
+    if len(bnd) < 2:
+        return f, none
+    from scipy.spatial import cKDTree
+
+    rim_patch = patch[bnd // 3]
+    if rim_patch.min() == rim_patch.max():
+        return f, none
+    rim = half_edges(f)[bnd]
+    s, e = v[rim[:, 0]], v[rim[:, 1]]
+    i, j = cKDTree(0.5 * (s + e)).query_pairs(gamma, output_type="ndarray").T
+    i, j = i[rim_patch[i] != rim_patch[j]], j[rim_patch[i] != rim_patch[j]]
+    ds = np.linalg.norm(s[i] - e[j], axis=1)
+    de = np.linalg.norm(e[i] - s[j], axis=1)
+    sel = (ds <= gamma) & (de <= gamma)
+    if not sel.any():
+        return f, none
+    i, j, cost = np.r_[i[sel], j[sel]], np.r_[j[sel], i[sel]], np.tile((ds + de)[sel], 2)
+    order = np.lexsort((cost, i))
+    i, j = i[order], j[order]
+    first = np.r_[True, i[1:] != i[:-1]]
+    best = np.full(len(bnd), -1)
+    best[i[first]] = j[first]
+    m = np.flatnonzero(best >= 0)
+    m = m[(best[best[m]] == m) & (m < best[m])]
+    if len(m) == 0:
+        return f, none
+    a = np.concatenate([rim[m, 0], rim[m, 1]])
+    b = np.concatenate([rim[best[m], 1], rim[best[m], 0]])
+    out, ok = _merged(len(v), f, a, b)
+    if not ok.all():
+        labels = connected_labels(len(v), a, b)
+        bad = np.zeros(labels.max() + 1, dtype=bool)
+        bad[labels[f[~ok][out[~ok] == np.roll(out[~ok], -1, axis=1)]]] = True
+        good = ~bad[labels[a]]
+        a, b = a[good], b[good]
+        out = _merged(len(v), f, a, b)[0]
+    merged = np.zeros(len(v), dtype=bool)
+    merged[a] = merged[b] = True
+    return (out, merged) if len(a) else (f, merged)
 
 
 def _split_candidates(
@@ -233,9 +305,12 @@ def stitch_cracks(
     # Where three or more patches meet at a corner (a cracked-off patch touching two
     # others), its copies are merged a mutual pair per round; the patches keep their
     # input labels, so a copy left over still finds the patch it was cut from.
-    patch, snapped, topo_f = topo.shells, 0, topo
+    patch = topo.shells
+    f, matched = _snap_rims(v, f, gamma, topo, patch)
+    snapped = 0 if f is original else len(np.unique(original)) - len(np.unique(f))
+    topo_f = edge_topology(f) if snapped else topo
     for _ in range(_SNAP_ROUNDS):
-        f, patch, merged = _snap(v, f, gamma, topo_f, patch)
+        f, patch, merged = _snap(v, f, gamma, topo_f, patch, matched)
         snapped += merged
         if merged == 0:
             break
