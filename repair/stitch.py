@@ -163,28 +163,41 @@ def _snap_rims(
     s, e = v[rim[:, 0]], v[rim[:, 1]]
     i, j = cKDTree(0.5 * (s + e)).query_pairs(gamma, output_type="ndarray").T
     i, j = i[rim_patch[i] != rim_patch[j]], j[rim_patch[i] != rim_patch[j]]
-    ds = np.linalg.norm(s[i] - e[j], axis=1)
-    de = np.linalg.norm(e[i] - s[j], axis=1)
-    sel = (ds <= gamma) & (de <= gamma)
+    # Running the other way (the sides of a crack), else the same way (a patch written
+    # flipped): only an edge with no partner of the first kind takes one of the second.
+    ds, de = np.linalg.norm(s[i] - e[j], axis=1), np.linalg.norm(e[i] - s[j], axis=1)
+    ss, ee = np.linalg.norm(s[i] - s[j], axis=1), np.linalg.norm(e[i] - e[j], axis=1)
+    opposite = (ds <= gamma) & (de <= gamma)
+    same = ~opposite & (ss <= gamma) & (ee <= gamma)
+    sel = opposite | same
     if not sel.any():
         return f, none
-    i, j, cost = np.r_[i[sel], j[sel]], np.r_[j[sel], i[sel]], np.tile((ds + de)[sel], 2)
+    cost = np.where(opposite, ds + de, ss + ee + 4 * gamma)[sel]
+    i, j, same = i[sel], j[sel], same[sel]
+    i, j, same, cost = np.r_[i, j], np.r_[j, i], np.tile(same, 2), np.tile(cost, 2)
     order = np.lexsort((cost, i))
-    i, j = i[order], j[order]
+    i, j, same = i[order], j[order], same[order]
     first = np.r_[True, i[1:] != i[:-1]]
     best = np.full(len(bnd), -1)
     best[i[first]] = j[first]
+    flipped = np.zeros(len(bnd), dtype=bool)
+    flipped[i[first]] = same[first]
     m = np.flatnonzero(best >= 0)
     m = m[(best[best[m]] == m) & (m < best[m])]
     if len(m) == 0:
         return f, none
+    other = rim[best[m]]
+    other[~flipped[m]] = other[~flipped[m], ::-1]
     a = np.concatenate([rim[m, 0], rim[m, 1]])
-    b = np.concatenate([rim[best[m], 1], rim[best[m], 0]])
+    b = np.concatenate([other[:, 0], other[:, 1]])
+    # Only one-to-one joins: a group of three or more (two copies of a sliver's ends
+    # drawn to one vertex, a corner of several patches) is left to vertex snapping, as
+    # is one that would collapse a face.
+    labels = connected_labels(len(v), a, b)
+    bad = np.bincount(labels, minlength=labels.max() + 1) > 2
     out, ok = _merged(len(v), f, a, b)
-    if not ok.all():
-        labels = connected_labels(len(v), a, b)
-        bad = np.zeros(labels.max() + 1, dtype=bool)
-        bad[labels[f[~ok][out[~ok] == np.roll(out[~ok], -1, axis=1)]]] = True
+    bad[labels[f[~ok][out[~ok] == np.roll(out[~ok], -1, axis=1)]]] = True
+    if bad.any():
         good = ~bad[labels[a]]
         a, b = a[good], b[good]
         out = _merged(len(v), f, a, b)[0]
@@ -333,7 +346,7 @@ def stitch_cracks(
         # neighbours without folding back onto them. Not so for consistent patches: two
         # shells facing the same way (a shell written twice, shifted) would be joined
         # back to back at their holes.
-        misoriented_after = misoriented + _worse_oriented(v, f, original)
+        misoriented_after = misoriented + _worse_oriented(v, f, original, gamma)
     if nonmanifold_after > nonmanifold or misoriented_after > misoriented or b1 >= b0:
         # Not a crack between consistent patches (crossing triangles of a soup, patches
         # facing the same way): stitching would make the surface worse; leave it.
@@ -342,7 +355,7 @@ def stitch_cracks(
     return f, Stitched(float(gamma), snapped, inserted, b0, b1)
 
 
-def _worse_oriented(v: np.ndarray, f: np.ndarray, original: np.ndarray) -> int:
+def _worse_oriented(v: np.ndarray, f: np.ndarray, original: np.ndarray, gamma: float) -> int:
     """Whether ``f``, every patch oriented consistently where it can be
     (:func:`repair.thicken.orient_patches`), has more edges used twice the same way or
     more faces folded back onto each other (:func:`_folds`: a stitch joining two shells
@@ -351,14 +364,21 @@ def _worse_oriented(v: np.ndarray, f: np.ndarray, original: np.ndarray) -> int:
 
     now, before = orient_patches(f)[0], orient_patches(original)[0]
     return int(edge_topology(now).misoriented > edge_topology(before).misoriented
-               or _folds(v, now) > _folds(v, before))  # fmt: skip
+               or _folds(v, now, gamma) > _folds(v, before, gamma))  # fmt: skip
 
 
-def _folds(v: np.ndarray, f: np.ndarray) -> int:
+def _folds(v: np.ndarray, f: np.ndarray, gamma: float) -> int:
     """Edges of two faces whose unit normals are within ~8° of opposite: the faces lie
-    back to back (mm-free: angles only)."""
+    back to back. Only faces wider than ``gamma`` mm (each corner's distance from the
+    line of the opposite edge) count: the stitch moves vertices by up to γ, so the
+    normal of a sliver narrower than that is noise (a CAD step's sliver between
+    vertices 3e-5 mm apart, its copy moved by 1e-4 mm, faces any way)."""
     h1, h2, _ = paired_half_edges(edge_topology(f).eid)
     p = v[f]
     n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    n /= np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
-    return int(np.count_nonzero(np.einsum("ij,ij->i", n[h1 // 3], n[h2 // 3]) < -0.99))
+    twice_area = np.linalg.norm(n, axis=1)
+    n /= np.maximum(twice_area, 1e-300)[:, None]
+    longest = np.linalg.norm(p - p[:, [1, 2, 0]], axis=2).max(axis=1)
+    wide = twice_area > gamma * longest
+    back = np.einsum("ij,ij->i", n[h1 // 3], n[h2 // 3]) < -0.99
+    return int(np.count_nonzero(back & wide[h1 // 3] & wide[h2 // 3]))

@@ -83,6 +83,27 @@ def test_a_crack_through_vertices_closer_than_its_noise_is_stitched(seed, tmp_pa
     assert written_solid(*cracked(v, f, seed), tmp_path) == pytest.approx(expected, rel=1e-3)
 
 
+@pytest.mark.parametrize("seed", [1, 5, 7])
+def test_a_cracked_flipped_step_written_twice_is_stitched(seed, tmp_path):
+    # The cracked step with four faces written flipped and the whole body written twice,
+    # 2.3 um apart: the flipped patch's rim runs the same way as its neighbours', and
+    # the slivers' normals (faces 3e-5 mm wide, their corners moved by 1e-4 mm) point
+    # any way, so a right stitch looked folded back onto itself and was declined: a
+    # hollow skin (1,419 mm³ of 5,485) or half again too much. Rims are matched the same
+    # way where no edge runs the other way, one-to-one, and only faces wider than the
+    # stitch's tolerance count as folds.
+    v, f = real_model("cgal_step.obj", 0.05)
+    expected = check_printable(v, f).volume
+    v, f = cracked(v, f, seed)
+    centre = v[f].mean(axis=1)
+    rng = np.random.default_rng(seed)
+    flip = np.argsort(np.linalg.norm(centre - centre[rng.integers(len(f))], axis=1))[:4]
+    f[flip] = f[flip, ::-1]
+    off = np.array([1.0, -2.0, 0.5]) * 1e-3  # mm
+    v, f = np.vstack([v, v + off]), np.vstack([f, f + len(v)])
+    assert written_solid(v, f, tmp_path) == pytest.approx(expected, rel=2e-3)
+
+
 def cracked(v: np.ndarray, f: np.ndarray, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """A patch of 10-50 % of the faces (nearest a random one) unwelded, its copy of the
     vertices moved by float noise (1e-6 relative), as a CAD exporter writes each
