@@ -336,6 +336,8 @@ def stitch_cracks(
         n = len(f)
         f = _split_faces(f, h, p, t)
         inserted += len(f) - n
+    if f is not original:
+        f = _without_flaps(v, f)
     after = topo if topo.of(f) else edge_topology(f)
     b1, nonmanifold_after, misoriented_after = (
         after.boundary, after.nonmanifold, after.misoriented
@@ -353,6 +355,24 @@ def stitch_cracks(
         return original, Stitched(float(gamma), boundary_before=b0, boundary_after=b0,
                                   declined=True)  # fmt: skip
     return f, Stitched(float(gamma), snapped, inserted, b0, b1)
+
+
+def _without_flaps(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """``f`` without its flaps: faces of zero area up to the rounding of their
+    coordinates (:data:`_T_JUNCTION`) with two boundary edges and the third on more than
+    two faces -- an exporter's sliver on an edge (its apex on the edge, its other two
+    edges the slit of a T-junction) that a stitch has joined to both sides of the edge."""
+    t = edge_topology(f)
+    count = t.counts[t.eid].reshape(-1, 3)
+    cand = np.flatnonzero(((count == 1).sum(axis=1) == 2) & (count > 2).any(axis=1))
+    if len(cand) == 0:
+        return f
+    p = v[f[cand]]
+    twice_area = np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    longest = np.linalg.norm(p - p[:, [1, 2, 0]], axis=2).max(axis=1)
+    size = np.maximum(np.abs(p).max(axis=(1, 2)), 1.0)
+    flap = cand[twice_area <= _T_JUNCTION * size * longest]
+    return np.delete(f, flap, axis=0) if len(flap) else f
 
 
 def _worse_oriented(v: np.ndarray, f: np.ndarray, original: np.ndarray, gamma: float) -> int:
