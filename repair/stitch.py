@@ -311,7 +311,7 @@ def stitch_cracks(
     if len(f) == 0 or gamma <= 0:
         return f, Stitched(gamma=float(gamma))
     topo = topology if topology is not None and topology.of(f) else edge_topology(f)
-    b0, nonmanifold, misoriented = topo.boundary, topo.nonmanifold, topo.misoriented
+    b0, nonmanifold, misoriented = topo.boundary, _unpaired(topo), topo.misoriented
     if b0 == 0:
         return f, Stitched(gamma=float(gamma))
     original = f
@@ -340,7 +340,7 @@ def stitch_cracks(
         f = _without_flaps(v, f)
     after = topo if topo.of(f) else edge_topology(f)
     b1, nonmanifold_after, misoriented_after = (
-        after.boundary, after.nonmanifold, after.misoriented
+        after.boundary, _unpaired(after), after.misoriented
     )
     if misoriented_after > misoriented and nonmanifold_after <= nonmanifold and misoriented:
         # An export with faces flipped (STL normals ignored): its patches meet
@@ -355,6 +355,18 @@ def stitch_cracks(
         return original, Stitched(float(gamma), boundary_before=b0, boundary_after=b0,
                                   declined=True)  # fmt: skip
     return f, Stitched(float(gamma), snapped, inserted, b0, b1)
+
+
+def _unpaired(t: EdgeTopology) -> int:
+    """Edges of more than two faces that are not used as often one way as the other: an
+    edge two solids share (two cubes touching along it, four faces, two each way) is a
+    closed surface's edge, and a crack along it is stitched back into one."""
+    if t.nonmanifold == 0:
+        return 0
+    he = half_edges(t.faces)
+    way = np.bincount(t.eid, weights=np.where(he[:, 0] < he[:, 1], 1.0, -1.0),
+                      minlength=len(t.counts))  # fmt: skip
+    return int(np.count_nonzero((t.counts > 2) & (way != 0)))
 
 
 def _without_flaps(v: np.ndarray, f: np.ndarray) -> np.ndarray:

@@ -161,6 +161,18 @@ def test_a_crack_whose_rim_vertex_ends_boundary_edges_only_is_stitched(
     assert written_solid(*cracked(v, f, seed), tmp_path) == pytest.approx(expected, rel=1e-3)
 
 
+def test_a_crack_along_an_edge_two_solids_share_is_stitched(tmp_path):
+    # CGAL's two cubes share an edge (four faces, two each way). A crack whose rim runs
+    # along it (seed 27) takes that edge apart; stitched, it is again an edge of four
+    # faces, and the stitch declined as making an edge of more than two faces: the part
+    # came out a hollow skin (8,955 mm³ of 16,000). Only edges of more than two faces
+    # not used as often one way as the other make a stitch worse.
+    v, f = real_model("cgal_cubes.obj", 20.0)
+    r = repair_mesh(v, f, 0.4)
+    expected = check_printable(r.vertices, r.faces).volume
+    assert written_solid(*cracked(v, f, 27), tmp_path) == pytest.approx(expected, rel=1e-3)
+
+
 def multibody() -> tuple[np.ndarray, np.ndarray, float]:
     """trimesh's multibody.stl at 50x: two solids, written with some faces flipped (as
     exporters that trust the normals do), and the volume of its own repair (mm³)."""
