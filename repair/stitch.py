@@ -2,12 +2,17 @@
 within γ of each other are joined before the outer hull is computed, so a cracked closed
 surface comes out closed with its intended genus instead of thickened along the crack.
 
-Two steps, on boundary (lamina) edges and vertices of different edge-connected patches:
+Three steps, on boundary (lamina) edges and vertices of different edge-connected patches:
 
-1. *snap*: a boundary vertex whose nearest boundary vertex of another patch (within γ)
-   has it as its nearest too is merged with it (the lower index is kept, so coordinates
-   stay those of the input: float32 values stay float32 values);
-2. *split*: every boundary vertex still on the boundary that lies within γ of the inside
+1. *snap rims*: a boundary edge matched with one of another patch running the other way
+   within γ (each the other's closest such edge) has its ends merged with that edge's
+   (the lower index is kept, so coordinates stay those of the input: float32 values
+   stay float32 values). Edges, not vertices: two vertices of the intact surface may lie
+   closer together than a crack's noise, and only the right copies share a rim edge;
+2. *snap*: a boundary vertex still on the boundary whose nearest boundary vertex of
+   another patch (within γ) has it as its nearest too is merged with it (corners where
+   three patches meet, patches exported flipped);
+3. *split*: every boundary vertex still on the boundary that lies within γ of the inside
    of a boundary edge of another patch is inserted into that edge: the edge's face is
    split into a fan from its opposite corner, keeping its orientation. Both sides of a
    crack then run through the same vertices and share their edges. So is a T-junction
@@ -90,10 +95,14 @@ def _boundary_vertices(
 
 
 def _snap(
-    v: np.ndarray, f: np.ndarray, gamma: float, topology: EdgeTopology, patch: np.ndarray
+    v: np.ndarray, f: np.ndarray, gamma: float, topology: EdgeTopology, patch: np.ndarray,
+    matched: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Faces with mutually nearest boundary vertices of different patches merged, each
-    face's ``patch`` label (carried through), and how many pairs were merged."""
+    face's ``patch`` label (carried through), and how many pairs were merged. Two
+    vertices both ``matched`` (merged by :func:`_snap_rims`: each has found its copy)
+    are not: left on the boundary, they are the ends of a crack that runs on, and their
+    nearest is a vertex of another shell (a body written twice, shifted)."""
     bnd = _boundary(f, topology)[0]
     bv, bpatch = _boundary_vertices(f, bnd, patch)
     if len(bv) < 2:
@@ -110,15 +119,91 @@ def _snap(
     i = np.flatnonzero(has)
     mutual = i[nearest[nearest[i]] == i]
     a, b = mutual, nearest[mutual]
-    a, b = a[a < b], b[a < b]
+    sel = (a < b) & ~(matched[bv[a]] & matched[bv[b]])
+    a, b = a[sel], b[sel]
     if len(a) == 0:
         return f, patch, 0
-    labels = connected_labels(len(v), bv[a], bv[b])
-    keep = np.full(labels.max() + 1, len(v))
-    np.minimum.at(keep, labels, np.arange(len(v)))
+    out, ok = _merged(len(v), f, bv[a], bv[b])
+    return out[ok], patch[ok], len(a)
+
+
+def _merged(n: int, f: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``f`` with the vertices joined by pairs ``a[i] -- b[i]`` (of ``n``) merged into the
+    lowest index of each group, and which faces keep three distinct corners."""
+    labels = connected_labels(n, a, b)
+    keep = np.full(labels.max() + 1, n)
+    np.minimum.at(keep, labels, np.arange(n))
     out = keep[labels][f]
     ok = (out[:, 0] != out[:, 1]) & (out[:, 1] != out[:, 2]) & (out[:, 2] != out[:, 0])
-    return out[ok], patch[ok], len(a)
+    return out, ok
+
+
+def _snap_rims(
+    v: np.ndarray, f: np.ndarray, gamma: float, topology: EdgeTopology, patch: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Faces with the ends of matched rim edges merged, and which vertices were merged.
+
+    A boundary half-edge ``s -> e`` of one patch matches one ``e' -> s'`` of another
+    (opposite direction, as the two sides of a crack of a consistently oriented surface
+    run) with ``|s - s'|`` and ``|e - e'|`` within γ; each takes the match of least summed
+    distance, and mutual matches are kept. Where two vertices of the intact surface lie
+    closer than the crack's noise (a CAD step's sliver: 3e-5 mm apart, noise 1e-4 mm),
+    nearest vertices are the wrong copies but only the right ones are joined by a rim
+    edge. A group of merged vertices that would collapse a face is left apart."""
+    bnd = _boundary(f, topology)[0]
+    none = np.zeros(len(v), dtype=bool)
+    if len(bnd) < 2:
+        return f, none
+    from scipy.spatial import cKDTree
+
+    rim_patch = patch[bnd // 3]
+    if rim_patch.min() == rim_patch.max():
+        return f, none
+    rim = half_edges(f)[bnd]
+    s, e = v[rim[:, 0]], v[rim[:, 1]]
+    i, j = cKDTree(0.5 * (s + e)).query_pairs(gamma, output_type="ndarray").T
+    i, j = i[rim_patch[i] != rim_patch[j]], j[rim_patch[i] != rim_patch[j]]
+    # Running the other way (the sides of a crack), else the same way (a patch written
+    # flipped): only an edge with no partner of the first kind takes one of the second.
+    ds, de = np.linalg.norm(s[i] - e[j], axis=1), np.linalg.norm(e[i] - s[j], axis=1)
+    ss, ee = np.linalg.norm(s[i] - s[j], axis=1), np.linalg.norm(e[i] - e[j], axis=1)
+    opposite = (ds <= gamma) & (de <= gamma)
+    same = ~opposite & (ss <= gamma) & (ee <= gamma)
+    sel = opposite | same
+    if not sel.any():
+        return f, none
+    cost = np.where(opposite, ds + de, ss + ee + 4 * gamma)[sel]
+    i, j, same = i[sel], j[sel], same[sel]
+    i, j, same, cost = np.r_[i, j], np.r_[j, i], np.tile(same, 2), np.tile(cost, 2)
+    order = np.lexsort((cost, i))
+    i, j, same = i[order], j[order], same[order]
+    first = np.r_[True, i[1:] != i[:-1]]
+    best = np.full(len(bnd), -1)
+    best[i[first]] = j[first]
+    flipped = np.zeros(len(bnd), dtype=bool)
+    flipped[i[first]] = same[first]
+    m = np.flatnonzero(best >= 0)
+    m = m[(best[best[m]] == m) & (m < best[m])]
+    if len(m) == 0:
+        return f, none
+    other = rim[best[m]]
+    other[~flipped[m]] = other[~flipped[m], ::-1]
+    a = np.concatenate([rim[m, 0], rim[m, 1]])
+    b = np.concatenate([other[:, 0], other[:, 1]])
+    # Only one-to-one joins: a group of three or more (two copies of a sliver's ends
+    # drawn to one vertex, a corner of several patches) is left to vertex snapping, as
+    # is one that would collapse a face.
+    labels = connected_labels(len(v), a, b)
+    bad = np.bincount(labels, minlength=labels.max() + 1) > 2
+    out, ok = _merged(len(v), f, a, b)
+    bad[labels[f[~ok][out[~ok] == np.roll(out[~ok], -1, axis=1)]]] = True
+    if bad.any():
+        good = ~bad[labels[a]]
+        a, b = a[good], b[good]
+        out = _merged(len(v), f, a, b)[0]
+    merged = np.zeros(len(v), dtype=bool)
+    merged[a] = merged[b] = True
+    return (out, merged) if len(a) else (f, merged)
 
 
 def _split_candidates(
@@ -226,16 +311,19 @@ def stitch_cracks(
     if len(f) == 0 or gamma <= 0:
         return f, Stitched(gamma=float(gamma))
     topo = topology if topology is not None and topology.of(f) else edge_topology(f)
-    b0, nonmanifold, misoriented = topo.boundary, topo.nonmanifold, topo.misoriented
+    b0, nonmanifold, misoriented = topo.boundary, _unpaired(topo), topo.misoriented
     if b0 == 0:
         return f, Stitched(gamma=float(gamma))
     original = f
     # Where three or more patches meet at a corner (a cracked-off patch touching two
     # others), its copies are merged a mutual pair per round; the patches keep their
     # input labels, so a copy left over still finds the patch it was cut from.
-    patch, snapped, topo_f = topo.shells, 0, topo
+    patch = topo.shells
+    f, matched = _snap_rims(v, f, gamma, topo, patch)
+    snapped = 0 if f is original else len(np.unique(original)) - len(np.unique(f))
+    topo_f = edge_topology(f) if snapped else topo
     for _ in range(_SNAP_ROUNDS):
-        f, patch, merged = _snap(v, f, gamma, topo_f, patch)
+        f, patch, merged = _snap(v, f, gamma, topo_f, patch, matched)
         snapped += merged
         if merged == 0:
             break
@@ -248,9 +336,11 @@ def stitch_cracks(
         n = len(f)
         f = _split_faces(f, h, p, t)
         inserted += len(f) - n
+    if f is not original:
+        f = _without_flaps(v, f)
     after = topo if topo.of(f) else edge_topology(f)
     b1, nonmanifold_after, misoriented_after = (
-        after.boundary, after.nonmanifold, after.misoriented
+        after.boundary, _unpaired(after), after.misoriented
     )
     if misoriented_after > misoriented and nonmanifold_after <= nonmanifold and misoriented:
         # An export with faces flipped (STL normals ignored): its patches meet
@@ -258,7 +348,7 @@ def stitch_cracks(
         # neighbours without folding back onto them. Not so for consistent patches: two
         # shells facing the same way (a shell written twice, shifted) would be joined
         # back to back at their holes.
-        misoriented_after = misoriented + _worse_oriented(v, f, original)
+        misoriented_after = misoriented + _worse_oriented(v, f, original, gamma)
     if nonmanifold_after > nonmanifold or misoriented_after > misoriented or b1 >= b0:
         # Not a crack between consistent patches (crossing triangles of a soup, patches
         # facing the same way): stitching would make the surface worse; leave it.
@@ -267,7 +357,37 @@ def stitch_cracks(
     return f, Stitched(float(gamma), snapped, inserted, b0, b1)
 
 
-def _worse_oriented(v: np.ndarray, f: np.ndarray, original: np.ndarray) -> int:
+def _unpaired(t: EdgeTopology) -> int:
+    """Edges of more than two faces that are not used as often one way as the other: an
+    edge two solids share (two cubes touching along it, four faces, two each way) is a
+    closed surface's edge, and a crack along it is stitched back into one."""
+    if t.nonmanifold == 0:
+        return 0
+    he = half_edges(t.faces)
+    way = np.bincount(t.eid, weights=np.where(he[:, 0] < he[:, 1], 1.0, -1.0),
+                      minlength=len(t.counts))  # fmt: skip
+    return int(np.count_nonzero((t.counts > 2) & (way != 0)))
+
+
+def _without_flaps(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """``f`` without its flaps: faces of zero area up to the rounding of their
+    coordinates (:data:`_T_JUNCTION`) with two boundary edges and the third on more than
+    two faces -- an exporter's sliver on an edge (its apex on the edge, its other two
+    edges the slit of a T-junction) that a stitch has joined to both sides of the edge."""
+    t = edge_topology(f)
+    count = t.counts[t.eid].reshape(-1, 3)
+    cand = np.flatnonzero(((count == 1).sum(axis=1) == 2) & (count > 2).any(axis=1))
+    if len(cand) == 0:
+        return f
+    p = v[f[cand]]
+    twice_area = np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    longest = np.linalg.norm(p - p[:, [1, 2, 0]], axis=2).max(axis=1)
+    size = np.maximum(np.abs(p).max(axis=(1, 2)), 1.0)
+    flap = cand[twice_area <= _T_JUNCTION * size * longest]
+    return np.delete(f, flap, axis=0) if len(flap) else f
+
+
+def _worse_oriented(v: np.ndarray, f: np.ndarray, original: np.ndarray, gamma: float) -> int:
     """Whether ``f``, every patch oriented consistently where it can be
     (:func:`repair.thicken.orient_patches`), has more edges used twice the same way or
     more faces folded back onto each other (:func:`_folds`: a stitch joining two shells
@@ -276,14 +396,21 @@ def _worse_oriented(v: np.ndarray, f: np.ndarray, original: np.ndarray) -> int:
 
     now, before = orient_patches(f)[0], orient_patches(original)[0]
     return int(edge_topology(now).misoriented > edge_topology(before).misoriented
-               or _folds(v, now) > _folds(v, before))  # fmt: skip
+               or _folds(v, now, gamma) > _folds(v, before, gamma))  # fmt: skip
 
 
-def _folds(v: np.ndarray, f: np.ndarray) -> int:
+def _folds(v: np.ndarray, f: np.ndarray, gamma: float) -> int:
     """Edges of two faces whose unit normals are within ~8° of opposite: the faces lie
-    back to back (mm-free: angles only)."""
+    back to back. Only faces wider than ``gamma`` mm (each corner's distance from the
+    line of the opposite edge) count: the stitch moves vertices by up to γ, so the
+    normal of a sliver narrower than that is noise (a CAD step's sliver between
+    vertices 3e-5 mm apart, its copy moved by 1e-4 mm, faces any way)."""
     h1, h2, _ = paired_half_edges(edge_topology(f).eid)
     p = v[f]
     n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    n /= np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
-    return int(np.count_nonzero(np.einsum("ij,ij->i", n[h1 // 3], n[h2 // 3]) < -0.99))
+    twice_area = np.linalg.norm(n, axis=1)
+    n /= np.maximum(twice_area, 1e-300)[:, None]
+    longest = np.linalg.norm(p - p[:, [1, 2, 0]], axis=2).max(axis=1)
+    wide = twice_area > gamma * longest
+    back = np.einsum("ij,ij->i", n[h1 // 3], n[h2 // 3]) < -0.99
+    return int(np.count_nonzero(back & wide[h1 // 3] & wide[h2 // 3]))
