@@ -128,10 +128,13 @@ def split_at_fillers(
     rim = np.bincount(g3[~inner], minlength=n_groups)
     corners = unique_rows(np.stack([g3, f[idx].reshape(-1)], axis=1))
     verts = np.bincount(corners[:, 0], minlength=n_groups)
-    ok = (np.bincount(g3[bad], minlength=n_groups) == 0) & (rim == size + 2) & (verts == size + 2)
-    # Each group's long edge a-b: its longest boundary edge.
+    # Its points must be apart (a side at float32 resolution would be a new needle).
     he = half_edges(f[idx])
     length = np.linalg.norm(v[he[:, 1]] - v[he[:, 0]], axis=1)
+    ulp = np.spacing(np.float32(np.abs(v).max())).astype(np.float64)
+    bad |= length < NEEDLE_ULPS * ulp
+    ok = (np.bincount(g3[bad], minlength=n_groups) == 0) & (rim == size + 2) & (verts == size + 2)
+    # Each group's long edge a-b: its longest boundary edge.
     cand = np.flatnonzero(~inner & ok[g3])
     cand = cand[np.lexsort((-length[cand], g3[cand]))]
     first = cand[np.r_[True, g3[cand][1:] != g3[cand][:-1]]] if len(cand) else cand

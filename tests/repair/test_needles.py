@@ -61,21 +61,24 @@ def test_a_flat_face_closing_a_crack_stays():
     assert check_printable(cleaned.vertices, cleaned.faces).closed
 
 
-@pytest.mark.parametrize("seed", range(6))
-def test_needles_and_t_junctions_on_a_cad_part_come_out_exact(seed, tmp_path):
+@pytest.mark.parametrize(
+    ("name", "scale"),
+    [("cgal_part.obj", 60.0), ("cgal_step.obj", 0.05), ("trimesh_multibody.stl", 50.0)],
+)
+def test_needles_and_t_junctions_on_cad_parts_come_out_exact(name, scale, tmp_path):
     # A needle (a, mid, b) on an edge a T-junction splits at mid is the slit's filler;
-    # a needle itself split at a point is a zero-area pair hanging off its edge. The
-    # fillers were thickened as sheets (D = 0.2 mm, 0.14 of the volume: seeds 4-5),
-    # refused (seed 0: 165 edges shared by > 2 faces) or grew the arrangement until
-    # CGAL's std::bad_alloc (seed 1). The neighbour is split at the filler's points
-    # instead and the hanging pieces go: the intact part's volume, D at rounding scale.
-    v, f = part()
-    expected = check_printable(v, f).volume
-    assert written_solid(*t_junctions(*with_needles(v, f, seed), seed), tmp_path) == (
-        pytest.approx(expected, rel=1e-5)
-    )
-    r = repair_mesh(*t_junctions(*with_needles(v, f, seed), seed), 0.4)
-    assert r.report["deviation"] < 1e-4
+    # a needle itself split at a point is a zero-area pair hanging off its edge. On
+    # CGAL's part the fillers were thickened as sheets (D = 0.2 mm, 0.14 of the volume:
+    # seeds 4-5), refused (seed 0: 165 edges shared by > 2 faces) or grew the
+    # arrangement until CGAL's std::bad_alloc (seed 1). The neighbour is split at the
+    # filler's points instead and the hanging pieces go: the intact part's volume, D at
+    # rounding scale.
+    v, f = real_model(name, scale)
+    expected = check_printable(*round_input_of(v, f)).volume
+    for seed in range(6):
+        nv, nf = t_junctions(*with_needles(v, f, seed), seed)
+        assert written_solid(nv, nf, tmp_path) == pytest.approx(expected, rel=1e-5), seed
+        assert repair_mesh(nv, nf, 0.4).report["deviation"] < 1e-4, seed
 
 
 def with_fans(v: np.ndarray, f: np.ndarray, seed: int) -> tuple[np.ndarray, np.ndarray]:
