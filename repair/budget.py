@@ -70,7 +70,8 @@ def _child(exact: Callable[[], Meshed], w: int) -> None:
             v, f, report = exact()
             payload = {"vertices": v, "faces": f, "report": _text(json.dumps(report))}
         except BaseException as e:  # noqa: BLE001 - every error goes back to the parent
-            kind = type(e).__name__ if isinstance(e, RepairError | MemoryError) else "other"
+            kind = ("RepairError" if isinstance(e, RepairError)  # subclasses too
+                    else "MemoryError" if isinstance(e, MemoryError) else "other")
             message = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
             payload = {"error": _text(json.dumps({"kind": kind, "message": message}))}
         write_arrays(w, payload)

@@ -26,6 +26,7 @@ __all__ = [
     "needle_mask",
     "net_faces",
     "orient_needles",
+    "split_at_fillers",
 ]
 
 #: A face is flat at float32 resolution when its height over its longest side is under
@@ -59,11 +60,12 @@ def hanging_needles(
     vertices: np.ndarray, faces: np.ndarray, flat: np.ndarray | None = None
 ) -> np.ndarray:
     """The faces flat at float32 resolution (:func:`needle_mask`) that hang off the
-    surface: the longest side is an edge at least two other (not flat) faces share, and
-    no other face uses the two short sides -- a needle on an edge the surface already
-    closes adds nothing printable, and dropping it opens no edge. A thin face that closes
-    a crack (a T-junction's filler) stays. ``flat``: :func:`needle_mask`, if known.
-    Returns a bool mask per face."""
+    surface: each edge-connected group of them none of whose edges exactly one other (not
+    flat) face uses -- dropping it opens no edge, and a zero-area group adds nothing
+    printable (a needle on an edge the surface already closes, or a needle itself split
+    at a point). A group that closes a crack (a T-junction's filler: an edge it shares
+    with one other face) stays: :func:`split_at_fillers`. ``flat``: :func:`needle_mask`,
+    if known. Returns a bool mask per face."""
     flat = needle_mask(vertices, faces) if flat is None else flat
     if not np.any(flat):
         return flat
@@ -71,17 +73,97 @@ def hanging_needles(
     n = int(f.max()) + 1
     e = np.sort(half_edges(f), axis=1)
     key = (e[:, 0] * n + e[:, 1]).reshape(-1, 3)
-    others, uses = np.unique(key[~flat], return_counts=True)
-    mine = key[flat]
-    at = np.minimum(np.searchsorted(others, mine), max(len(others) - 1, 0))
-    count = np.where(others[at] == mine, uses[at], 0) if len(others) else np.zeros_like(mine)
-    p = np.asarray(vertices, dtype=np.float64)[f[flat]]
-    side = np.einsum("mkd,mkd->mk", p[:, [1, 2, 0]] - p, p[:, [1, 2, 0]] - p)
-    longest = np.argmax(side, axis=1)[:, None] == np.arange(3)[None]
-    hangs = np.where(longest, count >= 2, count == 0).all(axis=1)
+    idx = np.flatnonzero(flat)
+    once = (_edge_uses(key[~flat].reshape(-1), key[idx].reshape(-1)) == 1).reshape(-1, 3)
+    group = edge_components(f[idx])
+    opens = np.bincount(group, weights=once.any(axis=1), minlength=int(group.max()) + 1)
     out = np.zeros(len(f), dtype=bool)
-    out[np.flatnonzero(flat)[hangs]] = True
+    out[idx[opens[group] == 0]] = True
     return out
+
+
+def _edge_uses(keys: np.ndarray, of: np.ndarray) -> np.ndarray:
+    """How many times each key of ``of`` occurs in ``keys``."""
+    k = np.sort(keys)
+    return np.searchsorted(k, of, "right") - np.searchsorted(k, of, "left")
+
+
+def split_at_fillers(
+    vertices: np.ndarray, faces: np.ndarray, flat: np.ndarray | None = None
+) -> tuple[np.ndarray, int]:
+    """Faces with each T-junction filler replaced by the split it stands for, and how
+    many filler faces were.
+
+    A filler is an edge-connected group of needles (``flat``: :func:`needle_mask`) on
+    points ``a, m1 .. mk, b`` of one line, ``k`` faces with ``k + 2`` boundary edges,
+    ``a-b`` used by one other face and no inner edge used by another face: an exporter
+    split a face at ``k`` points of its neighbour's edge ``a-b`` and closed the slit with
+    zero-area triangles (one, or a fan; a side left open is a crack for the stitch). The
+    neighbour across ``a-b`` is split at the points instead (one filler per neighbour;
+    the others stay), so both sides run through the same vertices and no zero-area face
+    is left to the arrangement, which thickened it as a sheet (D = 0.2 mm) or refused.
+    Whichever way the filler was written, the new faces keep the neighbour's orientation.
+    No vertex moves: the surface is the same point set. Replaced faces go, the new ones
+    are appended."""
+    f = np.asarray(faces, dtype=np.int64)
+    flat = needle_mask(vertices, f) if flat is None else flat
+    idx = np.flatnonzero(flat)
+    if len(idx) == 0:
+        return f, 0
+    v = np.asarray(vertices, dtype=np.float64)
+    n = int(f.max()) + 1
+    key = np.sort(half_edges(f), axis=1)
+    key = key[:, 0] * n + key[:, 1]
+    surface = np.repeat(~flat, 3)
+    mine = key.reshape(-1, 3)[idx].reshape(-1)
+    inner = _edge_uses(key[~surface], mine) > 1  # an edge two needles of a group share
+    used = _edge_uses(key[surface], mine)
+    group = edge_components(f[idx])
+    g3 = np.repeat(group, 3)
+    # A group qualifies when no surface face uses its inner edges and it is a
+    # triangulated polygon: k faces, k + 2 boundary edges, k + 2 vertices.
+    bad = inner & (used != 0)
+    n_groups = int(group.max()) + 1
+    size = np.bincount(group, minlength=n_groups)
+    rim = np.bincount(g3[~inner], minlength=n_groups)
+    corners = unique_rows(np.stack([g3, f[idx].reshape(-1)], axis=1))
+    verts = np.bincount(corners[:, 0], minlength=n_groups)
+    # Its points must be apart (a side at float32 resolution would be a new needle).
+    he = half_edges(f[idx])
+    length = np.linalg.norm(v[he[:, 1]] - v[he[:, 0]], axis=1)
+    ulp = np.spacing(np.float32(np.abs(v).max())).astype(np.float64)
+    bad |= length < NEEDLE_ULPS * ulp
+    ok = (np.bincount(g3[bad], minlength=n_groups) == 0) & (rim == size + 2) & (verts == size + 2)
+    # Each group's long edge a-b: its longest boundary edge.
+    cand = np.flatnonzero(~inner & ok[g3])
+    cand = cand[np.lexsort((-length[cand], g3[cand]))]
+    first = cand[np.r_[True, g3[cand][1:] != g3[cand][:-1]]] if len(cand) else cand
+    first = first[used[first] == 1]
+    # The surface half-edge on it: its face is the neighbour to split.
+    on = np.flatnonzero(surface)
+    order = on[np.argsort(key[on], kind="stable")]
+    h = order[np.searchsorted(key[order], mine[first])]
+    nb = h // 3
+    lone = np.bincount(nb, minlength=len(f))[nb] == 1
+    first, h, nb = first[lone], h[lone], nb[lone]
+    if len(nb) == 0:
+        return f, 0
+    k = h % 3
+    g0, g1, d = f[nb, k], f[nb, (k + 1) % 3], f[nb, (k + 2) % 3]
+    gid = g3[first]
+    # The chain g0 .. g1: the group's corners ordered along the neighbour's edge.
+    slot = np.full(n_groups, -1)
+    slot[gid] = np.arange(len(gid))
+    pts = corners[slot[corners[:, 0]] >= 0]
+    s = slot[pts[:, 0]]
+    t = np.einsum("kd,kd->k", v[pts[:, 1]] - v[g0[s]], v[g1[s]] - v[g0[s]])
+    pts, s = pts[np.lexsort((t, s))], s[np.lexsort((t, s))]
+    nxt = np.flatnonzero(s[1:] == s[:-1])
+    fan = np.stack([pts[nxt, 1], pts[nxt + 1, 1], d[s[nxt]]], axis=1)
+    drop = np.zeros(len(f), dtype=bool)
+    drop[nb] = True
+    drop[idx[np.isin(group, gid)]] = True
+    return np.vstack([f[~drop], fan]), int(np.count_nonzero(np.isin(group, gid)))
 
 
 def orient_needles(
@@ -247,32 +329,33 @@ def clean_soup(vertices: np.ndarray, faces: np.ndarray, *, solid: bool = False) 
     f = f[~deg]
     # An input's needles only: a solid's own clean (a union's result and prisms) keeps
     # its faces as the union made them.
-    needles = np.zeros(len(f), dtype=bool)
+    needles, split, repeated = np.zeros(len(f), dtype=bool), 0, 0
     if not solid:
         flat = needle_mask(v, f)
+        if np.any(flat):  # a needle written twice is one needle (a filler is one group)
+            again = flat & ~np.isin(np.arange(len(f)), unique_ints(face_keys(f), True)[1])
+            f, flat, repeated = f[~again], flat[~again], int(np.count_nonzero(again))
         needles = hanging_needles(v, f, flat)
-        f = orient_needles(v, f[~needles], flat[~needles])[0]
+        f, flat = f[~needles], flat[~needles]
+        f, split = split_at_fillers(v, f, flat)
+        f = orient_needles(v, f, needle_mask(v, f) if split else flat)[0]
     keep = cancel_opposite_faces(f) if solid else unique_faces(f)
-    dup = len(f) - len(keep)
+    dup = len(f) - len(keep) + repeated
     f = f[keep]
     v, f = drop_unreferenced(v, f)
-    removed = np.count_nonzero(deg) + np.count_nonzero(needles)
+    removed = np.count_nonzero(deg) + np.count_nonzero(needles) + split
     return Cleaned(v, f, segments, int(removed), int(dup))
 
 
 def clean_checked(vertices: np.ndarray, faces: np.ndarray, verdict: Printability) -> Cleaned:
     """:func:`clean_soup` of a mesh whose ``verdict`` was found on exactly these
     coordinates (``as_float32``, welded the same way): when that check found no
-    degenerate and no duplicate face, and no needle hangs off the welded surface
-    (:func:`hanging_needles`), there is nothing to remove: the welded input is the
-    cleaned input (its needles turned to match their neighbours where the check found
-    misoriented edges: :func:`orient_needles`)."""
+    degenerate and no duplicate face, and no face is a needle (:func:`needle_mask`: one
+    to drop, split at or turn), there is nothing to remove: the welded input is the
+    cleaned input."""
     if verdict.degenerate_faces == 0 and verdict.duplicate_faces == 0:
         v, f = weld_exact(vertices, faces)
-        flat = needle_mask(v, f)
-        if not np.any(hanging_needles(v, f, flat)):
-            if verdict.misoriented_edges:
-                f = orient_needles(v, f, flat)[0]
+        if not np.any(needle_mask(v, f)):
             v, f = drop_unreferenced(v, f)
             return Cleaned(v, f, np.zeros((0, 2, 3)), 0, 0)
     return clean_soup(vertices, faces)

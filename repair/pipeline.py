@@ -53,7 +53,7 @@ from repair.budget import Meshed, run_within_budget
 from repair.check import round_to_float32
 from repair.clean import Cleaned, clean_checked
 from repair.deviation import max_deviation
-from repair.errors import RepairError
+from repair.errors import BudgetExceeded, RepairError
 from repair.fallback import fallback_repair
 from repair.finish import finish
 from repair.forked import Forked
@@ -442,10 +442,15 @@ def _exact_or_fallback(
 ) -> tuple[RepairOutcome, np.ndarray | None]:
     """The exact path (with its per-face sources, as :func:`_exact_path`); the fallback
     instead (no sources) when ``fallback`` says why, or when the exact path cannot make
-    the model printable and the fallback can."""
+    the model printable, or would take more memory than it is allowed, and the fallback
+    can."""
     if fallback is None:
         try:
             return _exact_path(cleaned, lidded, eps, tally, clock)
+        except BudgetExceeded as e:
+            fallback = f"exact repair over its memory budget: {e}"
+        except MemoryError as e:  # a native allocation failed (CGAL's std::bad_alloc)
+            fallback = f"exact repair ran out of memory ({e})"
         except RepairError as e:
             if not str(e).startswith(NOT_PRINTABLE):
                 raise
