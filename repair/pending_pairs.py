@@ -16,6 +16,7 @@ from repair.forked import Forked
 from repair.intersections import (
     PARALLEL_MIN_FACES,
     _pairs,
+    check_box_pair_budget,
     face_slabs,
     intersecting_face_pairs,
 )
@@ -60,7 +61,12 @@ class PendingPairs:
 
     def _start(self, slabs: list[np.ndarray]) -> None:
         v, f = self._v, self._f
-        self._children = [Forked(lambda idx=idx: idx[_pairs(v, f[idx])]) for idx in slabs]
+
+        def test(idx: np.ndarray) -> np.ndarray:
+            check_box_pair_budget(v, f[idx])  # raised again here when the child fails
+            return idx[_pairs(v, f[idx])]
+
+        self._children = [Forked(lambda idx=idx: test(idx)) for idx in slabs]
 
     def _collect(self) -> np.ndarray:
         found = [np.asarray(c.result(), dtype=np.int64).reshape(-1, 2) for c in self._children]
