@@ -92,6 +92,25 @@ def split_at_fillers(
     vertices: np.ndarray, faces: np.ndarray, flat: np.ndarray | None = None
 ) -> tuple[np.ndarray, int]:
     """Faces with each T-junction filler replaced by the split it stands for, and how
+    many filler faces were (:func:`_split_once`, repeated while it splits: a neighbour
+    with fillers on two or three of its edges is split at one per round, the next
+    round finds the next one on the piece that keeps that edge; at most three)."""
+    f = np.asarray(faces, dtype=np.int64)
+    f, total = _split_once(vertices, f, flat)
+    for _ in range(2):
+        if not total or not np.any(flat := needle_mask(vertices, f)):
+            break
+        f, k = _split_once(vertices, f, flat)
+        if k == 0:
+            break
+        total += k
+    return f, total
+
+
+def _split_once(
+    vertices: np.ndarray, faces: np.ndarray, flat: np.ndarray | None = None
+) -> tuple[np.ndarray, int]:
+    """Faces with each T-junction filler replaced by the split it stands for, and how
     many filler faces were.
 
     A filler is an edge-connected group of needles (``flat``: :func:`needle_mask`) on
@@ -99,9 +118,10 @@ def split_at_fillers(
     ``a-b`` used by one other face and no inner edge used by another face: an exporter
     split a face at ``k`` points of its neighbour's edge ``a-b`` and closed the slit with
     zero-area triangles (one, or a fan; a side left open is a crack for the stitch). The
-    neighbour across ``a-b`` is split at the points instead (one filler per neighbour;
-    the others stay), so both sides run through the same vertices and no zero-area face
-    is left to the arrangement, which thickened it as a sheet (D = 0.2 mm) or refused.
+    neighbour across ``a-b`` is split at the points instead (one filler per neighbour,
+    the first; the others wait for the next round), so both sides run through the same
+    vertices and no zero-area face is left to the arrangement, which thickened it as a
+    sheet (D = 0.2 mm) or refused.
     Whichever way the filler was written, the new faces keep the neighbour's orientation.
     No vertex moves: the surface is the same point set. Replaced faces go, the new ones
     are appended."""
@@ -144,8 +164,8 @@ def split_at_fillers(
     order = on[np.argsort(key[on], kind="stable")]
     h = order[np.searchsorted(key[order], mine[first])]
     nb = h // 3
-    lone = np.bincount(nb, minlength=len(f))[nb] == 1
-    first, h, nb = first[lone], h[lone], nb[lone]
+    one = np.unique(nb, return_index=True)[1]
+    first, h, nb = first[one], h[one], nb[one]
     if len(nb) == 0:
         return f, 0
     k = h % 3
