@@ -92,6 +92,25 @@ def split_at_fillers(
     vertices: np.ndarray, faces: np.ndarray, flat: np.ndarray | None = None
 ) -> tuple[np.ndarray, int]:
     """Faces with each T-junction filler replaced by the split it stands for, and how
+    many filler faces were (:func:`_split_once`, repeated while it splits: a neighbour
+    with fillers on two or three of its edges is split at one per round, the next
+    round finds the next one on the piece that keeps that edge; at most three)."""
+    f = np.asarray(faces, dtype=np.int64)
+    f, total = _split_once(vertices, f, flat)
+    for _ in range(2):
+        if not total or not np.any(flat := needle_mask(vertices, f)):
+            break
+        f, k = _split_once(vertices, f, flat)
+        if k == 0:
+            break
+        total += k
+    return f, total
+
+
+def _split_once(
+    vertices: np.ndarray, faces: np.ndarray, flat: np.ndarray | None = None
+) -> tuple[np.ndarray, int]:
+    """Faces with each T-junction filler replaced by the split it stands for, and how
     many filler faces were.
 
     A filler is an edge-connected group of needles (``flat``: :func:`needle_mask`) on
@@ -99,9 +118,10 @@ def split_at_fillers(
     ``a-b`` used by one other face and no inner edge used by another face: an exporter
     split a face at ``k`` points of its neighbour's edge ``a-b`` and closed the slit with
     zero-area triangles (one, or a fan; a side left open is a crack for the stitch). The
-    neighbour across ``a-b`` is split at the points instead (one filler per neighbour;
-    the others stay), so both sides run through the same vertices and no zero-area face
-    is left to the arrangement, which thickened it as a sheet (D = 0.2 mm) or refused.
+    neighbour across ``a-b`` is split at the points instead (one filler per neighbour,
+    the first; the others wait for the next round), so both sides run through the same
+    vertices and no zero-area face is left to the arrangement, which thickened it as a
+    sheet (D = 0.2 mm) or refused.
     Whichever way the filler was written, the new faces keep the neighbour's orientation.
     No vertex moves: the surface is the same point set. Replaced faces go, the new ones
     are appended."""
@@ -144,26 +164,49 @@ def split_at_fillers(
     order = on[np.argsort(key[on], kind="stable")]
     h = order[np.searchsorted(key[order], mine[first])]
     nb = h // 3
-    lone = np.bincount(nb, minlength=len(f))[nb] == 1
-    first, h, nb = first[lone], h[lone], nb[lone]
+    one = np.unique(nb, return_index=True)[1]
+    first, h, nb = first[one], h[one], nb[one]
     if len(nb) == 0:
         return f, 0
     k = h % 3
     g0, g1, d = f[nb, k], f[nb, (k + 1) % 3], f[nb, (k + 2) % 3]
     gid = g3[first]
-    # The chain g0 .. g1: the group's corners ordered along the neighbour's edge.
     slot = np.full(n_groups, -1)
     slot[gid] = np.arange(len(gid))
-    pts = corners[slot[corners[:, 0]] >= 0]
-    s = slot[pts[:, 0]]
-    t = np.einsum("kd,kd->k", v[pts[:, 1]] - v[g0[s]], v[g1[s]] - v[g0[s]])
-    pts, s = pts[np.lexsort((t, s))], s[np.lexsort((t, s))]
-    nxt = np.flatnonzero(s[1:] == s[:-1])
-    fan = np.stack([pts[nxt, 1], pts[nxt + 1, 1], d[s[nxt]]], axis=1)
+    rim_e = np.flatnonzero(~inner & (slot[g3] >= 0))
+    rim_rows = np.column_stack([slot[g3[rim_e]], np.sort(he[rim_e], axis=1)])
+    chain, s, fan_ok = _chains(v, corners[slot[corners[:, 0]] >= 0], slot, g0, g1, rim_rows)
+    gid, nb = gid[fan_ok], nb[fan_ok]
+    fan = np.column_stack([chain, d[s]])
     drop = np.zeros(len(f), dtype=bool)
     drop[nb] = True
     drop[idx[np.isin(group, gid)]] = True
     return np.vstack([f[~drop], fan]), int(np.count_nonzero(np.isin(group, gid)))
+
+
+def _chains(
+    v: np.ndarray, pts: np.ndarray, slot: np.ndarray, g0: np.ndarray, g1: np.ndarray,
+    rim_rows: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The chain ``g0 .. g1`` of each candidate filler: its corners (``pts``: rows (group,
+    vertex)) ordered along the neighbour's edge ``g0-g1``, as consecutive pairs (k, 2)
+    with their candidate (``slot`` of the group), and whether each candidate is a fan on
+    that line (bool per candidate): every consecutive pair is a side of its rim
+    (``rim_rows``: (candidate, lo, hi)). A group that also holds a needle off the chain
+    (a sliver face of the surface 3e-5 mm wide, split by the same export, flat at float32
+    resolution beside the fan) has a rim that doubles back along the line: it stays."""
+    s = slot[pts[:, 0]]
+    t = np.einsum("kd,kd->k", v[pts[:, 1]] - v[g0[s]], v[g1[s]] - v[g0[s]])
+    order = np.lexsort((t, s))
+    pts, s = pts[order], s[order]
+    nxt = np.flatnonzero(s[1:] == s[:-1])
+    chain, s = np.stack([pts[nxt, 1], pts[nxt + 1, 1]], axis=1), s[nxt]
+    rows = np.vstack([rim_rows, np.column_stack([s, np.sort(chain, axis=1)])])
+    inv = unique_rows(rows, return_inverse=True)[1]
+    off = ~np.isin(inv[len(rim_rows):], inv[: len(rim_rows)])
+    fan_ok = np.bincount(s[off], minlength=len(g0)) == 0
+    keep = fan_ok[s]
+    return chain[keep], s[keep], fan_ok
 
 
 def orient_needles(

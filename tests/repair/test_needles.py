@@ -102,12 +102,19 @@ def with_fans(v: np.ndarray, f: np.ndarray, seed: int) -> tuple[np.ndarray, np.n
 
 @pytest.mark.parametrize(
     ("name", "scale", "seeds"),
-    [("cgal_part.obj", 60.0, range(8)), ("trimesh_multibody.stl", 50.0, (1, 3, 6))],
+    [
+        ("cgal_part.obj", 60.0, range(8)),
+        ("trimesh_multibody.stl", 50.0, (1, 3, 6)),
+        ("cgal_step.obj", 0.05, (0, 1, 2, 4, 5, 6, 7)),
+    ],
 )
 def test_fans_of_needles_closing_slits_come_out_exact(name, scale, seeds, tmp_path):
     # An edge split at two points, its slit closed by a fan of two needles: each needle
     # has a side the other uses, so the one-needle filler rule did not see them. They
     # were thickened as sheets (D = 0.2-0.4 mm, CGAL's part 7 % too large) or refused.
+    # CGAL's step has slivers 3e-5 mm wide, flat at float32 resolution: a split sliver's
+    # third joined a fan's group (seeds 1, 6: a hollow skin, 0.26 of the volume), and
+    # one face with fans on two of its edges (seed 7: D 0.036 mm) was split at neither.
     v, f = real_model(name, scale)
     expected = check_printable(*round_input_of(v, f)).volume
     for seed in seeds:
