@@ -45,7 +45,10 @@ from repair.wires import cylinders
 
 __all__ = [
     "COLLAPSE_FROM",
+    "HULL_GROWTH",
+    "HULL_GROWTH_FLOOR",
     "MAX_FINISH_ROUNDS",
+    "MAX_HULL_ROUNDS",
     "SINGULAR_EDGE_DIAMETER",
     "collapse_damaged",
     "damaged_faces",
@@ -55,6 +58,15 @@ __all__ = [
 
 #: Rounds of "round to float32, verify, resolve again" before giving up.
 MAX_FINISH_ROUNDS = 12
+#: Rounds that take the whole arrangement and outer hull again, at most, in one finish.
+MAX_HULL_ROUNDS = 3
+#: A whole-arrangement round is not taken when the damage it would mend is more than this
+#: many times the previous one's (and over :data:`HULL_GROWTH_FLOOR`): rounding that
+#: re-creates ever more crossings stacks thin slabs (CGAL's part with needles and
+#: T-junctions: 1,120 -> 6,442 -> 36,835 crossing pairs, then a 259k-face arrangement).
+HULL_GROWTH = 4.0
+#: Damage below which a whole-arrangement round is taken whatever it grew from.
+HULL_GROWTH_FLOOR = 256
 #: From this finish round on, damaged faces first lose their float32-scale edges.
 COLLAPSE_FROM = 1
 #: Diameter of the prisms that fuse parts touching along an edge, as a fraction of eps.
@@ -150,6 +162,9 @@ def finish(
     module docstring). Returns the float32-valued ``(vertices, faces)`` and their verdict,
     which is not ``ok`` when the rounds ran out or the damage kept growing, or, with
     ``local_only``, when local mending does not do (the whole arrangement is not taken).
+    Whole-arrangement rounds are bounded by what they do (:data:`MAX_HULL_ROUNDS`,
+    :data:`HULL_GROWTH`): past that, this round's rounded mesh is returned, not ``ok``,
+    and ``tally.finish_stopped`` says why.
 
     ``before = (v, f, pairs)``: a mesh whose crossing pairs are all known, on float32
     points, that ``(v, f)`` was made from (a union of shells keeps most of their faces):
@@ -161,11 +176,13 @@ def finish(
     worse = 0
     last_damage = None
     ready = None  # this round's rounded verdict, when already taken
+    hulled: list[int] = []  # the damage each whole-arrangement round set out to mend
     for round_ in range(MAX_FINISH_ROUNDS):
         v32, f32, verdict, pairs = ready or rounded_verdict(v, f, before)
         before = ready = None
         if verdict.ok:
             return v32, f32, verdict
+        rounded = (v32, f32, verdict)
         damage = _damage(verdict)
         grew = last_damage is not None and damage > last_damage
         if grew:
@@ -208,6 +225,11 @@ def finish(
                 continue
         if local_only:
             break
+        stop = _hull_round_refused(hulled, damage)
+        if stop:
+            tally.finish_stopped = stop
+            return rounded
+        hulled.append(damage)
         v, f, before = hull_again(v32, f32, pairs, extra, eps, tally)
     assert verdict is not None
     v32, f32 = weld_exact(round_to_float32(v), f)
@@ -217,6 +239,17 @@ def finish(
 def _damage(p: Printability) -> int:
     """What a finish round mends: crossing pairs, degenerate faces, non-manifold edges."""
     return p.intersecting_pairs + p.degenerate_faces + p.nonmanifold_edges
+
+
+def _hull_round_refused(hulled: list[int], damage: int) -> str:
+    """Why the next whole-arrangement round is not taken (empty when it is), given the
+    damage each earlier one set out to mend and this round's."""
+    if len(hulled) >= MAX_HULL_ROUNDS:
+        return f"still damaged after {len(hulled)} rounds of the whole arrangement again"
+    if hulled and damage > max(HULL_GROWTH * hulled[-1], HULL_GROWTH_FLOOR):
+        return (f"the finish's whole-arrangement rounds grew the damage {hulled[-1]} -> "
+                f"{damage} (over {HULL_GROWTH:g}x a round)")
+    return ""
 
 
 def _collapse_short_edges(

@@ -429,7 +429,8 @@ def _exact_path(
     out_v, out_f, verdict = finish(hull_v, hull_f, eps, tally, checked)
     clock.lap("finish", 0.8)
     if not verdict.ok:
-        raise RepairError(NOT_PRINTABLE + "; ".join(verdict.failures()))
+        stopped = [tally.finish_stopped] if tally.finish_stopped else []
+        raise RepairError(NOT_PRINTABLE + "; ".join([*verdict.failures(), *stopped]))
     hint = hull_face_sources(cleaned.vertices, cleaned.faces, lidded.vertices, lidded.faces,
                              first_hull, hull_birth, out_v, out_f)  # fmt: skip
     return RepairOutcome(out_v, out_f, verdict, "exact", 0.0, tally, HolesClosed(),

@@ -64,6 +64,8 @@ class RepairTally:
     collapsed: int = 0
     junk_shells: int = 0
     junk_volume: float = 0.0
+    #: Why the finish stopped taking the whole arrangement again (empty when it did not).
+    finish_stopped: str = ""
 
 
 @dataclass
