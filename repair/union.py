@@ -19,7 +19,7 @@ import numpy as np
 from repair.clean import drop_unreferenced
 from repair.intersections import intersecting_face_pairs
 from repair.meshes import shell_volumes
-from repair.rows import unique_ints
+from repair.rows import ranges, unique_ints
 from repair.topology import edge_components, edge_stats, weld_exact
 
 __all__ = ["ShellUnion", "duplicate_shells", "manifold_union", "speck_volume", "union_of_shells",
@@ -152,8 +152,6 @@ def _copy_candidates(
 ) -> list[tuple[int, int]]:
     """Pairs ``(a, b)``, a < b, of shells with as many faces and points as each other
     and bounding boxes whose corners lie within ``gamma`` (mm) of each other's."""
-    from scipy.spatial import cKDTree
-
     faces = np.bincount(labels, minlength=n)
     # The points of each shell, once each, in order of shell.
     key = unique_ints(np.repeat(labels, 3) * len(v) + f.reshape(-1))
@@ -162,13 +160,22 @@ def _copy_candidates(
     first = np.r_[0, np.cumsum(points)[:-1]]
     lo = np.minimum.reduceat(v[point], first, axis=0)
     hi = np.maximum.reduceat(v[point], first, axis=0)
-    pairs = cKDTree(np.c_[lo, hi]).query_pairs(gamma, p=np.inf, output_type="ndarray")
-    if len(pairs) == 0:
-        return []
-    pairs = np.sort(pairs, axis=1)
-    same = (faces[pairs[:, 0]] == faces[pairs[:, 1]]) & (
-        points[pairs[:, 0]] == points[pairs[:, 1]])  # fmt: skip
-    pairs = pairs[same]
+    # Shells sorted by signature (faces, points), then least x: a shell's candidates
+    # follow it, of its signature, their least x within gamma of its own.
+    sig = unique_ints(faces * (int(points.max()) + 1) + points, return_inverse=True)[1]
+    order = np.lexsort((lo[:, 0], sig))
+    x = lo[order, 0]
+    start = np.searchsorted(sig[order], sig[order], side="left")
+    # Each signature's x shifted past the previous one's (a sorted key for searchsorted).
+    shift = x - x[start] + sig[order] * (float(np.ptp(lo[:, 0])) + 4.0 * gamma + 1.0)
+    end = np.searchsorted(shift, shift + 1.01 * gamma, side="right")
+    after = np.arange(1, n + 1)
+    count = np.maximum(end - after, 0)
+    i = np.repeat(np.arange(n), count)
+    pairs = np.sort(np.c_[order[i], order[ranges(after, count)]], axis=1)
+    box = np.c_[lo, hi]
+    near = np.abs(box[pairs[:, 0]] - box[pairs[:, 1]]).max(axis=1) <= gamma
+    pairs = pairs[near]
     return [(int(a), int(b)) for a, b in pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]]
 
 
