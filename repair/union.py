@@ -20,7 +20,7 @@ from repair.clean import drop_unreferenced
 from repair.intersections import intersecting_face_pairs
 from repair.meshes import shell_volumes
 from repair.rows import ranges, unique_ints
-from repair.topology import edge_components, edge_stats, weld_exact
+from repair.topology import edge_components, edge_stats, edge_topology, weld_exact
 
 __all__ = ["ShellUnion", "duplicate_shells", "manifold_union", "speck_volume", "union_of_shells",
            "without_copies", "without_specks"]  # fmt: skip
@@ -100,9 +100,10 @@ def _manifolds_of(
 
 def duplicate_shells(v: np.ndarray, f: np.ndarray, gamma: float) -> np.ndarray:
     """Which faces of ``(v, f)`` belong to a body written twice: True on every face of
-    an edge-connected shell that is a copy of an earlier one -- each of its points
-    within ``gamma`` (mm) of its own point of the earlier shell, one to one, and its
-    faces those of the earlier shell on the matching points, turned the same way.
+    a closed shell (each edge used by an even number of its faces) that is a copy of
+    an earlier one -- each of its points within ``gamma`` (mm) of its own point of the
+    earlier shell, one to one, and its faces those of the earlier shell on the
+    matching points, turned the same way.
 
     The union of a body with its copy moved by noise (a micrometre) is the body with
     steps a few float32 ulps wide along its edges: rounded for writing, their faces
@@ -112,17 +113,23 @@ def duplicate_shells(v: np.ndarray, f: np.ndarray, gamma: float) -> np.ndarray:
     other way round (a void of no thickness) is not one."""
     v = np.asarray(v, dtype=np.float64)
     f = np.asarray(f, dtype=np.int64)
-    dup = np.zeros(len(f), dtype=bool)
     if len(f) < 2:
-        return dup
-    labels = edge_components(f)
-    n = int(labels.max()) + 1
+        return np.zeros(len(f), dtype=bool)
+    topology = edge_topology(f)
+    labels = topology.shells
+    n = topology.n_shells
+    gone = np.zeros(n, dtype=bool)
     if n < 2:
-        return dup
-    for a, b in _copy_candidates(v, f, labels, n, gamma):
-        if not dup[labels == a].any() and _is_copy(v, f, labels == a, labels == b, gamma):
-            dup[labels == b] = True
-    return dup
+        return gone[labels]
+    closed = np.ones(n, dtype=bool)
+    closed[labels[np.flatnonzero(topology.counts[topology.eid] % 2) // 3]] = False
+    order = np.argsort(labels, kind="stable")
+    cuts = np.r_[0, np.cumsum(np.bincount(labels, minlength=n))]
+    for a, b in _copy_candidates(v, f, labels, closed, gamma):
+        if not gone[a] and not gone[b]:
+            fa, fb = (f[order[cuts[s] : cuts[s + 1]]] for s in (a, b))
+            gone[b] = _is_copy(v, fa, fb, gamma)
+    return gone[labels]
 
 
 def without_copies(
@@ -148,10 +155,12 @@ def without_copies(
 
 
 def _copy_candidates(
-    v: np.ndarray, f: np.ndarray, labels: np.ndarray, n: int, gamma: float
+    v: np.ndarray, f: np.ndarray, labels: np.ndarray, closed: np.ndarray, gamma: float
 ) -> list[tuple[int, int]]:
-    """Pairs ``(a, b)``, a < b, of shells with as many faces and points as each other
-    and bounding boxes whose corners lie within ``gamma`` (mm) of each other's."""
+    """Pairs ``(a, b)``, a < b, of ``closed`` shells (mask per label) with as many faces
+    and points as each other and bounding boxes whose corners lie within ``gamma`` (mm)
+    of each other's."""
+    n = len(closed)
     faces = np.bincount(labels, minlength=n)
     # The points of each shell, once each, in order of shell.
     key = unique_ints(np.repeat(labels, 3) * len(v) + f.reshape(-1))
@@ -163,7 +172,9 @@ def _copy_candidates(
     # Shells sorted by signature (faces, points), then least x: a shell's candidates
     # follow it, of its signature, their least x within gamma of its own.
     sig = unique_ints(faces * (int(points.max()) + 1) + points, return_inverse=True)[1]
-    order = np.lexsort((lo[:, 0], sig))
+    order = np.flatnonzero(closed)
+    order = order[np.lexsort((lo[order, 0], sig[order]))]
+    n = len(order)
     x = lo[order, 0]
     start = np.searchsorted(sig[order], sig[order], side="left")
     # Each signature's x shifted past the previous one's (a sorted key for searchsorted).
@@ -179,18 +190,18 @@ def _copy_candidates(
     return [(int(a), int(b)) for a, b in pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]]
 
 
-def _is_copy(v: np.ndarray, f: np.ndarray, a: np.ndarray, b: np.ndarray, gamma: float) -> bool:
-    """Whether the faces ``f[b]`` are the faces ``f[a]`` (masks) on points moved by at
-    most ``gamma`` (mm), one to one, each turned the same way."""
+def _is_copy(v: np.ndarray, fa: np.ndarray, fb: np.ndarray, gamma: float) -> bool:
+    """Whether the faces ``fb`` are the faces ``fa`` on points of ``v`` moved by at most
+    ``gamma`` (mm), one to one, each turned the same way."""
     from scipy.spatial import cKDTree
 
-    pa, pb = np.unique(f[a]), np.unique(f[b])
+    pa, pb = np.unique(fa), np.unique(fb)
     dist, near = cKDTree(v[pa]).query(v[pb], distance_upper_bound=gamma)
     if len(pa) != len(pb) or not np.all(np.isfinite(dist)) or len(np.unique(near)) != len(pb):
         return False
-    to_a = np.zeros(int(f.max()) + 1, dtype=np.int64)
+    to_a = np.zeros(int(pb.max()) + 1, dtype=np.int64)
     to_a[pb] = pa[near]
-    return np.array_equal(_cyclic_rows(f[a]), _cyclic_rows(to_a[f[b]]))
+    return np.array_equal(_cyclic_rows(fa), _cyclic_rows(to_a[fb]))
 
 
 def _cyclic_rows(f: np.ndarray) -> np.ndarray:
