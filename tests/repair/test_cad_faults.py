@@ -347,3 +347,18 @@ def test_a_body_written_twice_a_micrometre_apart_comes_out_once(name, scale, off
     assert verdict.volume == pytest.approx(expected, rel=2e-3)
     outside, inside = face_winding_sides(w.vertices, w.faces)
     assert np.count_nonzero(failing_faces(outside, inside)) == 0
+
+
+def test_only_a_copy_within_the_stitch_distance_turned_the_same_way_is_a_duplicate():
+    # The part, a copy 1 um off (a duplicate: its faces are flagged, the first body's
+    # not), a copy 1 mm off (another body) and a copy turned inside out (a void of no
+    # thickness, not a body written twice): only the first copy is dropped.
+    from repair.union import duplicate_shells
+
+    v, f = real_model("cgal_part.obj", 60.0)
+    n, m = len(v), len(f)
+    copies = [(v + 1e-3, f), (v + np.array([1.0, 0.0, 0.0]), f), (v - 1e-3, f[:, ::-1])]
+    vv = np.vstack([v] + [c for c, _ in copies])
+    ff = np.vstack([f] + [g + (i + 1) * n for i, (_, g) in enumerate(copies)])
+    dup = duplicate_shells(vv, ff, 0.1)
+    assert not dup[:m].any() and dup[m : 2 * m].all() and not dup[2 * m :].any()
