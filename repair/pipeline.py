@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -81,7 +81,7 @@ from repair.rounding import RoundedInput, round_input
 from repair.scan import scan_cleanup
 from repair.stitch import stitch_cracks
 from repair.topology import EdgeTopology, edge_components, edge_topology, edge_topology_memo
-from repair.union import union_of_shells
+from repair.union import union_of_shells, without_copies
 from repair.workers import blas_controller, cpu_workers
 
 __all__ = ["RepairError", "RepairResult", "repair_file", "repair_mesh"]
@@ -304,6 +304,7 @@ def _solidify(
     stitched_f, stitched = stitch_cracks(work_v, work_f, STITCH_GAMMA * eps, topology)
     clock.lap("stitch", 0.22)
     lidded, holes = _lidded(rounded, work_v, stitched_f, topology, scan is not None, clock)
+    lidded, cleaned = _without_copies(lidded, cleaned, STITCH_GAMMA * eps)
     tally = RepairTally()
     united = None if fallback else _union_path(rounded, cleaned, lidded, eps, tally, clock)
     if united is not None:
@@ -357,6 +358,17 @@ def _lidded(
         if not crossing:
             return _Lidded(lidded_v, lidded_f, pairs), holes
         flat = tuple(sorted({*flat, *crossing}))
+
+
+def _without_copies(lidded: _Lidded, cleaned: Cleaned, gamma: float) -> tuple[_Lidded, Cleaned]:
+    """``lidded`` and ``cleaned`` without a body written twice's copy within ``gamma``
+    (mm), its crossing pairs and wires (:func:`repair.union.without_copies`)."""
+    faces, pairs, segments = without_copies(
+        lidded.vertices, lidded.faces, lidded.pairs, cleaned.segments, gamma
+    )
+    if faces is lidded.faces:
+        return lidded, cleaned
+    return _Lidded(lidded.vertices, faces, pairs), replace(cleaned, segments=segments)
 
 
 def _union_path(

@@ -19,10 +19,11 @@ import numpy as np
 from repair.clean import drop_unreferenced
 from repair.intersections import intersecting_face_pairs
 from repair.meshes import shell_volumes
-from repair.rows import unique_ints
-from repair.topology import edge_components, edge_stats, weld_exact
+from repair.rows import ranges, unique_ints
+from repair.topology import edge_components, edge_stats, edge_topology, weld_exact
 
-__all__ = ["ShellUnion", "manifold_union", "speck_volume", "union_of_shells", "without_specks"]
+__all__ = ["ShellUnion", "duplicate_shells", "manifold_union", "speck_volume", "union_of_shells",
+           "without_copies", "without_specks"]  # fmt: skip
 
 
 #: From this many solids on, :func:`manifold_union` unites them in :data:`UNION_SHARES`
@@ -95,6 +96,119 @@ def _manifolds_of(
             return None
         out.append(solid)
     return out
+
+
+def duplicate_shells(v: np.ndarray, f: np.ndarray, gamma: float) -> np.ndarray:
+    """Which faces of ``(v, f)`` belong to a body written twice: True on every face of
+    a closed shell (each edge used by an even number of its faces) that is a copy of
+    an earlier one -- each of its points within ``gamma`` (mm) of its own point of the
+    earlier shell, one to one, and its faces those of the earlier shell on the
+    matching points, turned the same way.
+
+    The union of a body with its copy moved by noise (a micrometre) is the body with
+    steps a few float32 ulps wide along its edges: rounded for writing, their faces
+    fold into the solid or out of it (cgal_part written twice 0.9 um apart: needles
+    10 mm long of 2e-8 mm^2 failing the two-sided winding test). One copy is the body;
+    dropping the other moves no surface farther than ``gamma``. A copy turned the
+    other way round (a void of no thickness) is not one."""
+    v = np.asarray(v, dtype=np.float64)
+    f = np.asarray(f, dtype=np.int64)
+    if len(f) < 2:
+        return np.zeros(len(f), dtype=bool)
+    topology = edge_topology(f)
+    labels = topology.shells
+    n = topology.n_shells
+    gone = np.zeros(n, dtype=bool)
+    if n < 2:
+        return gone[labels]
+    closed = np.ones(n, dtype=bool)
+    closed[labels[np.flatnonzero(topology.counts[topology.eid] % 2) // 3]] = False
+    order = np.argsort(labels, kind="stable")
+    cuts = np.r_[0, np.cumsum(np.bincount(labels, minlength=n))]
+    for a, b in _copy_candidates(v, f, labels, closed, gamma):
+        if not gone[a] and not gone[b]:
+            fa, fb = (f[order[cuts[s] : cuts[s + 1]]] for s in (a, b))
+            gone[b] = _is_copy(v, fa, fb, gamma)
+    return gone[labels]
+
+
+def without_copies(
+    v: np.ndarray, f: np.ndarray, pairs: np.ndarray, segments: np.ndarray, gamma: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(faces, pairs, segments)``: ``f`` without the shells :func:`duplicate_shells`
+    finds (the input arrays themselves when there are none), its crossing face
+    ``pairs`` (k, 2) renumbered, and the wires ``segments`` (k, 2, 3) mm without those
+    whose two ends are points of the dropped shells only (degenerate faces of the
+    copy: they lie on it, a hair off the body kept)."""
+    dup = duplicate_shells(v, f, gamma)
+    if not dup.any():
+        return f, pairs, segments
+    kept = np.cumsum(~dup) - 1
+    pairs = kept[pairs[~dup[pairs].any(axis=1)]].reshape(-1, 2)
+    if len(segments):
+        gone = np.setdiff1d(f[dup], f[~dup])
+        rows = np.vstack([v[gone], segments.reshape(-1, 3)])
+        inv = np.unique(rows, axis=0, return_inverse=True)[1].reshape(-1)
+        on_gone = np.isin(inv[len(gone) :], inv[: len(gone)]).reshape(-1, 2).all(axis=1)
+        segments = segments[~on_gone]
+    return f[~dup], pairs, segments
+
+
+def _copy_candidates(
+    v: np.ndarray, f: np.ndarray, labels: np.ndarray, closed: np.ndarray, gamma: float
+) -> list[tuple[int, int]]:
+    """Pairs ``(a, b)``, a < b, of ``closed`` shells (mask per label) with as many faces
+    and points as each other and bounding boxes whose corners lie within ``gamma`` (mm)
+    of each other's."""
+    n = len(closed)
+    faces = np.bincount(labels, minlength=n)
+    # The points of each shell, once each, in order of shell.
+    key = unique_ints(np.repeat(labels, 3) * len(v) + f.reshape(-1))
+    shell, point = np.divmod(key, len(v))
+    points = np.bincount(shell, minlength=n)
+    first = np.r_[0, np.cumsum(points)[:-1]]
+    lo = np.minimum.reduceat(v[point], first, axis=0)
+    hi = np.maximum.reduceat(v[point], first, axis=0)
+    # Shells sorted by signature (faces, points), then least x: a shell's candidates
+    # follow it, of its signature, their least x within gamma of its own.
+    sig = unique_ints(faces * (int(points.max()) + 1) + points, return_inverse=True)[1]
+    order = np.flatnonzero(closed)
+    order = order[np.lexsort((lo[order, 0], sig[order]))]
+    n = len(order)
+    x = lo[order, 0]
+    start = np.searchsorted(sig[order], sig[order], side="left")
+    # Each signature's x shifted past the previous one's (a sorted key for searchsorted).
+    shift = x - x[start] + sig[order] * (float(np.ptp(lo[:, 0])) + 4.0 * gamma + 1.0)
+    end = np.searchsorted(shift, shift + 1.01 * gamma, side="right")
+    after = np.arange(1, n + 1)
+    count = np.maximum(end - after, 0)
+    i = np.repeat(np.arange(n), count)
+    pairs = np.sort(np.c_[order[i], order[ranges(after, count)]], axis=1)
+    box = np.c_[lo, hi]
+    near = np.abs(box[pairs[:, 0]] - box[pairs[:, 1]]).max(axis=1) <= gamma
+    pairs = pairs[near]
+    return [(int(a), int(b)) for a, b in pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]]
+
+
+def _is_copy(v: np.ndarray, fa: np.ndarray, fb: np.ndarray, gamma: float) -> bool:
+    """Whether the faces ``fb`` are the faces ``fa`` on points of ``v`` moved by at most
+    ``gamma`` (mm), one to one, each turned the same way."""
+    from scipy.spatial import cKDTree
+
+    pa, pb = np.unique(fa), np.unique(fb)
+    dist, near = cKDTree(v[pa]).query(v[pb], distance_upper_bound=gamma)
+    if len(pa) != len(pb) or not np.all(np.isfinite(dist)) or len(np.unique(near)) != len(pb):
+        return False
+    to_a = np.zeros(int(pb.max()) + 1, dtype=np.int64)
+    to_a[pb] = pa[near]
+    return np.array_equal(_cyclic_rows(fa), _cyclic_rows(to_a[fb]))
+
+
+def _cyclic_rows(f: np.ndarray) -> np.ndarray:
+    """Faces each rotated to start at its smallest corner (orientation kept), sorted."""
+    start = np.argmin(f, axis=1)[:, None]
+    rot = np.take_along_axis(f, (start + np.arange(3)) % 3, axis=1)
+    return rot[np.lexsort(rot.T[::-1])]
 
 
 def union_of_shells(

@@ -320,3 +320,45 @@ def test_fans_of_needles_written_the_wrong_way_round_are_turned(tmp_path):
     nv, nf = needles_split_and_copied(v, f)
     assert written_solid(nv, nf, tmp_path) == pytest.approx(expected, rel=1e-3)
     assert repair_mesh(nv, nf, 0.4).report["deviation"] < 1e-3  # mm
+
+
+@pytest.mark.parametrize(
+    "name, scale, off",
+    [("cgal_part.obj", 60.0, (-3.2e-4, -0.85e-4, 8.1e-4)),
+     ("cgal_cubes.obj", 20.0, (-7.63e-4, -1.26e-3, -2.36e-4))],
+)  # fmt: skip
+def test_a_body_written_twice_a_micrometre_apart_comes_out_once(name, scale, off, tmp_path):
+    # The whole body written twice, the copy moved by ~1 um (CAD fault sweep dup_shell):
+    # the union of the two is the body with steps a few float32 ulps wide along its
+    # edges, whose faces, rounded for writing, fold into the solid -- needles 10 mm long
+    # of 2e-8 mm^2 with the winding number 1 on both sides (2 faces on the part, 1 on
+    # the cubes). A shell that is another's copy within the stitch distance is dropped.
+    from repair.junk import face_winding_sides, failing_faces
+
+    v, f = real_model(name, scale)
+    expected = check_printable(v, f).volume
+    v, f = np.vstack([v, v + np.array(off)]), np.vstack([f, f + len(v)])
+    r = repair_mesh(v, f, 0.4)
+    path = tmp_path / "out.stl"
+    write_stl(path, r.vertices, r.faces)
+    w = load_mesh(path)
+    verdict = check_printable(w.vertices, w.faces)
+    assert verdict.ok, verdict.failures()
+    assert verdict.volume == pytest.approx(expected, rel=2e-3)
+    outside, inside = face_winding_sides(w.vertices, w.faces)
+    assert np.count_nonzero(failing_faces(outside, inside)) == 0
+
+
+def test_only_a_copy_within_the_stitch_distance_turned_the_same_way_is_a_duplicate():
+    # The part, a copy 1 um off (a duplicate: its faces are flagged, the first body's
+    # not), a copy 1 mm off (another body) and a copy turned inside out (a void of no
+    # thickness, not a body written twice): only the first copy is dropped.
+    from repair.union import duplicate_shells
+
+    v, f = real_model("cgal_part.obj", 60.0)
+    n, m = len(v), len(f)
+    copies = [(v + 1e-3, f), (v + np.array([1.0, 0.0, 0.0]), f), (v - 1e-3, f[:, ::-1])]
+    vv = np.vstack([v] + [c for c, _ in copies])
+    ff = np.vstack([f] + [g + (i + 1) * n for i, (_, g) in enumerate(copies)])
+    dup = duplicate_shells(vv, ff, 0.1)
+    assert not dup[:m].any() and dup[m : 2 * m].all() and not dup[2 * m :].any()
