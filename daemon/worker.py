@@ -214,7 +214,7 @@ def _emit(stage: str, fraction: float) -> None:
 
 
 def _task_repair(spec: dict[str, Any]) -> Any:
-    from repair.pipeline import repair_file
+    from repair.files import repair_file
 
     return repair_file(spec["in"], spec["out"], epsilon=float(spec["epsilon"]),
                        report_path=spec.get("report"), max_bytes=spec.get("max_bytes"),

@@ -12,7 +12,8 @@ Stages (each timed in the report; :func:`repair_mesh` reads as this list):
    ``stitch``: join the boundaries of different patches that run within gamma = eps/4 of
    each other (Attene Sec. 5.2, :mod:`repair.stitch`), so a cracked surface closes;
    ``holes``: close the small holes of almost-closed shells with lids (:mod:`repair.holes`),
-   so an open scan becomes a solid instead of a sheet;
+   so an open scan becomes a solid instead of a sheet; a closed body written twice (a copy
+   within gamma, same faces) is kept once (:func:`repair.union.without_copies`);
 3. ``union``   fast path: an input made only of closed, edge-manifold shells that overlap
    one another (a typical CAD export) is united by manifold3d's boolean union
    (:mod:`repair.union`), then finished as in 5;
@@ -33,7 +34,8 @@ time budget, or when it cannot make the model printable, a stated approximation
 replaces stages 3-5 -- closed solid shells kept exactly, the other parts thickened by
 eps, all united by manifold3d -- if its float32 result passes the check.
 
-An input that is already printable comes out unchanged.
+An input that is already printable comes out unchanged. :func:`repair.files.repair_file`
+does the same from a mesh file to a binary STL.
 
 Units are mm. Arrays in and out: vertices float64 (n, 3), faces int64 (m, 3). No global
 state: every call is independent (the daemon runs it in a child process).
@@ -41,10 +43,7 @@ state: every call is independent (the daemon runs it in a child process).
 
 from __future__ import annotations
 
-import json
-import time
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -84,7 +83,7 @@ from repair.topology import EdgeTopology, edge_components, edge_topology, edge_t
 from repair.union import union_of_shells, without_copies
 from repair.workers import blas_controller, cpu_workers
 
-__all__ = ["RepairError", "RepairResult", "repair_file", "repair_mesh"]
+__all__ = ["RepairError", "RepairResult", "repair_mesh"]
 
 #: γ of Attene's crack stitching (Sec. 5.2), as a fraction of eps: boundaries of
 #: different patches closer than this are joined (:mod:`repair.stitch`).
@@ -472,46 +471,3 @@ def _exact_or_fallback(
                           fallback)  # fmt: skip
     clock.lap("fallback", 0.8)
     return out, None
-
-
-def repair_file(
-    in_path: str | Path,
-    out_path: str | Path,
-    *,
-    epsilon: float = 0.4,
-    report_path: str | Path | None = None,
-    max_bytes: int | None = None,
-    max_triangles: int | None = None,
-    progress: Progress = None,
-    clean: str = "auto",
-    surface: str = "off",
-    time_budget: float | None = None,
-) -> dict[str, Any]:
-    """Load a mesh file (STL/OBJ/PLY/3MF/STEP), repair it, write a binary STL at ``out_path``
-    and, if asked, the report as JSON at ``report_path``. Returns the report.
-
-    Raises :class:`repair.io.MeshReadError` for unreadable input and :class:`RepairError`
-    when nothing printable can be made of it.
-    """
-    from repair.io import load_mesh, write_stl
-    from repair.io.step import chordal_deflection
-
-    t0 = time.perf_counter()
-    mesh = load_mesh(in_path, max_bytes=max_bytes, max_triangles=max_triangles,
-                     deflection=chordal_deflection(epsilon))  # a STEP's tessellation
-    t_load = time.perf_counter() - t0
-    if progress is not None:
-        progress("load", 0.05)
-    result = repair_mesh(mesh.vertices, mesh.faces, epsilon, progress=progress, clean=clean,
-                         surface=surface, time_budget=time_budget)  # fmt: skip
-    t1 = time.perf_counter()
-    write_stl(out_path, result.vertices, result.faces)
-    report = dict(result.report)
-    report["stages"] = {"load": round(t_load, 4), **report["stages"],
-                        "write": round(time.perf_counter() - t1, 4)}  # fmt: skip
-    report["input"] = {"path": str(in_path), "format": mesh.source_format,
-                       "unit_scale": mesh.unit_scale}  # fmt: skip
-    report["output"] = str(out_path)
-    if report_path is not None:
-        Path(report_path).write_text(json.dumps(report, indent=2) + "\n")
-    return report

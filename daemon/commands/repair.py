@@ -90,8 +90,8 @@ def run(args) -> int:
         return fail(f"{args.input}: {exc.strerror or exc}")
     line = _ProgressLine() if big and sys.stderr.isatty() else None
 
+    from repair.files import RepairError, repair_file
     from repair.io import MeshReadError
-    from repair.pipeline import RepairError, repair_file
 
     try:
         report = repair_file(args.input, args.output, epsilon=args.epsilon,

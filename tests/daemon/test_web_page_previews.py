@@ -11,7 +11,7 @@ from daemon.web.toolpath import read_layers
 
 
 def test_sliced_model_layers_match_the_slicer(tmp_path):
-    from repair.pipeline import repair_file
+    from repair.files import repair_file
     from slicer.engine import slice_file
     from slicer.profile import Profile
 

@@ -249,7 +249,7 @@ def test_noisy_scan_gets_no_surface_refinement(tmp_path, monkeypatch):
     import scipy.optimize
     from scan_models import noisy_scan
 
-    from repair.pipeline import repair_file
+    from repair.files import repair_file
     from repair.surface import fit
 
     v, f = noisy_scan(4, 20.0, seed=5)
