@@ -13,9 +13,9 @@ import pytest
 from broken_models import broken_family, overlapping_shells
 
 from repair.check import check_printable
+from repair.files import repair_file
 from repair.io import load_mesh, write_stl
 from repair.junk import face_winding_sides, failing_faces
-from repair.pipeline import repair_file
 
 EPS = 0.4
 FAMILY = broken_family(50, 10_000, 200_000, seed=0)

@@ -9,9 +9,9 @@ from mesh_helpers import box, signed_volume
 
 from repair.check import check_printable
 from repair.closure import loop_lid
+from repair.files import repair_file
 from repair.holes import boundary_loops, close_small_holes
 from repair.io import load_mesh, write_stl
-from repair.pipeline import repair_file
 
 EPS = 0.4
 

@@ -12,9 +12,10 @@ import numpy as np
 import pytest
 
 from repair.check import check_printable
+from repair.files import repair_file
 from repair.io import load_mesh
 from repair.junk import face_winding_sides, failing_faces
-from repair.pipeline import RepairError, repair_file
+from repair.pipeline import RepairError
 
 CORPUS = Path(__file__).resolve().parents[2] / ".." / "shared" / "corpus"
 EPS = 0.4

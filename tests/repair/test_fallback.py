@@ -18,9 +18,10 @@ from repair.budget import run_within_budget
 from repair.check import check_printable
 from repair.errors import RepairError
 from repair.fallback import split_exact_shells
+from repair.files import repair_file
 from repair.io import load_mesh, write_stl
 from repair.meshes import surface_area
-from repair.pipeline import repair_file, repair_mesh
+from repair.pipeline import repair_mesh
 from repair.topology import edge_components
 from tests.repair.broken_models import overlapping_shells, triangle_soup
 from tests.repair.mesh_helpers import box, concat

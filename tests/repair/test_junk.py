@@ -8,9 +8,9 @@ import numpy as np
 from mesh_helpers import box, concat, signed_volume
 
 from repair.check import check_printable
+from repair.files import repair_file
 from repair.io import load_mesh, write_stl
 from repair.junk import face_winding_sides, failing_faces
-from repair.pipeline import repair_file
 
 
 def _inverted(v, f):

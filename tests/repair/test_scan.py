@@ -8,8 +8,8 @@ import pytest
 from scan_models import noisy_scan
 
 from repair.check import check_printable
+from repair.files import repair_file
 from repair.io import load_mesh, write_stl
-from repair.pipeline import repair_file
 from repair.scan import SCAN_MIN_FACES, clean_scan, looks_like_scan
 from repair.topology import edge_stats
 

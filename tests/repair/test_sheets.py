@@ -13,8 +13,8 @@ from mesh_helpers import box
 from sheet_measures import covered_fraction, wall_thickness
 
 from repair.check import check_printable
+from repair.files import repair_file
 from repair.io import load_mesh, write_stl
-from repair.pipeline import repair_file
 
 EPS = 0.4
 

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from repair.check import check_printable
+from repair.files import repair_file
 from repair.io import load_mesh
 from repair.meshes import shell_volumes
-from repair.pipeline import repair_file
 from repair.topology import edge_components
 from repair.union import manifold_union, speck_volume, without_specks
 from tests.repair.mesh_helpers import box

@@ -9,8 +9,9 @@ from crack_models import cracked_sphere, hemisphere
 from mesh_helpers import concat
 
 from repair.check import check_printable
+from repair.files import repair_file
 from repair.io import load_mesh, write_stl
-from repair.pipeline import STITCH_GAMMA, repair_file
+from repair.pipeline import STITCH_GAMMA
 from repair.stitch import stitch_cracks
 from repair.topology import edge_stats, undirected_edges
 
