@@ -225,8 +225,7 @@ def finish(
                 continue
         if local_only:
             break
-        stop = _hull_round_refused(hulled, damage)
-        if stop:
+        if stop := _hull_round_refused(hulled, damage):
             tally.finish_stopped = stop
             return rounded
         hulled.append(damage)

@@ -22,16 +22,21 @@ def real_model(name: str, scale: float) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(m.vertices, np.float64) * scale, np.asarray(m.faces, np.int64)
 
 
-def written_solid(v: np.ndarray, f: np.ndarray, tmp_path: Path) -> float:
+def written_mesh(v: np.ndarray, f: np.ndarray, tmp_path: Path):
     """Repair, write the binary STL, read it back: the exact check on those float32
-    coordinates must pass; returns the written solid's volume (mm³)."""
+    coordinates must pass; returns the mesh read back and its verdict."""
     r = repair_mesh(v, f, 0.4)
     path = tmp_path / "out.stl"
     write_stl(path, r.vertices, r.faces)
     w = load_mesh(path)
     verdict = check_printable(w.vertices, w.faces)
     assert verdict.ok, verdict.failures()
-    return verdict.volume
+    return w, verdict
+
+
+def written_solid(v: np.ndarray, f: np.ndarray, tmp_path: Path) -> float:
+    """:func:`written_mesh`'s solid volume (mm³)."""
+    return written_mesh(v, f, tmp_path)[1].volume
 
 
 def face_areas(v: np.ndarray, f: np.ndarray) -> np.ndarray:
@@ -338,12 +343,7 @@ def test_a_body_written_twice_a_micrometre_apart_comes_out_once(name, scale, off
     v, f = real_model(name, scale)
     expected = check_printable(v, f).volume
     v, f = np.vstack([v, v + np.array(off)]), np.vstack([f, f + len(v)])
-    r = repair_mesh(v, f, 0.4)
-    path = tmp_path / "out.stl"
-    write_stl(path, r.vertices, r.faces)
-    w = load_mesh(path)
-    verdict = check_printable(w.vertices, w.faces)
-    assert verdict.ok, verdict.failures()
+    w, verdict = written_mesh(v, f, tmp_path)
     assert verdict.volume == pytest.approx(expected, rel=2e-3)
     outside, inside = face_winding_sides(w.vertices, w.faces)
     assert np.count_nonzero(failing_faces(outside, inside)) == 0
