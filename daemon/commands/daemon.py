@@ -146,6 +146,8 @@ def cmd_status(args: argparse.Namespace) -> int:
     cfg, journal = _journal(args)
     status = journal.get_meta("status")
     alive = daemon_alive(status)
+    if status:  # job counts from the journal now, not from the heartbeat (up to 1 s old):
+        status["jobs"] = journal.counts()  # status right after `jobs pause` says paused
     key = _api_key(cfg)
     if args.json:
         print(json.dumps({"alive": alive, **(status or {}), "api_key": key}, indent=2))
