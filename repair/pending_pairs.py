@@ -1,11 +1,12 @@
-"""The exact self-intersection test started in the background: every slab in a forked
-child, so the caller's process is free for other work until it asks for the result.
+"""The exact self-intersection test started in the background: slabs in forked
+children, so the caller's process is free for other work until it asks for the result.
 
 :func:`repair.intersections.intersecting_face_pairs` tests slab 0 in the calling process
-and the others in forked children; :func:`start_face_pairs` forks all of them (the
-same slabs, the same libigl test, so the same pairs) and returns at once. A check of a
-large mesh then computes its edge census -- and a caller its speculative next stage --
-on the second CPU while CGAL runs. Units mm; vertices float64 (n, 3), faces int64 (m, 3).
+and the others in forked children; :func:`start_face_pairs` forks those children at
+once (the same slabs, the same libigl test, so the same pairs) and returns: slab 0 is
+tested when the result is asked, or, on a large mesh, in a child of its own too. A check
+then computes its edge census -- and a caller its speculative next stage -- while CGAL
+runs on the other CPU(s). Units mm; vertices float64 (n, 3), faces int64 (m, 3).
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ class PendingPairs:
     def __init__(self, vertices: np.ndarray, faces: np.ndarray) -> None:
         self._v, self._f = vertices, faces
         self._children: list[Forked] = []
+        self._here: np.ndarray | None = None  # the slab tested here when asked
         self._pairs: np.ndarray | None = None
 
     @property
@@ -58,18 +60,19 @@ class PendingPairs:
         for child in self._children:
             child.cancel()
         self._children = []
+        self._here = None
 
-    def _start(self, slabs: list[np.ndarray]) -> None:
+    def _start(self, slabs: list[np.ndarray], here: np.ndarray | None = None) -> None:
         v, f = self._v, self._f
-
-        def test(idx: np.ndarray) -> np.ndarray:
-            check_box_pair_budget(v, f[idx])  # raised again here when the child fails
-            return idx[_pairs(v, f[idx])]
-
-        self._children = [Forked(lambda idx=idx: test(idx)) for idx in slabs]
+        self._children = [Forked(lambda idx=idx: _slab_pairs(v, f, idx)) for idx in slabs]
+        self._here = here
 
     def _collect(self) -> np.ndarray:
-        found = [np.asarray(c.result(), dtype=np.int64).reshape(-1, 2) for c in self._children]
+        found = []
+        if self._here is not None:
+            found.append(_slab_pairs(self._v, self._f, self._here))
+            self._here = None
+        found += [np.asarray(c.result(), dtype=np.int64).reshape(-1, 2) for c in self._children]
         self._children = []
         pairs = np.vstack(found)
         if len(pairs) == 0:
@@ -77,17 +80,30 @@ class PendingPairs:
         return unique_rows(np.sort(pairs, axis=1))
 
 
+def _slab_pairs(v: np.ndarray, f: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """The crossing pairs among the faces ``idx`` (indices into ``f``), unsorted."""
+    check_box_pair_budget(v, f[idx])  # raised again where a child failed
+    return idx[_pairs(v, f[idx])]
+
+
 def start_face_pairs(vertices: np.ndarray, faces: np.ndarray) -> PendingPairs:
     """Start :func:`repair.intersections.intersecting_face_pairs` on ``(vertices, faces)``:
     on a mesh of :data:`BACKGROUND_MIN_FACES` or more, each slab in its own forked child,
-    started now; otherwise the test runs when :meth:`PendingPairs.result` is asked."""
+    started now; on one of :data:`~repair.intersections.PARALLEL_MIN_FACES` or more, the
+    children of slabs 1.. started now and slab 0 tested when :meth:`PendingPairs.result`
+    is asked (the caller's work in between runs beside them: mikedh_box's check, 9k
+    faces, its edge census); otherwise the test runs when the result is asked."""
     v = np.ascontiguousarray(vertices, dtype=np.float64)
     f = np.ascontiguousarray(faces, dtype=np.int64)
     pending = PendingPairs(v, f)
     workers = cpu_workers()
-    if len(f) < BACKGROUND_MIN_FACES or workers < 2:
+    if len(f) < PARALLEL_MIN_FACES or workers < 2:
         return pending
     import igl.copyleft.cgal  # noqa: F401 -- imported once here, not once per child
 
-    pending._start(face_slabs(v, f, workers))
+    slabs = face_slabs(v, f, workers)
+    if len(f) < BACKGROUND_MIN_FACES:
+        pending._start(slabs[1:], here=slabs[0])
+    else:
+        pending._start(slabs)
     return pending

@@ -16,7 +16,7 @@ import plate_model as plate  # noqa: E402
 from mesh_helpers import concat, sphere  # noqa: E402
 
 from repair.check import check_printable, check_printable_pairs, round_to_float32  # noqa: E402
-from repair.intersections import _pairs, intersecting_face_pairs  # noqa: E402
+from repair.intersections import PARALLEL_MIN_FACES, _pairs, intersecting_face_pairs  # noqa: E402
 from repair.pending_pairs import BACKGROUND_MIN_FACES, start_face_pairs  # noqa: E402
 from repair.pipeline import repair_mesh  # noqa: E402
 from repair.rows import unique_rows  # noqa: E402
@@ -36,6 +36,25 @@ def test_pairs_started_in_children_are_those_of_one_whole_test():
     assert np.array_equal(found, whole)
     assert np.array_equal(found, intersecting_face_pairs(v, f))
     assert not pending.running and pending.result() is found
+
+
+def test_a_mid_sized_test_forks_its_other_slabs_at_once_and_tests_slab_0_when_asked():
+    v, f = concat(sphere(4, 10.0), sphere(4, 8.0, centre=(6.0, 1.0, 0.5)))  # crossing
+    assert PARALLEL_MIN_FACES <= len(f) < BACKGROUND_MIN_FACES
+    pending = start_face_pairs(v, f)
+    assert pending.running == (cpu_workers() > 1)
+    found = pending.result()
+    whole = unique_rows(np.sort(_pairs(v, f), axis=1))  # one libigl test, one process
+    assert len(whole) > 50
+    assert np.array_equal(found, whole)
+    assert not pending.running and pending.result() is found
+    # Cancelled before it is asked (the check found a copy of a face): nothing is left
+    # running, and the check's test without the copy finds the same pairs.
+    started = start_face_pairs(v, f)
+    started.cancel()
+    assert not started.running
+    verdict, pairs = check_printable_pairs(v, np.vstack([f, f[:1]]))
+    assert verdict.duplicate_faces == 1 and np.array_equal(np.sort(pairs, axis=1), whole)
 
 
 def test_unwanted_is_called_only_when_the_mesh_is_not_printable_but_for_the_test():
