@@ -76,3 +76,26 @@ def test_slabs_of_a_large_mesh_cut_on_a_sample_hold_every_face_and_balance(k):
     assert covered.all()  # every face is tested somewhere
     counts = [len(s) for s in slabs]
     assert max(counts) - min(counts) <= 0.02 * max(counts)
+
+
+
+@pytest.mark.parametrize("split_from", [3_000, 10**9])
+def test_a_region_of_thousands_tested_in_two_forked_slabs_finds_the_same_pairs(
+    split_from, monkeypatch
+):
+    # mikedh_box's ten crossing shells, the first 3,500 faces changed: 3,843 faces near
+    # them, tested in two slabs (one in a forked child) beside the faces apart -- or,
+    # split_from 10**9, in one test here: the pairs a test of the whole mesh finds.
+    import repair.intersections as inter
+
+    path = CORPUS / "mikedh_box.STL"
+    if not path.exists():
+        pytest.skip(f"corpus file missing: {path}")
+    monkeypatch.setattr(inter, "SPLIT_MIN_FACES", split_from)
+    m = load_mesh(path)
+    v, f = np.asarray(m.vertices, dtype=np.float64), np.asarray(m.faces, dtype=np.int64)
+    which, others = np.arange(3_500), np.arange(3_500, len(f))
+    got = intersecting_pairs_with(v, f, which, others)
+    expected = _region_test(v, f, which)
+    assert len(expected) > 1_000
+    np.testing.assert_array_equal(got, expected)
