@@ -169,8 +169,9 @@ def test_faces_near_a_few_changed_ones_are_exactly_those_whose_box_meets_one():
 
 def test_faces_near_many_changed_ones_of_a_small_mesh_are_exactly_those_whose_box_meets_one():
     # Many changed faces (a sixteenth or more): the faces touching them are taken without
-    # a box test, the others tested box against box; the same faces either way.
-    from repair.rounding import TOUCH_FIRST
+    # a box test, the others tested box against box; the same faces either way. Over a
+    # fifth changed, _near takes all faces (a superset) without testing boxes.
+    from repair.rounding import TOUCH_FIRST, _boxes_meeting
 
     v, f = concat(sphere(3, 10.0), sphere(2, 6.0, (8.3, 1.7, -2.1)))
     p = v[f]
@@ -182,11 +183,14 @@ def test_faces_near_many_changed_ones_of_a_small_mesh_are_exactly_those_whose_bo
         which = np.flatnonzero(changed)
         assert TOUCH_FIRST * len(which) >= len(f)
         assert len(which) * len(f) <= DIRECT_BOX_TESTS
-        near, grid = _near(v, f, changed, None)
-        assert grid is None
+        near = _boxes_meeting(v, f, which)
         meets = (lo[None] <= hi[which, None]) & (hi[None] >= lo[which, None])
         assert np.array_equal(near, np.flatnonzero(meets.all(axis=2).any(axis=0)))
         assert len(near) < len(f) or k == len(f)
+        got, grid = _near(v, f, changed, None)
+        assert grid is None
+        everything = len(which) > len(f) // 5
+        assert np.array_equal(got, np.arange(len(f)) if everything else near)
 
 
 def test_crossings_after_a_local_change_are_those_a_whole_test_finds():
