@@ -54,6 +54,7 @@ __all__ = [
     "damaged_faces",
     "finish",
     "rounded_verdict",
+    "unfinished_reasons",
 ]
 
 #: Rounds of "round to float32, verify, resolve again" before giving up.
@@ -235,6 +236,13 @@ def _rounded_as_it_is(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndar
     verdict: what the finish returns when its rounds ran out or diverged."""
     v32, f32 = weld_exact(round_to_float32(v), f)
     return v32, f32, check_printable(v32, f32)
+
+
+def unfinished_reasons(verdict: Printability, tally: RepairTally) -> list[str]:
+    """Why a :func:`finish` result is not printable: ``verdict``'s failures, then why the
+    finish stopped taking the whole arrangement again (``tally.finish_stopped``), if it
+    did."""
+    return [*verdict.failures(), *([tally.finish_stopped] if tally.finish_stopped else [])]
 
 
 def _damage(p: Printability) -> int:
