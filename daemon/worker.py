@@ -214,12 +214,17 @@ def _emit(stage: str, fraction: float) -> None:
 
 
 def _task_repair(spec: dict[str, Any]) -> Any:
+    from daemon.config import RepairConfig
     from repair.files import repair_file
 
+    # A clean or surface the spec leaves out is the config schema's default (the daemon
+    # always sends both), not the library's (whose surface default is "off").
+    default = RepairConfig()
     return repair_file(spec["in"], spec["out"], epsilon=float(spec["epsilon"]),
                        report_path=spec.get("report"), max_bytes=spec.get("max_bytes"),
                        max_triangles=spec.get("max_triangles"), progress=_emit,
-                       clean=spec.get("clean", "auto"), surface=spec.get("surface", "off"),
+                       clean=spec.get("clean", default.clean),
+                       surface=spec.get("surface", default.surface),
                        time_budget=spec.get("time_budget"))
 
 

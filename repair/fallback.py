@@ -51,7 +51,7 @@ import numpy as np
 
 from repair.clean import drop_unreferenced
 from repair.errors import RepairError
-from repair.finish import finish
+from repair.finish import finish, unfinished_reasons
 from repair.holes import HolesClosed
 from repair.mend import mend_intersections, separate_singular_edges
 from repair.meshes import concat_meshes, shell_volumes, surface_area
@@ -260,7 +260,7 @@ def fallback_repair(
         out_v, out_f, verdict = finish(*fused, eps, tally)
         if verdict.ok:
             break
-        failure = "; ".join(verdict.failures())
+        failure = "; ".join(unfinished_reasons(verdict, tally))
     else:
         raise _failed(reason, failure)
     out = RepairOutcome(out_v, out_f, verdict, "fallback", 0.0, tally, HolesClosed())

@@ -32,6 +32,13 @@ def repair_file(
     """Load a mesh file (STL/OBJ/PLY/3MF/STEP), repair it, write a binary STL at ``out_path``
     and, if asked, the report as JSON at ``report_path``. Returns the report.
 
+    The options are :func:`repair.pipeline.repair_mesh`'s, with its defaults: in
+    particular ``surface="off"``, while ``preflight repair`` and the daemon refine
+    cylinders and cones unless told otherwise (``[repair] surface``'s default, "holes").
+    A library caller gets the exact repair, whose surface stays within the input's facets
+    (solids) or ``0.6 * epsilon`` of them (sheets, wires), unless it asks for refinement,
+    which moves curved facets onto fitted design surfaces and adds triangles.
+
     Raises :class:`repair.io.MeshReadError` for unreadable input and :class:`RepairError`
     when nothing printable can be made of it.
     """

@@ -54,6 +54,7 @@ __all__ = [
     "damaged_faces",
     "finish",
     "rounded_verdict",
+    "unfinished_reasons",
 ]
 
 #: Rounds of "round to float32, verify, resolve again" before giving up.
@@ -171,7 +172,6 @@ def finish(
     faces on the same points keep their pairs, only the region near the others is
     tested. A mend passes its own on to the next round the same way.
     """
-    verdict: Printability | None = None
     tried_separation = False
     worse = 0
     last_damage = None
@@ -185,19 +185,17 @@ def finish(
         rounded = (v32, f32, verdict)
         damage = _damage(verdict)
         grew = last_damage is not None and damage > last_damage
-        if grew:
-            worse += 1
-            if worse >= 4:  # diverging: give up rather than grow without bound
-                break
-        last_damage = damage
-        if len(f32) == 0:
+        worse += grew
+        # Diverging (the 4th round to grow the damage): give up rather than grow without
+        # bound; nothing left: nothing to mend.
+        if worse >= 4 or len(f32) == 0:
             break
+        last_damage = damage
         tally.passes += 1
         # Mend locally while that shrinks the damage; where rounding keeps re-creating it
         # (crossing thin slabs), take the whole arrangement and outer hull again instead.
         local = is_cycle(f32) and not grew
         v32, f32, pairs = _collapse_short_edges(v32, f32, pairs, verdict, round_, local, tally)
-        extra: list[tuple[np.ndarray, np.ndarray]] = []
         touching = verdict.nonmanifold_edges and not (
             verdict.intersecting_pairs or verdict.degenerate_faces
         )
@@ -210,14 +208,14 @@ def finish(
             separated = _separate_if_better(v32, f32, pairs, verdict)
             if separated is not None:
                 tried_separation = True
-                (v, f, tally.separated), tried = separated
-                if tried[2].ok:  # what the next round would find: done
-                    return tried[0], tried[1], tried[2]
-                ready = tried  # the next round's: not taken twice
+                # Its rounded verdict is the next round's (not taken twice): done if ok.
+                (v, f, tally.separated), ready = separated
+                if ready[2].ok:
+                    return ready[0], ready[1], ready[2]
                 continue
-        if touching:
-            extra.append(_singular_edge_prisms(v32, f32, eps, tally))
-            pairs = None
+        # Parts touching along an edge, all that is left: fused by thin prisms there.
+        extra = [_singular_edge_prisms(v32, f32, eps, tally)] if touching else []
+        pairs = None if touching else pairs
         if local and is_cycle(f32):
             mended = _mend_locally(v32, f32, extra, pairs)
             if mended is not None:
@@ -230,9 +228,21 @@ def finish(
             return rounded
         hulled.append(damage)
         v, f, before = hull_again(v32, f32, pairs, extra, eps, tally)
-    assert verdict is not None
+    return _rounded_as_it_is(v, f)
+
+
+def _rounded_as_it_is(v: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray, Printability]:
+    """``(v, f)`` rounded to float32 and welded, without avoiding crossings, and its
+    verdict: what the finish returns when its rounds ran out or diverged."""
     v32, f32 = weld_exact(round_to_float32(v), f)
     return v32, f32, check_printable(v32, f32)
+
+
+def unfinished_reasons(verdict: Printability, tally: RepairTally) -> list[str]:
+    """Why a :func:`finish` result is not printable: ``verdict``'s failures, then why the
+    finish stopped taking the whole arrangement again (``tally.finish_stopped``), if it
+    did."""
+    return [*verdict.failures(), *([tally.finish_stopped] if tally.finish_stopped else [])]
 
 
 def _damage(p: Printability) -> int:

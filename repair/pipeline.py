@@ -54,7 +54,7 @@ from repair.clean import Cleaned, clean_checked
 from repair.deviation import max_deviation
 from repair.errors import BudgetExceeded, RepairError
 from repair.fallback import fallback_repair
-from repair.finish import finish
+from repair.finish import finish, unfinished_reasons
 from repair.forked import Forked
 from repair.hairline import without_hairline_gaps
 from repair.holes import MAX_BOUNDARY_FRACTION, HolesClosed, close_small_holes
@@ -440,8 +440,7 @@ def _exact_path(
     out_v, out_f, verdict = finish(hull_v, hull_f, eps, tally, checked)
     clock.lap("finish", 0.8)
     if not verdict.ok:
-        stopped = [tally.finish_stopped] if tally.finish_stopped else []
-        raise RepairError(NOT_PRINTABLE + "; ".join([*verdict.failures(), *stopped]))
+        raise RepairError(NOT_PRINTABLE + "; ".join(unfinished_reasons(verdict, tally)))
     hint = hull_face_sources(cleaned.vertices, cleaned.faces, lidded.vertices, lidded.faces,
                              first_hull, hull_birth, out_v, out_f)  # fmt: skip
     return RepairOutcome(out_v, out_f, verdict, "exact", 0.0, tally, HolesClosed(),

@@ -145,6 +145,9 @@ def edge_ids(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     if len(f) == 0:
         return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    known = _memoized(f)  # the same sort, done by edge_topology (copied: a caller may write)
+    if known is not None:
+        return known.eid.copy(), known.counts.copy()
     _, _, order, first, counts = _sorted_edge_keys(f, int(f.max()) + 1)
     eid = np.empty(len(order), dtype=np.int64)
     eid[order] = np.cumsum(first) - 1

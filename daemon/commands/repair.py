@@ -31,10 +31,11 @@ def register(subparsers) -> None:
     p.add_argument("--clean", choices=("auto", "scan", "none"), default="auto",
                    help="scan cleanup (spikes, specks, ragged holes): auto when the model "
                    "looks like a scan (default), scan always, none never")  # fmt: skip
-    p.add_argument("--surface", choices=("off", "holes", "all"), default="holes",
+    p.add_argument("--surface", choices=("off", "holes", "all"), default=None,
                    help="refine curved features to the design surface, chordal error within "
-                   "min(0.01, EPSILON/40) mm: holes = cylinders and cones (default), all = "
-                   "also spheres and tori, off = never")  # fmt: skip
+                   "min(0.01, EPSILON/40) mm: holes = cylinders and cones, all = also "
+                   "spheres and tori, off = never (default: [repair] surface's default, "
+                   "holes, as the daemon)")  # fmt: skip
     p.add_argument("--time-budget", type=float, metavar="S", default=None,
                    help="seconds the exact repair may take before the fallback approximation "
                    "replaces it (reported with its deviation D); 0: no budget (default: "
@@ -75,6 +76,16 @@ def _time_budget(given: float | None) -> float:
     return RepairConfig().time_budget
 
 
+def _surface(given: str | None) -> str:
+    """The surface refinement: as given, else the config schema's default (what the
+    daemon does unless configured; the library's own default is "off")."""
+    if given is not None:
+        return given
+    from daemon.config import RepairConfig
+
+    return RepairConfig().surface
+
+
 def run(args) -> int:
     """Run the repair; 0 on a printable result, 1 with a one-line reason otherwise."""
     if not (args.epsilon > 0):
@@ -96,7 +107,7 @@ def run(args) -> int:
     try:
         report = repair_file(args.input, args.output, epsilon=args.epsilon,
                              report_path=args.report, progress=line,
-                             clean=args.clean, surface=args.surface,
+                             clean=args.clean, surface=_surface(args.surface),
                              time_budget=budget or None)  # fmt: skip
     except (MeshReadError, RepairError) as exc:
         if line:
