@@ -213,9 +213,9 @@ def finish(
                 if ready[2].ok:
                     return ready[0], ready[1], ready[2]
                 continue
-        # Parts touching along an edge, all that is left: fused by thin prisms there.
+        # Parts touching along an edge, all that is left: fused by thin prisms there;
+        # ``pairs`` stay those of (v32, f32): the prisms' are found apart.
         extra = [_singular_edge_prisms(v32, f32, eps, tally)] if touching else []
-        pairs = None if touching else pairs
         if local and is_cycle(f32):
             mended = _mend_locally(v32, f32, extra, pairs)
             if mended is not None:
@@ -335,13 +335,19 @@ def _mend_locally(
     extra: list[tuple[np.ndarray, np.ndarray]],
     pairs: np.ndarray | None,
 ) -> tuple[np.ndarray, np.ndarray, Checked | None] | None:
-    """The mended surface and, when its crossing pairs were all known, the checked mesh
-    it was mended from (for the next round); None when libigl refuses the subset (the
-    caller then takes the whole outer hull)."""
+    """The mended surface and, when the crossing pairs of ``(v32, f32)`` were all known
+    (``pairs``), the checked mesh it was mended from (for the next round); None when
+    libigl refuses the subset (the caller then takes the whole outer hull). The
+    ``extra`` solids' crossings are found near them only: cycloidal's fallback, 22
+    prisms on 78k faces, 2.6 s CPU for a whole test."""
     mv, mf = concat_meshes([(v32, f32), *extra])
+    every = pairs
+    if pairs is not None and len(mf) > len(f32):
+        every = crossings_after_change(mv, mf, pairs, np.arange(len(mf)) >= len(f32))
     try:
-        md = mend_intersections(mv, mf, pairs)
+        md = mend_intersections(mv, mf, every)
     except (RuntimeError, ValueError, IndexError):
         return None
-    before = (mv, mf, pairs) if pairs is not None and not extra else None
+    # Carried on float32 points only: the prisms' corners are not rounded yet.
+    before = (v32, f32, pairs) if pairs is not None else None
     return md.vertices, md.faces, before
