@@ -37,6 +37,7 @@ def _wavy_sheets(cells: int = 8, size: float = 10.0, amp: float = 0.5):
     return v, np.r_[sheet, sheet + len(x)]
 
 
+@pytest.mark.slow  # ~10 s of CPU: two finishes that each run until they stop
 def test_a_finish_that_stops_growing_says_why_on_both_paths() -> None:
     v, f = _wavy_sheets()
     with pytest.raises(RepairError) as raised:
