@@ -362,3 +362,30 @@ def test_only_a_copy_within_the_stitch_distance_turned_the_same_way_is_a_duplica
     ff = np.vstack([f] + [g + (i + 1) * n for i, (_, g) in enumerate(copies)])
     dup = duplicate_shells(vv, ff, 0.1)
     assert not dup[:m].any() and dup[m : 2 * m].all() and not dup[2 * m :].any()
+
+
+
+@pytest.mark.parametrize("seed", [0, 2, 4])
+@pytest.mark.parametrize(
+    ("name", "scale", "off", "faults"),
+    [("trimesh_multibody.stl", 50.0, (2e-3, -1e-3, 4e-3), "t_junctions crack copy"),
+     ("trimesh_multibody.stl", 50.0, (2e-3, -1e-3, 4e-3), "copy crack"),
+     ("cgal_step.obj", 0.05, (3e-2, 1e-2, -2e-2), "crack copy")],
+)  # fmt: skip
+def test_a_cracked_body_written_twice_comes_out_once(name, scale, off, faults, seed, tmp_path):
+    # A cracked body written twice, the copy a few um off (CAD fault sweep, combo of
+    # crack and dup_shell): the copy's rims lie within the stitch distance of the
+    # crack's, the stitch joined the copies (edges of three faces) and was declined, and
+    # both open bodies became 0.4 mm walls: half the volume on the multibody part, a
+    # quarter on the step. A patch that is another's copy is dropped before the stitch,
+    # unless the crack cut the copies differently and a piece of the copy would be left.
+    v, f = real_model(name, scale)
+    r = repair_mesh(v, f, 0.4)
+    expected = check_printable(r.vertices, r.faces).volume
+    for fault in faults.split():
+        if fault == "copy":
+            v, f = np.vstack([v, v + np.array(off)]), np.vstack([f, f + len(v)])
+        else:
+            v, f = (cracked if fault == "crack" else t_junctions)(v, f, seed)
+    assert written_solid(v, f, tmp_path) == pytest.approx(expected, rel=2e-3)
+    assert repair_mesh(v, f, 0.4).report["deviation"] < 0.1
