@@ -13,7 +13,14 @@ import numpy as np
 
 from repair.check import Printability, degenerate_face_mask
 from repair.rows import unique_ints, unique_rows
-from repair.topology import edge_components, face_keys, half_edges, unique_faces, weld_exact
+from repair.topology import (
+    connected_labels,
+    edge_components,
+    face_keys,
+    half_edges,
+    unique_faces,
+    weld_exact,
+)
 
 __all__ = [
     "Cleaned",
@@ -60,12 +67,14 @@ def hanging_needles(
     vertices: np.ndarray, faces: np.ndarray, flat: np.ndarray | None = None
 ) -> np.ndarray:
     """The faces flat at float32 resolution (:func:`needle_mask`) that hang off the
-    surface: each edge-connected group of them none of whose edges exactly one other (not
-    flat) face uses -- dropping it opens no edge, and a zero-area group adds nothing
-    printable (a needle on an edge the surface already closes, or a needle itself split
-    at a point). A group that closes a crack (a T-junction's filler: an edge it shares
-    with one other face) stays: :func:`split_at_fillers`. ``flat``: :func:`needle_mask`,
-    if known. Returns a bool mask per face."""
+    surface: each group of them none of whose edges exactly one face outside the group
+    uses -- dropping it opens no edge, and a zero-area group adds nothing printable (a
+    needle on an edge the surface already closes, or a needle itself split at a point).
+    Needles are grouped across the edges no other face uses (a fan's inner edges): a
+    sliver added on an edge that an exporter's own needle shares with the surface is
+    a group of its own. A group that closes a crack (a T-junction's filler: an edge it
+    shares with one other face) stays: :func:`split_at_fillers`. ``flat``:
+    :func:`needle_mask`, if known. Returns a bool mask per face."""
     flat = needle_mask(vertices, faces) if flat is None else flat
     if not np.any(flat):
         return flat
@@ -74,8 +83,17 @@ def hanging_needles(
     e = np.sort(half_edges(f), axis=1)
     key = (e[:, 0] * n + e[:, 1]).reshape(-1, 3)
     idx = np.flatnonzero(flat)
-    once = (_edge_uses(key[~flat].reshape(-1), key[idx].reshape(-1)) == 1).reshape(-1, 3)
-    group = edge_components(f[idx])
+    mine = key[idx].reshape(-1)
+    alone = _edge_uses(key[~flat].reshape(-1), mine) == 0
+    # Needles joined across edges only needles use.
+    order = np.argsort(mine, kind="stable")
+    same = np.flatnonzero((mine[order][1:] == mine[order][:-1]) & alone[order][1:])
+    group = connected_labels(len(idx), order[same] // 3, order[same + 1] // 3)
+    # Uses of each needle edge by faces outside its group: all uses, less the group's.
+    g3 = np.repeat(group, 3)
+    inside = unique_ints(g3 * (int(mine.max()) + 1) + mine, return_inverse=True)[1]
+    outside = _edge_uses(key.reshape(-1), mine) - np.bincount(inside)[inside]
+    once = (outside == 1).reshape(-1, 3)
     opens = np.bincount(group, weights=once.any(axis=1), minlength=int(group.max()) + 1)
     out = np.zeros(len(f), dtype=bool)
     out[idx[opens[group] == 0]] = True

@@ -389,3 +389,25 @@ def test_a_cracked_body_written_twice_comes_out_once(name, scale, off, faults, s
             v, f = (cracked if fault == "crack" else t_junctions)(v, f, seed)
     assert written_solid(v, f, tmp_path) == pytest.approx(expected, rel=2e-3)
     assert repair_mesh(v, f, 0.4).report["deviation"] < 0.1
+
+
+@pytest.mark.parametrize("seed", [2, 5])
+def test_a_sliver_on_an_edge_of_an_exporter_needle_is_dropped(seed, tmp_path):
+    # A zero-area sliver (a, midpoint, b) written on an edge a-b of the step, whose own
+    # needles (3e-5 mm wide) share a-b with the surface, and a triangle missing (CAD
+    # fault sweep, slivers then holes): needles were grouped across any edge, so the
+    # sliver joined the step's needles, whose other edges the surface uses once, and was
+    # kept as if it closed a crack; a-b an edge of three faces, the hole was not lidded
+    # and the step became a 0.4 mm wall (a quarter of its volume). Needles are grouped
+    # only across edges no other face uses: the sliver alone hangs and is dropped.
+    v, f = real_model("cgal_step.obj", 0.05)
+    expected = check_printable(v, f).volume
+    rng = np.random.default_rng(seed)
+    on = rng.integers(len(f), size=max(1, len(f) // 20))
+    a, b = f[on, 0], f[on, 1]
+    mid = len(v) + np.arange(len(on))
+    v, f = np.vstack([v, (v[a] + v[b]) / 2]), np.vstack([f, np.stack([a, mid, b], axis=1)])
+    f = np.delete(f, rng.choice(len(f), size=max(1, len(f) // 50), replace=False), axis=0)
+    assert written_solid(v, f, tmp_path) == pytest.approx(expected, rel=2e-3)
+
+
