@@ -81,6 +81,7 @@ from repair.scan import scan_cleanup
 from repair.stitch import stitch_cracks
 from repair.topology import EdgeTopology, edge_components, edge_topology, edge_topology_memo
 from repair.union import union_of_shells, without_copies
+from repair.wires import moved_segments
 from repair.workers import blas_controller, cpu_workers
 
 __all__ = ["RepairError", "RepairResult", "repair_mesh"]
@@ -305,6 +306,9 @@ def _solidify(
     if not topology.of(work_f):
         topology = edge_topology(work_f)
     stitched_f, stitched = stitch_cracks(work_v, work_f, STITCH_GAMMA * eps, topology)
+    if len(stitched.moved) and len(cleaned.segments):
+        cleaned = replace(cleaned, segments=moved_segments(cleaned.segments, work_v,
+                                                           stitched.moved))  # fmt: skip
     clock.lap("stitch", 0.22)
     lidded, holes = _lidded(rounded, work_v, stitched_f, topology, scan is not None, clock)
     lidded, cleaned = _without_copies(lidded, cleaned, STITCH_GAMMA * eps)
