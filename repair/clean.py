@@ -34,6 +34,7 @@ __all__ = [
     "net_faces",
     "orient_needles",
     "split_at_fillers",
+    "split_copies",
 ]
 
 #: A face is flat at float32 resolution when its height over its longest side is under
@@ -227,6 +228,48 @@ def _chains(
     return chain[keep], s[keep], fan_ok
 
 
+def split_copies(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Faces that are halves of a face also written whole (bool per face): two faces
+    ``(a, m, c)`` and ``(m, b, c)`` sharing the edge ``m-c``, ``m`` between ``a`` and
+    ``b`` on their line at float32 resolution (:func:`needle_mask` of ``(a, m, b)``),
+    while a face on ``a, b, c`` exists -- a patch written twice, one copy of a face
+    split at a point of its edge (each half then shares ``a-c`` or ``b-c`` with the
+    whole face and its neighbour: an edge of three or more faces). They cover that
+    face: the surface written twice, of which one layer is kept (the whole face, which
+    its neighbour across ``a-b`` shares an edge with)."""
+    f = np.asarray(faces, dtype=np.int64)
+    out = np.zeros(len(f), dtype=bool)
+    if len(f) < 3:
+        return out
+    n = int(f.max()) + 1
+    he = half_edges(f)
+    key = np.sort(he, axis=1) @ np.array([n, 1])
+    order = np.argsort(key, kind="stable")
+    sk = key[order]
+    start = np.r_[0, np.flatnonzero(sk[1:] != sk[:-1]) + 1]
+    uses = np.diff(np.r_[start, len(sk)])
+    many = np.zeros(len(f), dtype=bool)
+    many[order[np.repeat(uses, uses) > 2] // 3] = True
+    pair = np.flatnonzero(sk[1:] == sk[:-1])
+    h1, h2 = order[pair], order[pair + 1]
+    sel = many[h1 // 3] & many[h2 // 3]
+    h1, h2 = h1[sel], h2[sel]
+    if len(h1) == 0:
+        return out
+    # The corner opposite each half-edge: the next corner after its end.
+    corner = f.reshape(-1)
+    a, b = corner[h1 - h1 % 3 + (h1 % 3 + 2) % 3], corner[h2 - h2 % 3 + (h2 % 3 + 2) % 3]
+    whole = np.sort(face_keys(f, n))
+    v = np.asarray(vertices, dtype=np.float64)
+    for m, c in ((he[h1, 0], he[h1, 1]), (he[h1, 1], he[h1, 0])):
+        on = (a != b) & needle_mask(v, np.stack([a, m, b], axis=1))
+        on &= np.einsum("ij,ij->i", v[a] - v[m], v[b] - v[m]) < 0
+        k = face_keys(np.stack([a, b, c], axis=1), n)
+        hit = on & (whole[np.minimum(np.searchsorted(whole, k), len(whole) - 1)] == k)
+        out[h1[hit] // 3] = out[h2[hit] // 3] = True
+    return out
+
+
 def orient_needles(
     vertices: np.ndarray, faces: np.ndarray, flat: np.ndarray | None = None
 ) -> tuple[np.ndarray, int]:
@@ -403,6 +446,9 @@ def clean_soup(vertices: np.ndarray, faces: np.ndarray, *, solid: bool = False) 
     keep = cancel_opposite_faces(f) if solid else unique_faces(f)
     dup = len(f) - len(keep) + repeated
     f = f[keep]
+    if not solid:  # a face written whole and split too: one layer
+        halves = split_copies(v, f)
+        f, dup = f[~halves], dup + int(np.count_nonzero(halves))
     v, f = drop_unreferenced(v, f)
     removed = np.count_nonzero(deg) + np.count_nonzero(needles) + split
     return Cleaned(v, f, segments, int(removed), int(dup))
@@ -411,12 +457,16 @@ def clean_soup(vertices: np.ndarray, faces: np.ndarray, *, solid: bool = False) 
 def clean_checked(vertices: np.ndarray, faces: np.ndarray, verdict: Printability) -> Cleaned:
     """:func:`clean_soup` of a mesh whose ``verdict`` was found on exactly these
     coordinates (``as_float32``, welded the same way): when that check found no
-    degenerate and no duplicate face, and no face is a needle (:func:`needle_mask`: one
-    to drop, split at or turn), there is nothing to remove: the welded input is the
+    degenerate and no duplicate face, no face is a needle (:func:`needle_mask`: one
+    to drop, split at or turn) and none a half of a face written whole too
+    (:func:`split_copies`, looked for when an edge has more than two faces), there is
+    nothing to remove: the welded input is the
     cleaned input."""
     if verdict.degenerate_faces == 0 and verdict.duplicate_faces == 0:
         v, f = weld_exact(vertices, faces)
-        if not np.any(needle_mask(v, f)):
+        if not np.any(needle_mask(v, f)) and not (
+            verdict.nonmanifold_edges and np.any(split_copies(v, f))
+        ):
             v, f = drop_unreferenced(v, f)
             return Cleaned(v, f, np.zeros((0, 2, 3)), 0, 0)
     return clean_soup(vertices, faces)
