@@ -13,7 +13,14 @@ import numpy as np
 
 from repair.check import Printability, degenerate_face_mask
 from repair.rows import unique_ints, unique_rows
-from repair.topology import edge_components, face_keys, half_edges, unique_faces, weld_exact
+from repair.topology import (
+    connected_labels,
+    edge_components,
+    face_keys,
+    half_edges,
+    unique_faces,
+    weld_exact,
+)
 
 __all__ = [
     "Cleaned",
@@ -27,6 +34,7 @@ __all__ = [
     "net_faces",
     "orient_needles",
     "split_at_fillers",
+    "split_copies",
 ]
 
 #: A face is flat at float32 resolution when its height over its longest side is under
@@ -60,12 +68,14 @@ def hanging_needles(
     vertices: np.ndarray, faces: np.ndarray, flat: np.ndarray | None = None
 ) -> np.ndarray:
     """The faces flat at float32 resolution (:func:`needle_mask`) that hang off the
-    surface: each edge-connected group of them none of whose edges exactly one other (not
-    flat) face uses -- dropping it opens no edge, and a zero-area group adds nothing
-    printable (a needle on an edge the surface already closes, or a needle itself split
-    at a point). A group that closes a crack (a T-junction's filler: an edge it shares
-    with one other face) stays: :func:`split_at_fillers`. ``flat``: :func:`needle_mask`,
-    if known. Returns a bool mask per face."""
+    surface: each group of them none of whose edges exactly one face outside the group
+    uses -- dropping it opens no edge, and a zero-area group adds nothing printable (a
+    needle on an edge the surface already closes, or a needle itself split at a point).
+    Needles are grouped across the edges no other face uses (a fan's inner edges): a
+    sliver added on an edge that an exporter's own needle shares with the surface is
+    a group of its own. A group that closes a crack (a T-junction's filler: an edge it
+    shares with one other face) stays: :func:`split_at_fillers`. ``flat``:
+    :func:`needle_mask`, if known. Returns a bool mask per face."""
     flat = needle_mask(vertices, faces) if flat is None else flat
     if not np.any(flat):
         return flat
@@ -74,8 +84,17 @@ def hanging_needles(
     e = np.sort(half_edges(f), axis=1)
     key = (e[:, 0] * n + e[:, 1]).reshape(-1, 3)
     idx = np.flatnonzero(flat)
-    once = (_edge_uses(key[~flat].reshape(-1), key[idx].reshape(-1)) == 1).reshape(-1, 3)
-    group = edge_components(f[idx])
+    mine = key[idx].reshape(-1)
+    alone = _edge_uses(key[~flat].reshape(-1), mine) == 0
+    # Needles joined across edges only needles use.
+    order = np.argsort(mine, kind="stable")
+    same = np.flatnonzero((mine[order][1:] == mine[order][:-1]) & alone[order][1:])
+    group = connected_labels(len(idx), order[same] // 3, order[same + 1] // 3)
+    # Uses of each needle edge by faces outside its group: all uses, less the group's.
+    g3 = np.repeat(group, 3)
+    inside = unique_ints(g3 * (int(mine.max()) + 1) + mine, return_inverse=True)[1]
+    outside = _edge_uses(key.reshape(-1), mine) - np.bincount(inside)[inside]
+    once = (outside == 1).reshape(-1, 3)
     opens = np.bincount(group, weights=once.any(axis=1), minlength=int(group.max()) + 1)
     out = np.zeros(len(f), dtype=bool)
     out[idx[opens[group] == 0]] = True
@@ -207,6 +226,48 @@ def _chains(
     fan_ok = np.bincount(s[off], minlength=len(g0)) == 0
     keep = fan_ok[s]
     return chain[keep], s[keep], fan_ok
+
+
+def split_copies(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Faces that are halves of a face also written whole (bool per face): two faces
+    ``(a, m, c)`` and ``(m, b, c)`` sharing the edge ``m-c``, ``m`` between ``a`` and
+    ``b`` on their line at float32 resolution (:func:`needle_mask` of ``(a, m, b)``),
+    while a face on ``a, b, c`` exists -- a patch written twice, one copy of a face
+    split at a point of its edge (each half then shares ``a-c`` or ``b-c`` with the
+    whole face and its neighbour: an edge of three or more faces). They cover that
+    face: the surface written twice, of which one layer is kept (the whole face, which
+    its neighbour across ``a-b`` shares an edge with)."""
+    f = np.asarray(faces, dtype=np.int64)
+    out = np.zeros(len(f), dtype=bool)
+    if len(f) < 3:
+        return out
+    n = int(f.max()) + 1
+    he = half_edges(f)
+    key = np.sort(he, axis=1) @ np.array([n, 1])
+    order = np.argsort(key, kind="stable")
+    sk = key[order]
+    start = np.r_[0, np.flatnonzero(sk[1:] != sk[:-1]) + 1]
+    uses = np.diff(np.r_[start, len(sk)])
+    many = np.zeros(len(f), dtype=bool)
+    many[order[np.repeat(uses, uses) > 2] // 3] = True
+    pair = np.flatnonzero(sk[1:] == sk[:-1])
+    h1, h2 = order[pair], order[pair + 1]
+    sel = many[h1 // 3] & many[h2 // 3]
+    h1, h2 = h1[sel], h2[sel]
+    if len(h1) == 0:
+        return out
+    # The corner opposite each half-edge: the next corner after its end.
+    corner = f.reshape(-1)
+    a, b = corner[h1 - h1 % 3 + (h1 % 3 + 2) % 3], corner[h2 - h2 % 3 + (h2 % 3 + 2) % 3]
+    whole = np.sort(face_keys(f, n))
+    v = np.asarray(vertices, dtype=np.float64)
+    for m, c in ((he[h1, 0], he[h1, 1]), (he[h1, 1], he[h1, 0])):
+        on = (a != b) & needle_mask(v, np.stack([a, m, b], axis=1))
+        on &= np.einsum("ij,ij->i", v[a] - v[m], v[b] - v[m]) < 0
+        k = face_keys(np.stack([a, b, c], axis=1), n)
+        hit = on & (whole[np.minimum(np.searchsorted(whole, k), len(whole) - 1)] == k)
+        out[h1[hit] // 3] = out[h2[hit] // 3] = True
+    return out
 
 
 def orient_needles(
@@ -385,6 +446,9 @@ def clean_soup(vertices: np.ndarray, faces: np.ndarray, *, solid: bool = False) 
     keep = cancel_opposite_faces(f) if solid else unique_faces(f)
     dup = len(f) - len(keep) + repeated
     f = f[keep]
+    if not solid:  # a face written whole and split too: one layer
+        halves = split_copies(v, f)
+        f, dup = f[~halves], dup + int(np.count_nonzero(halves))
     v, f = drop_unreferenced(v, f)
     removed = np.count_nonzero(deg) + np.count_nonzero(needles) + split
     return Cleaned(v, f, segments, int(removed), int(dup))
@@ -393,12 +457,16 @@ def clean_soup(vertices: np.ndarray, faces: np.ndarray, *, solid: bool = False) 
 def clean_checked(vertices: np.ndarray, faces: np.ndarray, verdict: Printability) -> Cleaned:
     """:func:`clean_soup` of a mesh whose ``verdict`` was found on exactly these
     coordinates (``as_float32``, welded the same way): when that check found no
-    degenerate and no duplicate face, and no face is a needle (:func:`needle_mask`: one
-    to drop, split at or turn), there is nothing to remove: the welded input is the
+    degenerate and no duplicate face, no face is a needle (:func:`needle_mask`: one
+    to drop, split at or turn) and none a half of a face written whole too
+    (:func:`split_copies`, looked for when an edge has more than two faces), there is
+    nothing to remove: the welded input is the
     cleaned input."""
     if verdict.degenerate_faces == 0 and verdict.duplicate_faces == 0:
         v, f = weld_exact(vertices, faces)
-        if not np.any(needle_mask(v, f)):
+        if not np.any(needle_mask(v, f)) and not (
+            verdict.nonmanifold_edges and np.any(split_copies(v, f))
+        ):
             v, f = drop_unreferenced(v, f)
             return Cleaned(v, f, np.zeros((0, 2, 3)), 0, 0)
     return clean_soup(vertices, faces)

@@ -81,6 +81,7 @@ from repair.scan import scan_cleanup
 from repair.stitch import stitch_cracks
 from repair.topology import EdgeTopology, edge_components, edge_topology, edge_topology_memo
 from repair.union import union_of_shells, without_copies
+from repair.wires import moved_segments
 from repair.workers import blas_controller, cpu_workers
 
 __all__ = ["RepairError", "RepairResult", "repair_mesh"]
@@ -300,7 +301,14 @@ def _solidify(
     if scan is not None and scan.topology is not None:
         topology = scan.topology  # that of the cleaned scan's faces
     clock.lap("scan_cleanup", 0.21)
+    # A cracked body written twice: one copy of each patch is stitched.
+    work_f, cleaned = _without_copies_of(work_v, work_f, cleaned, STITCH_GAMMA * eps)
+    if not topology.of(work_f):
+        topology = edge_topology(work_f)
     stitched_f, stitched = stitch_cracks(work_v, work_f, STITCH_GAMMA * eps, topology)
+    if len(stitched.moved) and len(cleaned.segments):
+        cleaned = replace(cleaned, segments=moved_segments(cleaned.segments, work_v,
+                                                           stitched.moved))  # fmt: skip
     clock.lap("stitch", 0.22)
     lidded, holes = _lidded(rounded, work_v, stitched_f, topology, scan is not None, clock)
     lidded, cleaned = _without_copies(lidded, cleaned, STITCH_GAMMA * eps)
@@ -368,6 +376,18 @@ def _without_copies(lidded: _Lidded, cleaned: Cleaned, gamma: float) -> tuple[_L
     if faces is lidded.faces:
         return lidded, cleaned
     return _Lidded(lidded.vertices, faces, pairs), replace(cleaned, segments=segments)
+
+
+def _without_copies_of(
+    v: np.ndarray, f: np.ndarray, cleaned: Cleaned, gamma: float
+) -> tuple[np.ndarray, Cleaned]:
+    """``f`` without the open patches or closed shells that are copies of others within
+    ``gamma`` (mm), and ``cleaned`` without their wires (:func:`repair.union.without_copies`)."""
+    faces, _, segments = without_copies(v, f, np.zeros((0, 2), dtype=np.int64),
+                                        cleaned.segments, gamma, patches=True)  # fmt: skip
+    if faces is f:
+        return f, cleaned
+    return faces, replace(cleaned, segments=segments)
 
 
 def _union_path(

@@ -27,7 +27,7 @@ a KD-tree (``scipy.spatial.cKDTree``), the rest numpy. Units are mm; vertices fl
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -56,7 +56,8 @@ class Stitched:
     """What :func:`stitch_cracks` did: ``gamma`` mm, ``snapped`` vertex pairs merged,
     ``inserted`` vertices put into a boundary edge of another patch, ``boundary_before``
     and ``boundary_after`` boundary edges; ``declined`` when the stitch was undone because
-    it would have made edges of more than two faces or misoriented ones."""
+    it would have made edges of more than two faces or misoriented ones; ``moved``
+    (k, 2): each merged vertex and the vertex it became (whose coordinates it took)."""
 
     gamma: float = 0.0
     snapped: int = 0
@@ -64,6 +65,9 @@ class Stitched:
     boundary_before: int = 0
     boundary_after: int = 0
     declined: bool = False
+    moved: np.ndarray = field(
+        default_factory=lambda: np.zeros((0, 2), dtype=np.int64), compare=False
+    )
 
     def to_dict(self) -> dict[str, float | int]:
         return {
@@ -97,16 +101,17 @@ def _boundary_vertices(
 def _snap(
     v: np.ndarray, f: np.ndarray, gamma: float, topology: EdgeTopology, patch: np.ndarray,
     matched: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, int]:
+) -> tuple[np.ndarray, np.ndarray, int, np.ndarray | None]:
     """Faces with mutually nearest boundary vertices of different patches merged, each
     face's ``patch`` label (carried through), and how many pairs were merged. Two
     vertices both ``matched`` (merged by :func:`_snap_rims`: each has found its copy)
     are not: left on the boundary, they are the ends of a crack that runs on, and their
-    nearest is a vertex of another shell (a body written twice, shifted)."""
+    nearest is a vertex of another shell (a body written twice, shifted). Last, the
+    vertex each vertex became (None when none was merged)."""
     bnd = _boundary(f, topology)[0]
     bv, bpatch = _boundary_vertices(f, bnd, patch)
     if len(bv) < 2:
-        return f, patch, 0
+        return f, patch, 0, None
     from scipy.spatial import cKDTree
 
     k = min(8, len(bv))
@@ -122,26 +127,31 @@ def _snap(
     sel = (a < b) & ~(matched[bv[a]] & matched[bv[b]])
     a, b = a[sel], b[sel]
     if len(a) == 0:
-        return f, patch, 0
-    out, ok = _merged(len(v), f, bv[a], bv[b])
-    return out[ok], patch[ok], len(a)
+        return f, patch, 0, None
+    out, ok, to = _merged(len(v), f, bv[a], bv[b])
+    return out[ok], patch[ok], len(a), to
 
 
-def _merged(n: int, f: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _merged(
+    n: int, f: np.ndarray, a: np.ndarray, b: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``f`` with the vertices joined by pairs ``a[i] -- b[i]`` (of ``n``) merged into the
-    lowest index of each group, and which faces keep three distinct corners."""
+    lowest index of each group, which faces keep three distinct corners, and the
+    vertex each of the ``n`` became."""
     labels = connected_labels(n, a, b)
     keep = np.full(labels.max() + 1, n)
     np.minimum.at(keep, labels, np.arange(n))
-    out = keep[labels][f]
+    to = keep[labels]
+    out = to[f]
     ok = (out[:, 0] != out[:, 1]) & (out[:, 1] != out[:, 2]) & (out[:, 2] != out[:, 0])
-    return out, ok
+    return out, ok, to
 
 
 def _snap_rims(
     v: np.ndarray, f: np.ndarray, gamma: float, topology: EdgeTopology, patch: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Faces with the ends of matched rim edges merged, and which vertices were merged.
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Faces with the ends of matched rim edges merged, which vertices were merged, and
+    the vertex each vertex became.
 
     A boundary half-edge ``s -> e`` of one patch matches one ``e' -> s'`` of another
     (opposite direction, as the two sides of a crack of a consistently oriented surface
@@ -151,14 +161,14 @@ def _snap_rims(
     nearest vertices are the wrong copies but only the right ones are joined by a rim
     edge. A group of merged vertices that would collapse a face is left apart."""
     bnd = _boundary(f, topology)[0]
-    none = np.zeros(len(v), dtype=bool)
+    none, kept = np.zeros(len(v), dtype=bool), np.arange(len(v))
     if len(bnd) < 2:
-        return f, none
+        return f, none, kept
     from scipy.spatial import cKDTree
 
     rim_patch = patch[bnd // 3]
     if rim_patch.min() == rim_patch.max():
-        return f, none
+        return f, none, kept
     rim = half_edges(f)[bnd]
     s, e = v[rim[:, 0]], v[rim[:, 1]]
     i, j = cKDTree(0.5 * (s + e)).query_pairs(gamma, output_type="ndarray").T
@@ -171,7 +181,7 @@ def _snap_rims(
     same = ~opposite & (ss <= gamma) & (ee <= gamma)
     sel = opposite | same
     if not sel.any():
-        return f, none
+        return f, none, kept
     cost = np.where(opposite, ds + de, ss + ee + 4 * gamma)[sel]
     i, j, same = i[sel], j[sel], same[sel]
     i, j, same, cost = np.r_[i, j], np.r_[j, i], np.tile(same, 2), np.tile(cost, 2)
@@ -185,7 +195,7 @@ def _snap_rims(
     m = np.flatnonzero(best >= 0)
     m = m[(best[best[m]] == m) & (m < best[m])]
     if len(m) == 0:
-        return f, none
+        return f, none, kept
     other = rim[best[m]]
     other[~flipped[m]] = other[~flipped[m], ::-1]
     a = np.concatenate([rim[m, 0], rim[m, 1]])
@@ -195,15 +205,15 @@ def _snap_rims(
     # is one that would collapse a face.
     labels = connected_labels(len(v), a, b)
     bad = np.bincount(labels, minlength=labels.max() + 1) > 2
-    out, ok = _merged(len(v), f, a, b)
+    out, ok, to = _merged(len(v), f, a, b)
     bad[labels[f[~ok][out[~ok] == np.roll(out[~ok], -1, axis=1)]]] = True
     if bad.any():
         good = ~bad[labels[a]]
         a, b = a[good], b[good]
-        out = _merged(len(v), f, a, b)[0]
+        out, _, to = _merged(len(v), f, a, b)
     merged = np.zeros(len(v), dtype=bool)
     merged[a] = merged[b] = True
-    return (out, merged) if len(a) else (f, merged)
+    return (out, merged, to) if len(a) else (f, merged, kept)
 
 
 def _split_candidates(
@@ -319,14 +329,15 @@ def stitch_cracks(
     # others), its copies are merged a mutual pair per round; the patches keep their
     # input labels, so a copy left over still finds the patch it was cut from.
     patch = topo.shells
-    f, matched = _snap_rims(v, f, gamma, topo, patch)
+    f, matched, became = _snap_rims(v, f, gamma, topo, patch)
     snapped = 0 if f is original else len(np.unique(original)) - len(np.unique(f))
     topo_f = edge_topology(f) if snapped else topo
     for _ in range(_SNAP_ROUNDS):
-        f, patch, merged = _snap(v, f, gamma, topo_f, patch, matched)
+        f, patch, merged, to = _snap(v, f, gamma, topo_f, patch, matched)
         snapped += merged
-        if merged == 0:
+        if to is None:
             break
+        became = to[became]
         topo_f = edge_topology(f)
     inserted = 0
     for _ in range(_SPLIT_ROUNDS):
@@ -354,7 +365,9 @@ def stitch_cracks(
         # facing the same way): stitching would make the surface worse; leave it.
         return original, Stitched(float(gamma), boundary_before=b0, boundary_after=b0,
                                   declined=True)  # fmt: skip
-    return f, Stitched(float(gamma), snapped, inserted, b0, b1)
+    moved = np.flatnonzero(became != np.arange(len(v)))
+    return f, Stitched(float(gamma), snapped, inserted, b0, b1,
+                       moved=np.column_stack([moved, became[moved]]))  # fmt: skip
 
 
 def _unpaired(t: EdgeTopology) -> int:

@@ -20,7 +20,14 @@ from repair.clean import drop_unreferenced
 from repair.intersections import intersecting_face_pairs
 from repair.meshes import shell_volumes
 from repair.rows import ranges, unique_ints
-from repair.topology import edge_components, edge_stats, edge_topology, weld_exact
+from repair.topology import (
+    EdgeTopology,
+    edge_components,
+    edge_stats,
+    edge_topology,
+    half_edges,
+    weld_exact,
+)
 
 __all__ = ["ShellUnion", "duplicate_shells", "manifold_union", "speck_volume", "union_of_shells",
            "without_copies", "without_specks"]  # fmt: skip
@@ -32,6 +39,9 @@ __all__ = ["ShellUnion", "duplicate_shells", "manifold_union", "speck_volume", "
 #: a child; mikedh_teapot's 534 slabs 1.03 s, 0.56 + 0.44 s.
 SHARED_MIN_SOLIDS = 64
 UNION_SHARES = 2
+#: An open patch is looked at as a copy of another (:func:`duplicate_shells`) when it is
+#: at least this many times the copy distance across.
+COPY_MIN_SIZE = 10.0
 
 
 def speck_volume(epsilon: float) -> float:
@@ -98,7 +108,9 @@ def _manifolds_of(
     return out
 
 
-def duplicate_shells(v: np.ndarray, f: np.ndarray, gamma: float) -> np.ndarray:
+def duplicate_shells(
+    v: np.ndarray, f: np.ndarray, gamma: float, *, patches: bool = False
+) -> np.ndarray:
     """Which faces of ``(v, f)`` belong to a body written twice: True on every face of
     a closed shell (each edge used by an even number of its faces) that is a copy of
     an earlier one -- each of its points within ``gamma`` (mm) of its own point of the
@@ -110,7 +122,12 @@ def duplicate_shells(v: np.ndarray, f: np.ndarray, gamma: float) -> np.ndarray:
     fold into the solid or out of it (cgal_part written twice 0.9 um apart: needles
     10 mm long of 2e-8 mm^2 failing the two-sided winding test). One copy is the body;
     dropping the other moves no surface farther than ``gamma``. A copy turned the
-    other way round (a void of no thickness) is not one."""
+    other way round (a void of no thickness) is not one.
+
+    ``patches``: open patches too (edge-connected, any edges), those at least
+    :data:`COPY_MIN_SIZE` gamma across: a cracked body written twice is two copies of
+    each of its patches, and the stitch would join each copy's rims to the other's as
+    readily as to its own. A smaller patch (a soup's triangle) is left alone."""
     v = np.asarray(v, dtype=np.float64)
     f = np.asarray(f, dtype=np.int64)
     if len(f) < 2:
@@ -119,28 +136,68 @@ def duplicate_shells(v: np.ndarray, f: np.ndarray, gamma: float) -> np.ndarray:
     labels = topology.shells
     n = topology.n_shells
     gone = np.zeros(n, dtype=bool)
-    if n < 2:
-        return gone[labels]
+    if n < 2 or np.bincount(np.bincount(labels, minlength=n)).max() < 2:
+        return gone[labels]  # no two shells of as many faces: no copy
     closed = np.ones(n, dtype=bool)
-    closed[labels[np.flatnonzero(topology.counts[topology.eid] % 2) // 3]] = False
+    if not patches:
+        closed[labels[np.flatnonzero(topology.counts[topology.eid] % 2) // 3]] = False
     order = np.argsort(labels, kind="stable")
     cuts = np.r_[0, np.cumsum(np.bincount(labels, minlength=n))]
-    for a, b in _copy_candidates(v, f, labels, closed, gamma):
+    twin = np.arange(len(v))
+    wide = COPY_MIN_SIZE * gamma if patches else 0.0
+    for a, b in _copy_candidates(v, f, labels, closed, gamma, wide):
         if not gone[a] and not gone[b]:
             fa, fb = (f[order[cuts[s] : cuts[s + 1]]] for s in (a, b))
-            gone[b] = _is_copy(v, fa, fb, gamma)
+            match = _is_copy(v, fa, fb, gamma)
+            if match is not None:
+                gone[b] = True
+                twin[match[0]] = match[1]
+    if patches and gone.any() and _orphaned(v, topology, gone, twin, gamma):
+        gone[:] = False
     return gone[labels]
 
 
+def _orphaned(
+    v: np.ndarray, topology: EdgeTopology, gone: np.ndarray, twin: np.ndarray, gamma: float
+) -> bool:
+    """Whether dropping the patches ``gone`` (per label of ``topology``) would leave a
+    piece of their copy behind: a kept patch with a rim point nearer (within ``gamma``
+    mm) a dropped patch's rim point than any other kept patch's rim, and not that
+    point's ``twin`` (its own point in the copy kept). A body cracked after it was
+    written twice has cracks that cut its copies differently; only some of the copy's
+    patches are copies, and the rest, stitched to the kept body, would fold over it."""
+    from scipy.spatial import cKDTree
+
+    bnd = np.flatnonzero(topology.counts[topology.eid] == 1)
+    pts, first = np.unique(half_edges(topology.faces)[bnd].reshape(-1), return_index=True)
+    lab = topology.shells[np.repeat(bnd, 2)[first] // 3]
+    drop = gone[lab]
+    if not drop.any() or drop.all():
+        return False
+    kept, lab_k = pts[~drop], lab[~drop]
+    d_drop, near = cKDTree(v[pts[drop]]).query(v[kept], distance_upper_bound=gamma)
+    k = min(16, len(kept))
+    dk, nk = cKDTree(v[kept]).query(v[kept], k=k, distance_upper_bound=gamma)
+    dk, nk = dk.reshape(len(kept), k), nk.reshape(len(kept), k)
+    other = np.isfinite(dk) & (lab_k[np.minimum(nk, len(kept) - 1)] != lab_k[:, None])
+    d_keep = np.where(other, dk, np.inf).min(axis=1)
+    hit = np.isfinite(d_drop)
+    own = np.zeros(len(kept), dtype=bool)
+    own[hit] = twin[pts[drop][near[hit]]] == kept[hit]
+    return bool(np.any(hit & ~own & (d_drop < d_keep)))
+
+
 def without_copies(
-    v: np.ndarray, f: np.ndarray, pairs: np.ndarray, segments: np.ndarray, gamma: float
+    v: np.ndarray, f: np.ndarray, pairs: np.ndarray, segments: np.ndarray, gamma: float,
+    *, patches: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(faces, pairs, segments)``: ``f`` without the shells :func:`duplicate_shells`
     finds (the input arrays themselves when there are none), its crossing face
     ``pairs`` (k, 2) renumbered, and the wires ``segments`` (k, 2, 3) mm without those
     whose two ends are points of the dropped shells only (degenerate faces of the
-    copy: they lie on it, a hair off the body kept)."""
-    dup = duplicate_shells(v, f, gamma)
+    copy: they lie on it, a hair off the body kept). ``patches``: open patches'
+    copies too (:func:`duplicate_shells`)."""
+    dup = duplicate_shells(v, f, gamma, patches=patches)
     if not dup.any():
         return f, pairs, segments
     kept = np.cumsum(~dup) - 1
@@ -155,11 +212,12 @@ def without_copies(
 
 
 def _copy_candidates(
-    v: np.ndarray, f: np.ndarray, labels: np.ndarray, closed: np.ndarray, gamma: float
+    v: np.ndarray, f: np.ndarray, labels: np.ndarray, closed: np.ndarray, gamma: float,
+    wide: float = 0.0,
 ) -> list[tuple[int, int]]:
-    """Pairs ``(a, b)``, a < b, of ``closed`` shells (mask per label) with as many faces
-    and points as each other and bounding boxes whose corners lie within ``gamma`` (mm)
-    of each other's."""
+    """Pairs ``(a, b)``, a < b, of ``closed`` shells (mask per label) at least ``wide``
+    (mm) across, with as many faces and points as each other and bounding boxes whose
+    corners lie within ``gamma`` (mm) of each other's."""
     n = len(closed)
     faces = np.bincount(labels, minlength=n)
     # The points of each shell, once each, in order of shell.
@@ -169,6 +227,7 @@ def _copy_candidates(
     first = np.r_[0, np.cumsum(points)[:-1]]
     lo = np.minimum.reduceat(v[point], first, axis=0)
     hi = np.maximum.reduceat(v[point], first, axis=0)
+    closed = closed & ((hi - lo).max(axis=1) >= wide)
     # Shells sorted by signature (faces, points), then least x: a shell's candidates
     # follow it, of its signature, their least x within gamma of its own.
     sig = unique_ints(faces * (int(points.max()) + 1) + points, return_inverse=True)[1]
@@ -190,18 +249,31 @@ def _copy_candidates(
     return [(int(a), int(b)) for a, b in pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]]
 
 
-def _is_copy(v: np.ndarray, fa: np.ndarray, fb: np.ndarray, gamma: float) -> bool:
-    """Whether the faces ``fb`` are the faces ``fa`` on points of ``v`` moved by at most
-    ``gamma`` (mm), one to one, each turned the same way."""
+def _is_copy(
+    v: np.ndarray, fa: np.ndarray, fb: np.ndarray, gamma: float
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """When the faces ``fb`` are the faces ``fa`` on points of ``v`` moved by at most
+    ``gamma`` (mm), one to one, each turned the same way: the points of ``fb`` and
+    their own points of ``fa``; else None."""
     from scipy.spatial import cKDTree
 
     pa, pb = np.unique(fa), np.unique(fb)
-    dist, near = cKDTree(v[pa]).query(v[pb], distance_upper_bound=gamma)
-    if len(pa) != len(pb) or not np.all(np.isfinite(dist)) or len(np.unique(near)) != len(pb):
-        return False
+    if len(pa) != len(pb):
+        return None
+    # Matched after taking out the mean shift: a copy moved by more than the distance
+    # between two of its points (a CAD step's sliver: 3e-5 mm wide) is still matched
+    # point to point.
+    shift = v[pb].mean(axis=0) - v[pa].mean(axis=0)
+    dist, near = cKDTree(v[pa]).query(v[pb] - shift, distance_upper_bound=gamma)
+    if not np.all(np.isfinite(dist)) or len(np.unique(near)) != len(pb):
+        return None
+    if np.linalg.norm(v[pb] - v[pa[near]], axis=1).max() > gamma:
+        return None
     to_a = np.zeros(int(pb.max()) + 1, dtype=np.int64)
     to_a[pb] = pa[near]
-    return np.array_equal(_cyclic_rows(fa), _cyclic_rows(to_a[fb]))
+    if not np.array_equal(_cyclic_rows(fa), _cyclic_rows(to_a[fb])):
+        return None
+    return pb, pa[near]
 
 
 def _cyclic_rows(f: np.ndarray) -> np.ndarray:

@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["SIDES", "cylinders", "visible_segments"]
+from repair.rows import unique_rows
+
+__all__ = ["SIDES", "cylinders", "moved_segments", "visible_segments"]
 
 SIDES = 8
 
@@ -83,3 +85,26 @@ def visible_segments(
         hidden |= wn > 0.5
     hidden = hidden.reshape(len(seg), samples).all(axis=1)
     return seg[~hidden]
+
+
+def moved_segments(segments: np.ndarray, vertices: np.ndarray, moved: np.ndarray) -> np.ndarray:
+    """``segments`` (k, 2, 3) mm with each end that is exactly the point
+    ``vertices[moved[i, 0]]`` put on ``vertices[moved[i, 1]]``: a wire on points that a
+    stitch merged into others (:attr:`repair.stitch.Stitched.moved`) moves with them,
+    and stays on the surface it lay on (off it by the crack's noise, it would be
+    visible and inflated into a prism: D 0.14 mm on a cube's edge). ``vertices``
+    (n, 3) mm: no two the same point (welded)."""
+    seg = np.asarray(segments, dtype=np.float64).reshape(-1, 2, 3)
+    if len(seg) == 0 or len(moved) == 0:
+        return seg
+    src = np.asarray(vertices, dtype=np.float64)[moved[:, 0]]
+    ends = seg.reshape(-1, 3)
+    inv = unique_rows(np.vstack([src, ends]), return_inverse=True)[1].reshape(-1)
+    slot = np.full(int(inv.max()) + 1, -1)
+    slot[inv[: len(src)]] = np.arange(len(src))
+    hit = slot[inv[len(src) :]]
+    if not np.any(hit >= 0):
+        return seg
+    out = ends.copy()
+    out[hit >= 0] = vertices[moved[hit[hit >= 0], 1]]
+    return out.reshape(-1, 2, 3)
