@@ -348,7 +348,7 @@ def stitch_cracks(
         f = _split_faces(f, h, p, t)
         inserted += len(f) - n
     if f is not original:
-        f = _without_flaps(v, f)
+        f = _without_flaps(v, f, gamma)
     after = topo if topo.of(f) else edge_topology(f)
     b1, nonmanifold_after, misoriented_after = (
         after.boundary, _unpaired(after), after.misoriented
@@ -382,11 +382,14 @@ def _unpaired(t: EdgeTopology) -> int:
     return int(np.count_nonzero((t.counts > 2) & (way != 0)))
 
 
-def _without_flaps(v: np.ndarray, f: np.ndarray) -> np.ndarray:
-    """``f`` without its flaps: faces of zero area up to the rounding of their
-    coordinates (:data:`_T_JUNCTION`) with two boundary edges and the third on more than
-    two faces -- an exporter's sliver on an edge (its apex on the edge, its other two
-    edges the slit of a T-junction) that a stitch has joined to both sides of the edge."""
+def _without_flaps(v: np.ndarray, f: np.ndarray, gamma: float) -> np.ndarray:
+    """``f`` without its flaps: faces with two boundary edges and the third on more than
+    two faces, no wider than ``gamma`` mm (the apex's distance from the line of the
+    longest edge) -- an exporter's sliver on an edge (its apex on the edge, its other two
+    edges the slit of a T-junction) that a stitch has joined to both sides of the edge.
+    Its apex lies within ``gamma`` of the edge, as far as the stitch moves a point: a
+    sliver cracked off with its patch (each corner moved by noise, cgal_cubes' shared
+    edge 2e-5 mm wide) is one as much as a sliver up to the rounding of its coordinates."""
     t = edge_topology(f)
     count = t.counts[t.eid].reshape(-1, 3)
     cand = np.flatnonzero(((count == 1).sum(axis=1) == 2) & (count > 2).any(axis=1))
@@ -395,8 +398,7 @@ def _without_flaps(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     p = v[f[cand]]
     twice_area = np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
     longest = np.linalg.norm(p - p[:, [1, 2, 0]], axis=2).max(axis=1)
-    size = np.maximum(np.abs(p).max(axis=(1, 2)), 1.0)
-    flap = cand[twice_area <= _T_JUNCTION * size * longest]
+    flap = cand[twice_area <= gamma * longest]
     return np.delete(f, flap, axis=0) if len(flap) else f
 
 
