@@ -78,7 +78,7 @@ from repair.report import (
 )
 from repair.rounding import RoundedInput, round_input
 from repair.scan import scan_cleanup
-from repair.stitch import stitch_cracks
+from repair.stitch import stitch_cracks, without_caps
 from repair.topology import EdgeTopology, edge_components, edge_topology, edge_topology_memo
 from repair.union import union_of_shells, without_copies
 from repair.wires import moved_segments
@@ -301,7 +301,9 @@ def _solidify(
     if scan is not None and scan.topology is not None:
         topology = scan.topology  # that of the cleaned scan's faces
     clock.lap("scan_cleanup", 0.21)
-    # A cracked body written twice: one copy of each patch is stitched.
+    # A cracked body written twice: one copy of each patch is stitched (its slivers
+    # cracked off with it, which the copy may not have, dropped first).
+    work_f = without_caps(work_v, work_f, STITCH_GAMMA * eps, topology)
     work_f, cleaned = _without_copies_of(work_v, work_f, cleaned, STITCH_GAMMA * eps)
     if not topology.of(work_f):
         topology = edge_topology(work_f)

@@ -39,7 +39,7 @@ from repair.topology import (
     paired_half_edges,
 )
 
-__all__ = ["Stitched", "stitch_cracks"]
+__all__ = ["Stitched", "stitch_cracks", "without_caps"]
 
 #: How many rounds of edge splitting at most (a face with points on two of its edges
 #: needs two; each round splits one edge per face).
@@ -400,6 +400,37 @@ def _without_flaps(v: np.ndarray, f: np.ndarray, gamma: float) -> np.ndarray:
     longest = np.linalg.norm(p - p[:, [1, 2, 0]], axis=2).max(axis=1)
     flap = cand[twice_area <= gamma * longest]
     return np.delete(f, flap, axis=0) if len(flap) else f
+
+
+def without_caps(
+    v: np.ndarray, f: np.ndarray, gamma: float, topology: EdgeTopology | None = None
+) -> np.ndarray:
+    """``f`` without its loose caps: faces no wider than ``gamma`` mm (the apex's
+    distance from the longest edge) whose two shorter edges are open and each longer
+    than ``gamma``, the apex a point of no other face -- an exporter's sliver (a,
+    midpoint, b) on an edge, cracked off with its patch: its corners moved by noise
+    made it a needle, no longer of zero area, hanging off its patch by the edge a-b.
+    It made the patch one face more than its copy's (cgal_part written twice, slivers,
+    a crack: no copy seen, 14 % of the volume). Dropping it moves no surface farther
+    than ``gamma``. A needle with a short edge (a CAD step's genuine sliver face,
+    3e-5 mm wide) is not a cap; nor is a face whose apex other faces use. ``topology``:
+    that of ``f`` if known."""
+    t = topology if topology is not None and topology.of(f) else edge_topology(f)
+    open_edge = (t.counts[t.eid] == 1).reshape(-1, 3)
+    cand = np.flatnonzero(open_edge.sum(axis=1) == 2)
+    if len(cand) == 0:
+        return f
+    k = np.argmin(open_edge[cand], axis=1)  # the closed edge (k, k + 1); apex k + 2
+    apex = f[cand, (k + 2) % 3]
+    p = v[f[cand]]
+    edge = np.linalg.norm(p - p[:, [1, 2, 0]], axis=2)  # edge i: corners (i, i + 1)
+    row = np.arange(len(cand))
+    base = edge[row, k]
+    short = np.minimum(edge[row, (k + 1) % 3], edge[row, (k + 2) % 3])
+    twice_area = np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    alone = np.bincount(f.reshape(-1), minlength=len(v))[apex] == 1
+    cap = alone & (short > gamma) & (base >= edge.max(axis=1)) & (twice_area <= gamma * base)
+    return np.delete(f, cand[cap], axis=0) if cap.any() else f
 
 
 def _worse_oriented(v: np.ndarray, f: np.ndarray, original: np.ndarray, gamma: float) -> int:
