@@ -42,6 +42,8 @@ UNION_SHARES = 2
 #: An open patch is looked at as a copy of another (:func:`duplicate_shells`) when it is
 #: at least this many times the copy distance across.
 COPY_MIN_SIZE = 10.0
+#: Nearest face centroids searched for a face's copy (:func:`duplicate_shells`).
+_COPY_NEIGHBOURS = 4
 
 
 def speck_volume(epsilon: float) -> float:
@@ -136,8 +138,11 @@ def duplicate_shells(
     labels = topology.shells
     n = topology.n_shells
     gone = np.zeros(n, dtype=bool)
-    if n < 2 or np.bincount(np.bincount(labels, minlength=n)).max() < 2:
-        return gone[labels]  # no two shells of as many faces: no copy
+    if n < 2:
+        return gone[labels]
+    if np.bincount(np.bincount(labels, minlength=n)).max() < 2:
+        # No two shells of as many faces: no copy, unless cut differently.
+        return (_face_copies(v, f, topology, gamma) if patches else gone)[labels]
     closed = np.ones(n, dtype=bool)
     if not patches:
         closed[labels[np.flatnonzero(topology.counts[topology.eid] % 2) // 3]] = False
@@ -154,7 +159,52 @@ def duplicate_shells(
                 twin[match[0]] = match[1]
     if patches and gone.any() and _orphaned(v, topology, gone, twin, gamma):
         gone[:] = False
+    if patches and not gone.any():
+        gone = _face_copies(v, f, topology, gamma)
     return gone[labels]
+
+
+def _face_copies(v: np.ndarray, f: np.ndarray, topology: EdgeTopology, gamma: float) -> np.ndarray:
+    """Per patch of ``topology``: whether it is an open patch of a body written twice
+    whose crack cut the copies differently (one copy's patch a face more than the
+    other's): each of its faces has a copy in another patch -- corners within ``gamma``
+    (mm), turned the same way -- every patch it shares a face with is so covered as
+    well, and one of them comes first. The earliest patches of each such body are kept;
+    none is dropped when a face kept would still have its copy kept."""
+    n = topology.n_shells
+    gone = np.zeros(n, dtype=bool)
+    is_open = np.zeros(n, dtype=bool)
+    is_open[topology.shells[np.flatnonzero(topology.counts[topology.eid] == 1) // 3]] = True
+    if is_open.sum() < 4:
+        return gone  # two copies, each cut in two at least
+    from scipy.spatial import cKDTree
+
+    at = np.flatnonzero(is_open[topology.shells])
+    labels = topology.shells[at]
+    corner = v[f[at]]
+    centre = corner.mean(axis=1)
+    # A copy's face is among the nearest few (its centroid moved by the copy's shift).
+    dist, near = cKDTree(centre).query(centre, k=_COPY_NEIGHBOURS, distance_upper_bound=gamma)
+    i, j = np.nonzero(np.isfinite(dist))
+    pairs = np.c_[i, near[i, j]]
+    pairs = pairs[labels[pairs[:, 0]] != labels[pairs[:, 1]]]
+    a, b = corner[pairs[:, 0]], corner[pairs[:, 1]]
+    same = np.zeros(len(pairs), dtype=bool)
+    for r in range(3):  # the copy's corners in the same cyclic order
+        same |= np.linalg.norm(a - np.roll(b, r, axis=1), axis=2).max(axis=1) <= gamma
+    pairs = pairs[same]
+    copied = np.zeros(len(at), dtype=bool)
+    copied[pairs.reshape(-1)] = True
+    full = np.bincount(labels, weights=~copied, minlength=n) == 0
+    link = np.vstack([labels[pairs], labels[pairs[:, ::-1]]])  # (patch, partner)
+    all_full = np.ones(n, dtype=bool)
+    np.logical_and.at(all_full, link[:, 0], full[link[:, 1]])
+    first = np.full(n, n)
+    np.minimum.at(first, link[:, 0], link[:, 1])
+    gone = full & all_full & (first < np.arange(n)) & is_open
+    if not gone[labels[pairs]].any(axis=1).all():
+        gone[:] = False  # a copy would be left: only some of its patches were copies
+    return gone
 
 
 def _orphaned(
