@@ -255,6 +255,10 @@ def fallback_repair(
             failure = "manifold3d rejected a part"
             continue
         fused, cavities = _without_cavities(*fused)
+        if len(fused[1]) == 0:  # not "the mesh has no triangles": say what the union did
+            failure = (f"manifold3d's union of the thickened parts has no outward-facing "
+                       f"shell ({cavities} shell(s), all inside out)")
+            continue
         # Rounded to float32 and checked; where rounding made faces cross or collapse,
         # mended locally, as the exact path's result is.
         out_v, out_f, verdict = finish(*fused, eps, tally)

@@ -55,3 +55,15 @@ def test_a_finish_that_stops_growing_says_why_on_both_paths() -> None:
     for part in (exact, fallback):
         grown = [int(n) for n in part.split(GREW)[1].split("(")[0].split("->")]
         assert grown[1] > HULL_GROWTH * grown[0]
+
+
+def test_a_fallback_whose_union_comes_out_inside_out_says_so() -> None:
+    # At eps 1 um, half a float32 ulp here, manifold3d's union of the sheets' slabs is one
+    # shell of negative volume (-0.06 mm³, edges of three faces); dropping inward shells
+    # (cavities) left nothing, and the reason read "the mesh has no triangles".
+    v, f = _wavy_sheets()
+    with pytest.raises(RepairError) as raised:
+        repair_mesh(v, f, 0.001)
+    fallback = str(raised.value).partition(", and the fallback failed: ")[2]
+    assert "no outward-facing shell" in fallback and "inside out" in fallback
+    assert "no triangles" not in fallback
