@@ -184,15 +184,19 @@ BESIDE_MIN_FACES = 8_000
 def _apart_beside(
     v: np.ndarray, f: np.ndarray, near: np.ndarray, which: np.ndarray, apart: np.ndarray
 ) -> list[np.ndarray]:
-    """The pairs :func:`intersecting_pairs_with` finds among ``near``
-    (:func:`intersecting_face_pairs`, here) and between ``which`` and ``apart`` (in a
-    forked child)."""
-    from repair.workers import map_forked
+    """The pairs :func:`intersecting_pairs_with` finds among ``near`` (in slabs, as
+    :func:`intersecting_face_pairs` tests them, from here) and between ``which`` and
+    ``apart`` (in a forked child); unsorted, maybe repeated."""
+    import igl.copyleft.cgal  # noqa: F401 -- imported here, not in the child
+
+    from repair.workers import cpu_workers, map_forked
+
+    check_box_pair_budget(v, f[near])  # raised before any child is forked
 
     def test(job: np.ndarray | None) -> tuple[np.ndarray]:
         if job is None:
             return (_pairs_between(v, f, which, apart),)
-        return (job[intersecting_face_pairs(v, f[job])],)
+        return (job[_pairs_in_slabs(v, f[job], cpu_workers())],)
 
     found = map_forked(test, [near, None], [[0], [1]])
     return [r[0].reshape(-1, 2) for r in found]
