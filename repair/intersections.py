@@ -170,7 +170,7 @@ def _near_and_apart_forked(
             return (_pairs_between(v, f, which, apart) if len(apart) else _no_pairs(),)
         return (near[job[_pairs(v, f[near[job]])]],)
 
-    found = map_forked(test, [slabs[0], None, slabs[1]], [[0], [1, 2]])
+    found = map_forked(test, [slabs[0], None, slabs[1]], [[0, 1], [2]])
     return [r[0].reshape(-1, 2) for r in found]
 
 
