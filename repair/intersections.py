@@ -191,6 +191,7 @@ def _apart_beside(
 
     from repair.workers import cpu_workers, map_forked
 
+    v = np.ascontiguousarray(v, dtype=np.float64)
     check_box_pair_budget(v, f[near])  # raised before any child is forked
 
     def test(job: np.ndarray | None) -> tuple[np.ndarray]:
