@@ -99,3 +99,41 @@ def test_a_region_of_thousands_tested_in_two_forked_slabs_finds_the_same_pairs(
     expected = _region_test(v, f, which)
     assert len(expected) > 1_000
     np.testing.assert_array_equal(got, expected)
+
+
+@pytest.mark.parametrize("beside_from", [1_000, 10**9])
+def test_faces_apart_tested_in_a_child_beside_a_slabbed_region_find_the_same_pairs(
+    beside_from, monkeypatch
+):
+    # mikedh_box, the first 3,500 faces changed: the 3,843 faces near them are slabbed
+    # (PARALLEL_MIN_FACES lowered to 3,000) and the faces apart tested in a forked child
+    # beside them -- or, beside_from 10**9, after them: the pairs of a whole test.
+    import repair.intersections as inter
+    import repair.workers as workers
+
+    path = CORPUS / "mikedh_box.STL"
+    if not path.exists():
+        pytest.skip(f"corpus file missing: {path}")
+    monkeypatch.setattr(inter, "PARALLEL_MIN_FACES", 3_000)
+    monkeypatch.setattr(inter, "BESIDE_MIN_FACES", beside_from)
+    monkeypatch.setattr(workers, "cpu_workers", lambda: 2)
+    m = load_mesh(path)
+    v, f = np.asarray(m.vertices, dtype=np.float64), np.asarray(m.faces, dtype=np.int64)
+    which, others = np.arange(3_500), np.arange(3_500, len(f))
+    got = intersecting_pairs_with(v, f, which, others)
+    monkeypatch.setattr(inter, "PARALLEL_MIN_FACES", 10**9)
+    expected = _region_test(v, f, which)
+    assert len(expected) > 1_000
+    np.testing.assert_array_equal(got, expected)
+
+
+def test_used_vertices_are_numpys_unique_with_inverse():
+    from repair.intersections import _used_vertices
+
+    rng = np.random.default_rng(5)
+    corners = rng.integers(0, 1_000, 3_000) * 3  # gaps: unused vertices
+    used, inverse = _used_vertices(corners, 3_000)
+    want_used, want_inverse = np.unique(corners, return_inverse=True)
+    np.testing.assert_array_equal(used, want_used)
+    np.testing.assert_array_equal(inverse, want_inverse)
+    np.testing.assert_array_equal(used[inverse], corners)
