@@ -24,11 +24,15 @@ __all__ = ["GRID_BIG_TESTS", "GRID_PAIRS_PER_FACE", "faces_near_points", "probes
 
 #: The grid gives way to libigl's tree when its cells would pair each face asked about
 #: with more faces than this on average (meshes of crowded small faces beside large ones:
-#: chair 94, Ghostkeeper_extra_surface 190; bunny 9.5, rabbit 19).
+#: chair; Ghostkeeper_extra_surface's cylinder of 35 mm slivers crowded cubic cells, 190,
+#: but not cells as long as its faces).
 GRID_PAIRS_PER_FACE = 24
-#: ... or when the faces too large for the cells (boxes over 27 cells), each tested box
+#: ... or when the faces too large for the cells (the boxes listed in no cell), each tested box
 #: against every face asked about, would take more box tests than this.
 GRID_BIG_TESTS = 1 << 19
+#: A test of a large box against a point counts this much of one listing of a box in a
+#: cell (a sort's work) when choosing which boxes are large.
+BIG_TEST_SHARE = 0.25
 #: :func:`slivers_probed_clear` decides nothing beyond this many (probe, face) box tests.
 SLIVER_TESTS = 1 << 22
 
@@ -87,24 +91,34 @@ def _centroids_in_boxes(
     lo: np.ndarray, hi: np.ndarray, c: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """Pairs ``(point, box)`` with point ``c[point]`` inside the closed box ``lo[:, box]``
-    .. ``hi[:, box]`` (3, k): a grid of cells the size of the median box, each box listed
-    under the (at most 27) cells it meets, each point tested against the boxes of its
-    cell; boxes meeting more cells are few and tested against every point. None when that
-    would take more than :data:`GRID_PAIRS_PER_FACE` tests per point or
+    .. ``hi[:, box]`` (3, k): a grid of cells as long along each axis as the median box
+    is there (a fan of long thin faces, as a cylinder's sides, gets cells long one way
+    and thin the others), each box listed under the cells it meets, each point tested
+    against the boxes of its cell. The boxes meeting the most cells are instead tested
+    against every point, as many as that costs less than listing them (each box test
+    against a point counted :data:`BIG_TEST_SHARE` of a listing). None when that would
+    take more than :data:`GRID_PAIRS_PER_FACE` tests or listings per point (or box) or
     :data:`GRID_BIG_TESTS` for the large boxes."""
     m = len(c)
     origin = np.minimum(lo.min(axis=1), c.min(axis=0))
-    span = float((np.maximum(hi.max(axis=1), c.max(axis=0)) - origin).max())
-    ext = (hi - lo).max(axis=0)
-    h = max(float(np.partition(ext, len(ext) // 2)[len(ext) // 2]), span / 1024.0)
+    span = np.maximum(hi.max(axis=1), c.max(axis=0)) - origin
+    ext = hi - lo
+    h = np.maximum(np.partition(ext, len(ext[0]) // 2, axis=1)[:, len(ext[0]) // 2],
+                   span.max() / 1024.0)  # fmt: skip
     lo_c = np.floor((lo.T - origin) / h).astype(np.int64)
     dims = np.floor((hi.T - origin) / h).astype(np.int64) - lo_c + 1
     cover = dims.prod(axis=1)
-    big = np.flatnonzero(cover > 27)
+    # Listed up to the cover that minimises listings + big-box tests.
+    by_cover = np.sort(cover)
+    cost = np.r_[0, np.cumsum(by_cover)] + BIG_TEST_SHARE * m * np.arange(len(cover), -1, -1)
+    cut = int(np.argmin(cost))
+    big = np.flatnonzero(cover > np.r_[0, by_cover][cut])
     if len(big) * m > GRID_BIG_TESTS or len(big) == len(cover):
         return None
+    if cost[cut] > GRID_PAIRS_PER_FACE * max(m, len(cover)):
+        return None  # crowded: the listing alone would outgrow the tests allowed
     cover[big] = 0
-    side = int(span / h) + 2
+    side = (span / h).astype(np.int64) + 2
     listed = np.repeat(np.arange(len(cover)), cover)
     local = np.arange(len(listed)) - np.repeat(np.cumsum(cover) - cover, cover)
     dl = dims[listed]
@@ -112,13 +126,13 @@ def _centroids_in_boxes(
         [local // (dl[:, 1] * dl[:, 2]), (local // dl[:, 2]) % dl[:, 1], local % dl[:, 2]],
         axis=1,
     )
-    order, keys = sort_with_positions((cell[:, 0] * side + cell[:, 1]) * side + cell[:, 2])
+    order, keys = sort_with_positions((cell[:, 0] * side[1] + cell[:, 1]) * side[2] + cell[:, 2])
     listed = listed[order]
     # Each listed cell once: where its boxes start in the listing, and how many.
     starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
     cells, runs = keys[starts], np.diff(np.r_[starts, len(keys)])
     cc = np.floor((c - origin) / h).astype(np.int64)
-    ck = (cc[:, 0] * side + cc[:, 1]) * side + cc[:, 2]
+    ck = (cc[:, 0] * side[1] + cc[:, 1]) * side[2] + cc[:, 2]
     at = np.minimum(np.searchsorted(cells, ck), len(cells) - 1)
     count = np.where(cells[at] == ck, runs[at], 0)
     if int(count.sum()) > GRID_PAIRS_PER_FACE * m:

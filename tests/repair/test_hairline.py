@@ -223,6 +223,32 @@ def test_the_grid_search_finds_the_trees_suspects_on_a_curved_mesh(monkeypatch):
     assert np.array_equal(hairline_suspects(v, f), every)
 
 
+def test_the_grid_searches_a_cylinder_of_long_slivers_in_cells_as_long_as_they_are():
+    """A cylinder's sides are slivers as long as the part (Ghostkeeper_extra_surface's
+    35 mm ones): cubic cells as large as the median face would hold all of them each, so
+    the cells are as long as the faces along their axis and thin across. The grid then
+    runs on them, and a slot cut along the cylinder is found exactly as by the tree."""
+    import manifold3d as m3d
+
+    import repair.probe_grid as probe_grid
+
+    tube = m3d.Manifold.cylinder(35.0, 3.0, 3.0, 640)
+    v, f = _solid(tube - m3d.Manifold.cube([GAP, 4, 30]).translate([-GAP / 2, 0, 2.5]))
+    d = probe_distance(v)
+    p = v[f]
+    n, _ = probe_grid.unit_normals(p)
+    sides = np.flatnonzero(np.abs(n[:, 2]) < 0.5)
+    ext = np.ptp(p[sides], axis=1)
+    assert np.median(ext[:, 2]) > 100 * np.median(ext[:, :2].max(axis=1))  # slivers
+    idx = np.arange(len(f))
+    c = p.mean(axis=1)
+    q = np.vstack([c + d * n, c - d * n])
+    assert probe_grid.probes_near_faces(v, f, sides, q, c, n, idx, d) is not None
+    every = hairline_suspects(v, f)
+    assert len(every) > 0
+    assert np.array_equal(every, _suspects_by_tree(v, f))
+
+
 def test_slivers_probed_clear_are_never_failing_and_the_rest_of_the_suspects_fail():
     """The winding test probes a sliver a tenth of its height off it: where no other face
     comes that near its probes it cannot fail, and is not tested. On slotted solids (the
