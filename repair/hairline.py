@@ -187,6 +187,11 @@ def _near_in_planes(
         g = np.flatnonzero(way == k)
         proj = q @ nrm[g[0]]
         lo, hi = off[g] - reach[g], off[g] + reach[g]
+        apart = _in_disjoint_slabs(proj, lo, hi)
+        if apart is not None:  # one search per probe among the sorted slabs
+            hits.append(apart[0])
+            groups.append(g[apart[1]])
+            continue
         if len(g) * len(q) <= PLANE_SLAB_TESTS:  # a few planes: each probe against each
             row, pi = np.nonzero((proj > lo[:, None]) & (proj < hi[:, None]))
             hits.append(pi)
@@ -207,11 +212,31 @@ def _near_in_planes(
     # triangle took a third of the search on box).
     lo = np.minimum(np.minimum(p[:, 0], p[:, 1]), p[:, 2])
     hi = np.maximum(np.maximum(p[:, 0], p[:, 1]), p[:, 2])
-    inside = ((q[pts] >= lo[pos] - d) & (q[pts] <= hi[pos] + d)).all(axis=1)
-    pts, tri = pts[inside], p[pos[inside]]
+    keep = np.ones(len(pts), dtype=bool)
+    for k in range(3):  # axis by axis, on ever fewer pairs
+        pts, pos = pts[keep], pos[keep]
+        x = q[pts, k]
+        keep = (x >= lo[pos, k] - d) & (x <= hi[pos, k] + d)
+    pts, tri = pts[keep], p[pos[keep]]
     d2 = point_triangle_d2(q[pts], tri[:, 0], tri[:, 1], tri[:, 2])
     near[pts[d2 < (0.999 * d) ** 2]] = True
     return near
+
+
+def _in_disjoint_slabs(
+    x: np.ndarray, lo: np.ndarray, hi: np.ndarray
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Pairs ``(i, j)`` with ``lo[j] < x[i] < hi[j]`` when the open slabs are disjoint (a
+    box's parallel walls, farther apart than their reach): then only the slab of the
+    largest ``lo`` below ``x[i]`` can hold it, one binary search per value among the few
+    slabs instead of a test against each. None when two slabs overlap."""
+    by_lo = np.argsort(lo, kind="stable")
+    sl, sh = lo[by_lo], hi[by_lo]
+    if np.any(sh[:-1] > sl[1:]):
+        return None
+    j = np.searchsorted(sl, x, side="left") - 1
+    i = np.flatnonzero((j >= 0) & (x < sh[np.maximum(j, 0)]))
+    return i, by_lo[j[i]]
 
 
 def hairline_failures(

@@ -27,12 +27,9 @@ __all__ = ["GRID_BIG_TESTS", "GRID_PAIRS_PER_FACE", "faces_near_points", "probes
 #: chair; Ghostkeeper_extra_surface's cylinder of 35 mm slivers crowded cubic cells, 190,
 #: but not cells as long as its faces).
 GRID_PAIRS_PER_FACE = 24
-#: ... or when the faces too large for the cells (the boxes listed in no cell), each tested box
+#: ... or when the faces too large for the cells (boxes over 27 cells), each tested box
 #: against every face asked about, would take more box tests than this.
 GRID_BIG_TESTS = 1 << 19
-#: A test of a large box against a point counts this much of one listing of a box in a
-#: cell (a sort's work) when choosing which boxes are large.
-BIG_TEST_SHARE = 0.25
 #: :func:`slivers_probed_clear` decides nothing beyond this many (probe, face) box tests.
 SLIVER_TESTS = 1 << 22
 
@@ -79,8 +76,11 @@ def probes_near_faces(
     t = np.einsum("ij,ij->i", nrm, c[own] - tri[:, 0])
     u = d * np.einsum("ij,ij->i", nrm, n[own])
     near = np.zeros(2 * m, dtype=bool)
+    # A face is no nearer to a probe than its plane: one farther than 0.999 d from that,
+    # rounding aside, is not (a coplanar neighbour's plane lies d off both probes).
+    reach = 0.999 * d + 2.0**-48 * float(np.abs(v).max())
     for sign, probe in ((1.0, own), (-1.0, own + m)):
-        hit = np.abs(t + sign * u) <= grow  # a degenerate face (no normal) always
+        hit = np.abs(t + sign * u) <= reach  # a degenerate face (no normal) always
         pts, pt = probe[hit], tri[hit]
         d2 = point_triangle_d2(q[pts], pt[:, 0], pt[:, 1], pt[:, 2])
         near[pts[d2 < (0.999 * d) ** 2]] = True
@@ -91,32 +91,43 @@ def _centroids_in_boxes(
     lo: np.ndarray, hi: np.ndarray, c: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """Pairs ``(point, box)`` with point ``c[point]`` inside the closed box ``lo[:, box]``
-    .. ``hi[:, box]`` (3, k): a grid of cells as long along each axis as the median box
-    is there (a fan of long thin faces, as a cylinder's sides, gets cells long one way
-    and thin the others), each box listed under the cells it meets, each point tested
-    against the boxes of its cell. The boxes meeting the most cells are instead tested
-    against every point, as many as that costs less than listing them (each box test
-    against a point counted :data:`BIG_TEST_SHARE` of a listing). None when that would
-    take more than :data:`GRID_PAIRS_PER_FACE` tests or listings per point (or box) or
-    :data:`GRID_BIG_TESTS` for the large boxes."""
-    m = len(c)
+    .. ``hi[:, box]`` (3, k), found in a grid of cells (:func:`_grid_pairs`): cubes the
+    size of the median box; where those are crowded, cells as long along each axis as
+    the median box is there (a fan of long thin faces, as a cylinder's sides, fills
+    every cube as large as they are long, but not cells long one way and thin the
+    others). None when both would take too many tests."""
     origin = np.minimum(lo.min(axis=1), c.min(axis=0))
     span = np.maximum(hi.max(axis=1), c.max(axis=0)) - origin
     ext = hi - lo
-    h = np.maximum(np.partition(ext, len(ext[0]) // 2, axis=1)[:, len(ext[0]) // 2],
-                   span.max() / 1024.0)  # fmt: skip
+    mid = len(ext[0]) // 2
+    least = float(span.max()) / 1024.0
+    cube = max(float(np.partition(ext.max(axis=0), mid)[mid]), least)
+    pairs = _grid_pairs(lo, hi, c, origin, span, np.full(3, cube))
+    if pairs is not None:
+        return pairs
+    h = np.maximum(np.partition(ext, mid, axis=1)[:, mid], least)
+    if np.all(h > 0.5 * cube):  # nearly the same cells
+        return None
+    return _grid_pairs(lo, hi, c, origin, span, h)
+
+
+def _grid_pairs(
+    lo: np.ndarray, hi: np.ndarray, c: np.ndarray, origin: np.ndarray, span: np.ndarray,
+    h: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """:func:`_centroids_in_boxes` in a grid of cells ``h`` (3,) long from ``origin``
+    (the grid spans ``span``, mm): each box listed under the (at most 27) cells it meets,
+    each point tested against the boxes of its cell; boxes meeting more cells are few
+    and tested against every point. None when that would take more than
+    :data:`GRID_PAIRS_PER_FACE` tests per point or :data:`GRID_BIG_TESTS` for the large
+    boxes."""
+    m = len(c)
     lo_c = np.floor((lo.T - origin) / h).astype(np.int64)
     dims = np.floor((hi.T - origin) / h).astype(np.int64) - lo_c + 1
     cover = dims.prod(axis=1)
-    # Listed up to the cover that minimises listings + big-box tests.
-    by_cover = np.sort(cover)
-    cost = np.r_[0, np.cumsum(by_cover)] + BIG_TEST_SHARE * m * np.arange(len(cover), -1, -1)
-    cut = int(np.argmin(cost))
-    big = np.flatnonzero(cover > np.r_[0, by_cover][cut])
+    big = np.flatnonzero(cover > 27)
     if len(big) * m > GRID_BIG_TESTS or len(big) == len(cover):
         return None
-    if cost[cut] > GRID_PAIRS_PER_FACE * max(m, len(cover)):
-        return None  # crowded: the listing alone would outgrow the tests allowed
     cover[big] = 0
     side = (span / h).astype(np.int64) + 2
     listed = np.repeat(np.arange(len(cover)), cover)

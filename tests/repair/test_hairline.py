@@ -265,3 +265,22 @@ def test_slivers_probed_clear_are_never_failing_and_the_rest_of_the_suspects_fai
         assert clear.any() and len(every) > 0
         assert not np.isin(suspects[clear], every).any()
         assert np.array_equal(np.sort(hairline_failures(v, f)), every)
+
+
+def test_probes_in_disjoint_slabs_are_those_of_the_test_against_each_slab():
+    """The plane search finds, per direction, the probes inside each plane's open slab:
+    where the slabs are disjoint by one binary search per probe, the same pairs as the
+    test of every probe against every slab; overlapping slabs are left to that test."""
+    from repair.hairline import _in_disjoint_slabs
+
+    rng = np.random.default_rng(3)
+    x = np.r_[rng.uniform(-1, 11, 5000), 0.5, 2.0, 2.5, 9.0]  # and on slab bounds
+    lo = np.array([8.0, 0.5, 2.5, 4.0])
+    hi = np.array([9.0, 2.0, 3.0, 7.5])
+    i, j = _in_disjoint_slabs(x, lo, hi)
+    row, col = np.nonzero((x[None] > lo[:, None]) & (x[None] < hi[:, None]))
+    assert len(i) > 100
+    got = np.lexsort((j, i))
+    want = np.lexsort((row, col))
+    assert np.array_equal(i[got], col[want]) and np.array_equal(j[got], row[want])
+    assert _in_disjoint_slabs(x, np.r_[lo, 6.0], np.r_[hi, 8.5]) is None
