@@ -168,16 +168,20 @@ def _grid_pairs(
 def faces_near_points(v: np.ndarray, f: np.ndarray, q: np.ndarray, r: float) -> np.ndarray:
     """Faces whose bounding box, grown by ``r`` (mm), holds some point of ``q`` along
     each axis (a point within ``r`` of a face is: not always the same point per axis,
-    a superset). Per axis one sort of the points and two searches."""
-    keep = np.ones(len(f), dtype=bool)
+    a superset). Per axis one sort of the points and two searches, on the faces the
+    axes before left (a few points near a large mesh leave few after the first)."""
+    cand = np.arange(len(f))
+    corners = [f[:, 0], f[:, 1], f[:, 2]]
     for k in range(3):
         x = np.ascontiguousarray(v[:, k])
-        a, b, c = x[f[:, 0]], x[f[:, 1]], x[f[:, 2]]  # 1-D gathers: faster than rows
+        a, b, c = (x[i] for i in corners)  # 1-D gathers: faster than rows
         lo = np.minimum(np.minimum(a, b), c) - r
         hi = np.maximum(np.maximum(a, b), c) + r
         s = np.sort(q[:, k])
-        keep &= np.searchsorted(s, hi, side="right") > np.searchsorted(s, lo, side="left")
-    return np.flatnonzero(keep)
+        keep = np.searchsorted(s, hi, side="right") > np.searchsorted(s, lo, side="left")
+        cand = cand[keep]
+        corners = [i[keep] for i in corners]
+    return cand
 
 
 def slivers_probed_clear(v: np.ndarray, f: np.ndarray, which: np.ndarray, d: float) -> np.ndarray:
