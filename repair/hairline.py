@@ -104,7 +104,7 @@ def hairline_suspects(
     whole = 4 * len(idx) > len(f)  # else: a few faces, near which the tree is built
     p = v[f] if whole else v[f[idx]]
     n_all, length_all = _unit_normals(p)
-    c = p.mean(axis=1)
+    c = (p[:, 0] + p[:, 1] + p[:, 2]) / 3  # as p.mean(axis=1), bit for bit: 3x faster
     n, length = (n_all[idx], length_all[idx]) if whole else (n_all, length_all)
     if whole and which is not None:
         c = c[idx]

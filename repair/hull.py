@@ -279,11 +279,10 @@ def _boundary_faces(faces: np.ndarray) -> np.ndarray:
     return np.unique(np.flatnonzero(cnt[eid] == 1) // 3)
 
 
-def _merge_cells_at_boundaries(cells: np.ndarray, faces: np.ndarray, n_cells: int) -> np.ndarray:
+def _merge_cells_at_boundaries(cells: np.ndarray, bf: np.ndarray, n_cells: int) -> np.ndarray:
     """libigl labels the two sides of an open patch as different cells; they are one
-    region of space, connected around the patch's boundary. Merge them (cell 0, the
-    unbounded one, keeps its label)."""
-    bf = _boundary_faces(faces)
+    region of space, connected around the patch's boundary (faces ``bf``, see
+    :func:`_boundary_faces`). Merge them (cell 0, the unbounded one, keeps its label)."""
     if len(bf) == 0:
         return cells
     label = connected_labels(n_cells, cells[bf, 0], cells[bf, 1])
@@ -335,8 +334,9 @@ def _outside_sides(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray,
         np.ascontiguousarray(vertices, dtype=np.float64),
         np.ascontiguousarray(faces, dtype=np.int64),
     )
-    cells = _merge_cells_at_boundaries(np.asarray(cells, dtype=np.int64), faces, int(n_cells))
-    if len(_boundary_faces(faces)):
+    bf = _boundary_faces(faces)
+    cells = _merge_cells_at_boundaries(np.asarray(cells, dtype=np.int64), bf, int(n_cells))
+    if len(bf):
         # Among open patches libigl's labels of the regions of space hold face by face,
         # but it splits the unbounded region into several labels (or misses it, e.g.
         # among crossing sheets that enclose cells between them): find them by rays.
