@@ -160,6 +160,7 @@ def _near_in_planes(
     from it) can be, tested against the plane's faces, box then exact distance
     (:func:`repair.deviation.point_triangle_d2`)."""
     from repair.deviation import point_triangle_d2
+    from repair.probe_grid import in_disjoint_slabs
     from repair.rows import ranges, unique_rows
 
     near = np.zeros(len(q), dtype=bool)
@@ -187,7 +188,7 @@ def _near_in_planes(
         g = np.flatnonzero(way == k)
         proj = q @ nrm[g[0]]
         lo, hi = off[g] - reach[g], off[g] + reach[g]
-        apart = _in_disjoint_slabs(proj, lo, hi)
+        apart = in_disjoint_slabs(proj, lo, hi)
         if apart is not None:  # one search per probe among the sorted slabs
             hits.append(apart[0])
             groups.append(g[apart[1]])
@@ -221,22 +222,6 @@ def _near_in_planes(
     d2 = point_triangle_d2(q[pts], tri[:, 0], tri[:, 1], tri[:, 2])
     near[pts[d2 < (0.999 * d) ** 2]] = True
     return near
-
-
-def _in_disjoint_slabs(
-    x: np.ndarray, lo: np.ndarray, hi: np.ndarray
-) -> tuple[np.ndarray, np.ndarray] | None:
-    """Pairs ``(i, j)`` with ``lo[j] < x[i] < hi[j]`` when the open slabs are disjoint (a
-    box's parallel walls, farther apart than their reach): then only the slab of the
-    largest ``lo`` below ``x[i]`` can hold it, one binary search per value among the few
-    slabs instead of a test against each. None when two slabs overlap."""
-    by_lo = np.argsort(lo, kind="stable")
-    sl, sh = lo[by_lo], hi[by_lo]
-    if np.any(sh[:-1] > sl[1:]):
-        return None
-    j = np.searchsorted(sl, x, side="left") - 1
-    i = np.flatnonzero((j >= 0) & (x < sh[np.maximum(j, 0)]))
-    return i, by_lo[j[i]]
 
 
 def hairline_failures(

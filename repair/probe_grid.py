@@ -19,8 +19,8 @@ import numpy as np
 from repair.deviation import point_triangle_d2
 from repair.rows import ranges, sort_with_positions
 
-__all__ = ["GRID_BIG_TESTS", "GRID_PAIRS_PER_FACE", "faces_near_points", "probes_near_faces",
-           "slivers_probed_clear", "unit_normals"]
+__all__ = ["GRID_BIG_TESTS", "GRID_PAIRS_PER_FACE", "faces_near_points", "in_disjoint_slabs",
+           "probes_near_faces", "slivers_probed_clear", "unit_normals"]
 
 #: The grid gives way to libigl's tree when its cells would pair each face asked about
 #: with more faces than this on average (meshes of crowded small faces beside large ones:
@@ -163,6 +163,22 @@ def _grid_pairs(
         b_big, b_own = np.nonzero(inside)
         own, box = np.r_[own, b_own], np.r_[box, big[b_big]]
     return own, box
+
+
+def in_disjoint_slabs(
+    x: np.ndarray, lo: np.ndarray, hi: np.ndarray
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Pairs ``(i, j)`` with ``lo[j] < x[i] < hi[j]`` when the open slabs are disjoint (a
+    box's parallel walls, farther apart than their reach): then only the slab of the
+    largest ``lo`` below ``x[i]`` can hold it, one binary search per value among the few
+    slabs instead of a test against each. None when two slabs overlap."""
+    by_lo = np.argsort(lo, kind="stable")
+    sl, sh = lo[by_lo], hi[by_lo]
+    if np.any(sh[:-1] > sl[1:]):
+        return None
+    j = np.searchsorted(sl, x, side="left") - 1
+    i = np.flatnonzero((j >= 0) & (x < sh[np.maximum(j, 0)]))
+    return i, by_lo[j[i]]
 
 
 def faces_near_points(v: np.ndarray, f: np.ndarray, q: np.ndarray, r: float) -> np.ndarray:

@@ -144,11 +144,13 @@ def test_flat_faces_searched_plane_by_plane_give_the_trees_suspects(monkeypatch)
     """A CAD-like model whose faces mostly lie in a few shared planes (the slotted box,
     its triangles split finer) and a ball above it (each face a plane of its own): the
     planes are searched plane by plane, the ball by the grid, and the suspects are
-    exactly those of the whole tree -- the probes compared with each plane, or sorted
-    along each direction when its planes are many."""
+    exactly those of the whole tree -- the probes searched among disjoint slabs,
+    compared with each plane, or sorted along each direction when its planes are
+    many."""
     import manifold3d as m3d
 
     import repair.hairline as hairline
+    import repair.probe_grid as probe_grid
     from repair.hairline import PLANE_MIN_MESH, _shared_planes, _unit_normals
 
     bv, bf = _solid(_slotted_box().refine(8))
@@ -160,6 +162,8 @@ def test_flat_faces_searched_plane_by_plane_give_the_trees_suspects(monkeypatch)
     every = hairline_suspects(v, f)
     assert len(every) > 0
     assert np.array_equal(every, _suspects_by_tree(v, f))
+    monkeypatch.setattr(probe_grid, "in_disjoint_slabs", lambda *a: None)  # each, then sorted
+    assert np.array_equal(hairline_suspects(v, f), every)
     monkeypatch.setattr(hairline, "PLANE_SLAB_TESTS", 0)
     assert np.array_equal(hairline_suspects(v, f), every)
 
@@ -271,16 +275,16 @@ def test_probes_in_disjoint_slabs_are_those_of_the_test_against_each_slab():
     """The plane search finds, per direction, the probes inside each plane's open slab:
     where the slabs are disjoint by one binary search per probe, the same pairs as the
     test of every probe against every slab; overlapping slabs are left to that test."""
-    from repair.hairline import _in_disjoint_slabs
+    from repair.probe_grid import in_disjoint_slabs
 
     rng = np.random.default_rng(3)
     x = np.r_[rng.uniform(-1, 11, 5000), 0.5, 2.0, 2.5, 9.0]  # and on slab bounds
     lo = np.array([8.0, 0.5, 2.5, 4.0])
     hi = np.array([9.0, 2.0, 3.0, 7.5])
-    i, j = _in_disjoint_slabs(x, lo, hi)
+    i, j = in_disjoint_slabs(x, lo, hi)
     row, col = np.nonzero((x[None] > lo[:, None]) & (x[None] < hi[:, None]))
     assert len(i) > 100
     got = np.lexsort((j, i))
     want = np.lexsort((row, col))
     assert np.array_equal(i[got], col[want]) and np.array_equal(j[got], row[want])
-    assert _in_disjoint_slabs(x, np.r_[lo, 6.0], np.r_[hi, 8.5]) is None
+    assert in_disjoint_slabs(x, np.r_[lo, 6.0], np.r_[hi, 8.5]) is None
