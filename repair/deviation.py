@@ -221,7 +221,8 @@ def _faces_within_vertex_reach(pts: np.ndarray, v: np.ndarray, f: np.ndarray) ->
 
 
 def _within_input_faces(
-    ov: np.ndarray, of: np.ndarray, iv: np.ndarray, tri: np.ndarray
+    ov: np.ndarray, of: np.ndarray, iv: np.ndarray, tri: np.ndarray,
+    on_corner: np.ndarray | None = None,
 ) -> tuple[np.ndarray, float]:
     """Which output faces ``of`` are shown to lie on the input triangles ``tri`` (one
     each, indices into ``iv``), and a bound (mm) on their distance from the input.
@@ -229,14 +230,20 @@ def _within_input_faces(
     A piece of an input face (a union cuts faces where shells cross) lies in it: every
     point of the output face is within its largest corner distance of that triangle (a
     convex set). Shown where that bound is at float32-rounding scale (4 ulps of the
-    largest coordinate); the other faces are left to be sampled."""
+    largest coordinate); the other faces are left to be sampled. ``on_corner`` (k, 3),
+    if known: which corners equal a corner of their triangle (distance 0, the corner
+    itself being its nearest point: not measured)."""
     if len(of) == 0:
         return np.zeros(0, dtype=bool), 0.0
     p = ov[of]
     t = iv[tri]
-    d2 = np.max(
-        [point_triangle_d2(p[:, k], t[:, 0], t[:, 1], t[:, 2]) for k in range(3)], axis=0
-    )
+    if on_corner is None:
+        on_corner = np.zeros(of.shape, dtype=bool)
+    d2 = np.zeros(len(of))
+    for k in range(3):
+        r = np.flatnonzero(~on_corner[:, k])
+        tk = t[r]
+        d2[r] = np.maximum(d2[r], point_triangle_d2(p[r, k], tk[:, 0], tk[:, 1], tk[:, 2]))
     tol = 2.0**-21 * max(float(np.abs(iv).max()), float(np.abs(ov).max()), 1.0)
     ok = d2 <= tol * tol
     return ok, (float(np.sqrt(d2[ok].max())) if np.any(ok) else 0.0)
@@ -305,10 +312,11 @@ def max_deviation(
         eq = np.ones((len(guess), 3, 3), dtype=bool)
         for k in range(3):  # corner i of p equals corner j of t, coordinate by coordinate
             eq &= p[:, :, None, k] == t[:, None, :, k]
-        same = eq.any(axis=2).all(axis=1)
+        on_corner = eq.any(axis=2)
+        same = on_corner.all(axis=1)
         new[guess[same]] = False
         guess = guess[~same]
-        shown, bound = _within_input_faces(ov, of[guess], iv, inf[h[guess]])
+        shown, bound = _within_input_faces(ov, of[guess], iv, inf[h[guess]], on_corner[~same])
         new[guess[shown]] = False
         # A face cut again later (a mend after rounding) has no hint of its own, but
         # usually lies on the input face of a face sharing one of its corners.

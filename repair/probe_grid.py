@@ -19,12 +19,13 @@ import numpy as np
 from repair.deviation import point_triangle_d2
 from repair.rows import ranges, sort_with_positions
 
-__all__ = ["GRID_BIG_TESTS", "GRID_PAIRS_PER_FACE", "faces_near_points", "probes_near_faces",
-           "slivers_probed_clear", "unit_normals"]
+__all__ = ["GRID_BIG_TESTS", "GRID_PAIRS_PER_FACE", "faces_near_points", "in_disjoint_slabs",
+           "probes_near_faces", "slivers_probed_clear", "unit_normals"]
 
 #: The grid gives way to libigl's tree when its cells would pair each face asked about
 #: with more faces than this on average (meshes of crowded small faces beside large ones:
-#: chair 94, Ghostkeeper_extra_surface 190; bunny 9.5, rabbit 19).
+#: chair; Ghostkeeper_extra_surface's cylinder of 35 mm slivers crowded cubic cells, 190,
+#: but not cells as long as its faces).
 GRID_PAIRS_PER_FACE = 24
 #: ... or when the faces too large for the cells (boxes over 27 cells), each tested box
 #: against every face asked about, would take more box tests than this.
@@ -75,8 +76,11 @@ def probes_near_faces(
     t = np.einsum("ij,ij->i", nrm, c[own] - tri[:, 0])
     u = d * np.einsum("ij,ij->i", nrm, n[own])
     near = np.zeros(2 * m, dtype=bool)
+    # A face is no nearer to a probe than its plane: one farther than 0.999 d from that,
+    # rounding aside, is not (a coplanar neighbour's plane lies d off both probes).
+    reach = 0.999 * d + 2.0**-48 * float(np.abs(v).max())
     for sign, probe in ((1.0, own), (-1.0, own + m)):
-        hit = np.abs(t + sign * u) <= grow  # a degenerate face (no normal) always
+        hit = np.abs(t + sign * u) <= reach  # a degenerate face (no normal) always
         pts, pt = probe[hit], tri[hit]
         d2 = point_triangle_d2(q[pts], pt[:, 0], pt[:, 1], pt[:, 2])
         near[pts[d2 < (0.999 * d) ** 2]] = True
@@ -87,16 +91,37 @@ def _centroids_in_boxes(
     lo: np.ndarray, hi: np.ndarray, c: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """Pairs ``(point, box)`` with point ``c[point]`` inside the closed box ``lo[:, box]``
-    .. ``hi[:, box]`` (3, k): a grid of cells the size of the median box, each box listed
-    under the (at most 27) cells it meets, each point tested against the boxes of its
-    cell; boxes meeting more cells are few and tested against every point. None when that
-    would take more than :data:`GRID_PAIRS_PER_FACE` tests per point or
-    :data:`GRID_BIG_TESTS` for the large boxes."""
-    m = len(c)
+    .. ``hi[:, box]`` (3, k), found in a grid of cells (:func:`_grid_pairs`): cubes the
+    size of the median box; where those are crowded, cells as long along each axis as
+    the median box is there (a fan of long thin faces, as a cylinder's sides, fills
+    every cube as large as they are long, but not cells long one way and thin the
+    others). None when both would take too many tests."""
     origin = np.minimum(lo.min(axis=1), c.min(axis=0))
-    span = float((np.maximum(hi.max(axis=1), c.max(axis=0)) - origin).max())
-    ext = (hi - lo).max(axis=0)
-    h = max(float(np.partition(ext, len(ext) // 2)[len(ext) // 2]), span / 1024.0)
+    span = np.maximum(hi.max(axis=1), c.max(axis=0)) - origin
+    ext = hi - lo
+    mid = len(ext[0]) // 2
+    least = float(span.max()) / 1024.0
+    cube = max(float(np.partition(ext.max(axis=0), mid)[mid]), least)
+    pairs = _grid_pairs(lo, hi, c, origin, span, np.full(3, cube))
+    if pairs is not None:
+        return pairs
+    h = np.maximum(np.partition(ext, mid, axis=1)[:, mid], least)
+    if np.all(h > 0.5 * cube):  # nearly the same cells
+        return None
+    return _grid_pairs(lo, hi, c, origin, span, h)
+
+
+def _grid_pairs(
+    lo: np.ndarray, hi: np.ndarray, c: np.ndarray, origin: np.ndarray, span: np.ndarray,
+    h: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """:func:`_centroids_in_boxes` in a grid of cells ``h`` (3,) long from ``origin``
+    (the grid spans ``span``, mm): each box listed under the (at most 27) cells it meets,
+    each point tested against the boxes of its cell; boxes meeting more cells are few
+    and tested against every point. None when that would take more than
+    :data:`GRID_PAIRS_PER_FACE` tests per point or :data:`GRID_BIG_TESTS` for the large
+    boxes."""
+    m = len(c)
     lo_c = np.floor((lo.T - origin) / h).astype(np.int64)
     dims = np.floor((hi.T - origin) / h).astype(np.int64) - lo_c + 1
     cover = dims.prod(axis=1)
@@ -104,7 +129,7 @@ def _centroids_in_boxes(
     if len(big) * m > GRID_BIG_TESTS or len(big) == len(cover):
         return None
     cover[big] = 0
-    side = int(span / h) + 2
+    side = (span / h).astype(np.int64) + 2
     listed = np.repeat(np.arange(len(cover)), cover)
     local = np.arange(len(listed)) - np.repeat(np.cumsum(cover) - cover, cover)
     dl = dims[listed]
@@ -112,13 +137,13 @@ def _centroids_in_boxes(
         [local // (dl[:, 1] * dl[:, 2]), (local // dl[:, 2]) % dl[:, 1], local % dl[:, 2]],
         axis=1,
     )
-    order, keys = sort_with_positions((cell[:, 0] * side + cell[:, 1]) * side + cell[:, 2])
+    order, keys = sort_with_positions((cell[:, 0] * side[1] + cell[:, 1]) * side[2] + cell[:, 2])
     listed = listed[order]
     # Each listed cell once: where its boxes start in the listing, and how many.
     starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
     cells, runs = keys[starts], np.diff(np.r_[starts, len(keys)])
     cc = np.floor((c - origin) / h).astype(np.int64)
-    ck = (cc[:, 0] * side + cc[:, 1]) * side + cc[:, 2]
+    ck = (cc[:, 0] * side[1] + cc[:, 1]) * side[2] + cc[:, 2]
     at = np.minimum(np.searchsorted(cells, ck), len(cells) - 1)
     count = np.where(cells[at] == ck, runs[at], 0)
     if int(count.sum()) > GRID_PAIRS_PER_FACE * m:
@@ -140,19 +165,39 @@ def _centroids_in_boxes(
     return own, box
 
 
+def in_disjoint_slabs(
+    x: np.ndarray, lo: np.ndarray, hi: np.ndarray
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Pairs ``(i, j)`` with ``lo[j] < x[i] < hi[j]`` when the open slabs are disjoint (a
+    box's parallel walls, farther apart than their reach): then only the slab of the
+    largest ``lo`` below ``x[i]`` can hold it, one binary search per value among the few
+    slabs instead of a test against each. None when two slabs overlap."""
+    by_lo = np.argsort(lo, kind="stable")
+    sl, sh = lo[by_lo], hi[by_lo]
+    if np.any(sh[:-1] > sl[1:]):
+        return None
+    j = np.searchsorted(sl, x, side="left") - 1
+    i = np.flatnonzero((j >= 0) & (x < sh[np.maximum(j, 0)]))
+    return i, by_lo[j[i]]
+
+
 def faces_near_points(v: np.ndarray, f: np.ndarray, q: np.ndarray, r: float) -> np.ndarray:
     """Faces whose bounding box, grown by ``r`` (mm), holds some point of ``q`` along
     each axis (a point within ``r`` of a face is: not always the same point per axis,
-    a superset). Per axis one sort of the points and two searches."""
-    keep = np.ones(len(f), dtype=bool)
+    a superset). Per axis one sort of the points and two searches, on the faces the
+    axes before left (a few points near a large mesh leave few after the first)."""
+    cand = np.arange(len(f))
+    corners = [f[:, 0], f[:, 1], f[:, 2]]
     for k in range(3):
         x = np.ascontiguousarray(v[:, k])
-        a, b, c = x[f[:, 0]], x[f[:, 1]], x[f[:, 2]]  # 1-D gathers: faster than rows
+        a, b, c = (x[i] for i in corners)  # 1-D gathers: faster than rows
         lo = np.minimum(np.minimum(a, b), c) - r
         hi = np.maximum(np.maximum(a, b), c) + r
         s = np.sort(q[:, k])
-        keep &= np.searchsorted(s, hi, side="right") > np.searchsorted(s, lo, side="left")
-    return np.flatnonzero(keep)
+        keep = np.searchsorted(s, hi, side="right") > np.searchsorted(s, lo, side="left")
+        cand = cand[keep]
+        corners = [i[keep] for i in corners]
+    return cand
 
 
 def slivers_probed_clear(v: np.ndarray, f: np.ndarray, which: np.ndarray, d: float) -> np.ndarray:

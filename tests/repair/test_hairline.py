@@ -144,11 +144,13 @@ def test_flat_faces_searched_plane_by_plane_give_the_trees_suspects(monkeypatch)
     """A CAD-like model whose faces mostly lie in a few shared planes (the slotted box,
     its triangles split finer) and a ball above it (each face a plane of its own): the
     planes are searched plane by plane, the ball by the grid, and the suspects are
-    exactly those of the whole tree -- the probes compared with each plane, or sorted
-    along each direction when its planes are many."""
+    exactly those of the whole tree -- the probes searched among disjoint slabs,
+    compared with each plane, or sorted along each direction when its planes are
+    many."""
     import manifold3d as m3d
 
     import repair.hairline as hairline
+    import repair.probe_grid as probe_grid
     from repair.hairline import PLANE_MIN_MESH, _shared_planes, _unit_normals
 
     bv, bf = _solid(_slotted_box().refine(8))
@@ -160,6 +162,8 @@ def test_flat_faces_searched_plane_by_plane_give_the_trees_suspects(monkeypatch)
     every = hairline_suspects(v, f)
     assert len(every) > 0
     assert np.array_equal(every, _suspects_by_tree(v, f))
+    monkeypatch.setattr(probe_grid, "in_disjoint_slabs", lambda *a: None)  # each, then sorted
+    assert np.array_equal(hairline_suspects(v, f), every)
     monkeypatch.setattr(hairline, "PLANE_SLAB_TESTS", 0)
     assert np.array_equal(hairline_suspects(v, f), every)
 
@@ -223,6 +227,32 @@ def test_the_grid_search_finds_the_trees_suspects_on_a_curved_mesh(monkeypatch):
     assert np.array_equal(hairline_suspects(v, f), every)
 
 
+def test_the_grid_searches_a_cylinder_of_long_slivers_in_cells_as_long_as_they_are():
+    """A cylinder's sides are slivers as long as the part (Ghostkeeper_extra_surface's
+    35 mm ones): cubic cells as large as the median face would hold all of them each, so
+    the cells are as long as the faces along their axis and thin across. The grid then
+    runs on them, and a slot cut along the cylinder is found exactly as by the tree."""
+    import manifold3d as m3d
+
+    import repair.probe_grid as probe_grid
+
+    tube = m3d.Manifold.cylinder(35.0, 3.0, 3.0, 640)
+    v, f = _solid(tube - m3d.Manifold.cube([GAP, 4, 30]).translate([-GAP / 2, 0, 2.5]))
+    d = probe_distance(v)
+    p = v[f]
+    n, _ = probe_grid.unit_normals(p)
+    sides = np.flatnonzero(np.abs(n[:, 2]) < 0.5)
+    ext = np.ptp(p[sides], axis=1)
+    assert np.median(ext[:, 2]) > 100 * np.median(ext[:, :2].max(axis=1))  # slivers
+    idx = np.arange(len(f))
+    c = p.mean(axis=1)
+    q = np.vstack([c + d * n, c - d * n])
+    assert probe_grid.probes_near_faces(v, f, sides, q, c, n, idx, d) is not None
+    every = hairline_suspects(v, f)
+    assert len(every) > 0
+    assert np.array_equal(every, _suspects_by_tree(v, f))
+
+
 def test_slivers_probed_clear_are_never_failing_and_the_rest_of_the_suspects_fail():
     """The winding test probes a sliver a tenth of its height off it: where no other face
     comes that near its probes it cannot fail, and is not tested. On slotted solids (the
@@ -239,3 +269,22 @@ def test_slivers_probed_clear_are_never_failing_and_the_rest_of_the_suspects_fai
         assert clear.any() and len(every) > 0
         assert not np.isin(suspects[clear], every).any()
         assert np.array_equal(np.sort(hairline_failures(v, f)), every)
+
+
+def test_probes_in_disjoint_slabs_are_those_of_the_test_against_each_slab():
+    """The plane search finds, per direction, the probes inside each plane's open slab:
+    where the slabs are disjoint by one binary search per probe, the same pairs as the
+    test of every probe against every slab; overlapping slabs are left to that test."""
+    from repair.probe_grid import in_disjoint_slabs
+
+    rng = np.random.default_rng(3)
+    x = np.r_[rng.uniform(-1, 11, 5000), 0.5, 2.0, 2.5, 9.0]  # and on slab bounds
+    lo = np.array([8.0, 0.5, 2.5, 4.0])
+    hi = np.array([9.0, 2.0, 3.0, 7.5])
+    i, j = in_disjoint_slabs(x, lo, hi)
+    row, col = np.nonzero((x[None] > lo[:, None]) & (x[None] < hi[:, None]))
+    assert len(i) > 100
+    got = np.lexsort((j, i))
+    want = np.lexsort((row, col))
+    assert np.array_equal(i[got], col[want]) and np.array_equal(j[got], row[want])
+    assert in_disjoint_slabs(x, np.r_[lo, 6.0], np.r_[hi, 8.5]) is None

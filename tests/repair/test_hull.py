@@ -214,3 +214,31 @@ def test_arrangement_of_float32_input_scaled_to_integers_has_the_same_points():
     area = np.bincount(birth, face_areas(vv, ff), minlength=len(f))
     direct = np.bincount(np.asarray(wb), face_areas(np.asarray(wv), wf), minlength=len(f))
     assert np.allclose(area, direct, rtol=1e-12, atol=0)
+
+
+def test_a_crossing_group_arranged_in_pieces_is_arranged_as_a_whole(monkeypatch):
+    """A large group of crossing faces is arranged in pieces (halves of halves, each with
+    the faces it crosses, keeping its own faces' pieces; side by side on the CPUs): the
+    same faces, in the same order, on the same points as one call on the group -- on
+    coordinates of few bits too, which libigl gets scaled to integers by the group's
+    scale, not each piece's own."""
+    a = sphere(3, 10.0)
+    b = sphere(3, 7.0, (9.3, 1.7, -2.1))
+    v, f = concat(a, b)
+    v = np.round(v * 2.0**12) / 2.0**12  # few bits: an integer scale applies
+    pairs = intersecting_face_pairs(v, f)
+    group = np.unique(pairs)
+    assert hull._integer_scale(v[np.unique(f[group])]) > 0
+    monkeypatch.setattr(hull, "PIECE_FACES", 24)
+    jobs = hull._pieces(v, f, group, pairs)
+    assert len(jobs) >= 4
+    kept = np.concatenate([given[keep] for given, keep, _ in jobs])
+    assert np.array_equal(np.sort(kept), group)  # each face kept by one piece
+    pv, pf, pb, n = _remesh(v, f)
+    monkeypatch.setattr(hull, "PIECE_FACES", 10**9)
+    assert len(hull._pieces(v, f, group, pairs)) == 1
+    wv, wf, wb, wn = _remesh(v, f)
+    assert n == wn and np.array_equal(pb, wb)
+    pv, pf = weld_exact(pv, pf)
+    wv, wf = weld_exact(wv, wf)
+    assert np.array_equal(pv, wv) and np.array_equal(pf, wf)
