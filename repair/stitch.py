@@ -37,6 +37,7 @@ from repair.topology import (
     edge_topology,
     half_edges,
     paired_half_edges,
+    unique_faces,
 )
 
 __all__ = ["Stitched", "stitch_cracks", "without_caps"]
@@ -348,7 +349,7 @@ def stitch_cracks(
         f = _split_faces(f, h, p, t)
         inserted += len(f) - n
     if f is not original:
-        f = _without_flaps(v, f, gamma)
+        f = _one_layer(v, _without_flaps(v, f, gamma))
     after = topo if topo.of(f) else edge_topology(f)
     b1, nonmanifold_after, misoriented_after = (
         after.boundary, _unpaired(after), after.misoriented
@@ -400,6 +401,31 @@ def _without_flaps(v: np.ndarray, f: np.ndarray, gamma: float) -> np.ndarray:
     longest = np.linalg.norm(p - p[:, [1, 2, 0]], axis=2).max(axis=1)
     flap = cand[twice_area <= gamma * longest]
     return np.delete(f, flap, axis=0) if len(flap) else f
+
+
+def _one_layer(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """``f`` with one layer where the stitch made faces copies of others: a patch
+    written twice, then cracked, has its copies on different vertices until stitched;
+    on the same ones, a face's repeat (same vertex set, either way round) and the
+    halves of a face written whole too (:func:`repair.clean.split_copies`) go, as the
+    clean drops them from an uncracked soup -- when that leaves fewer edges of more
+    than two faces not used as often one way as the other, and no more open edges (a
+    body written twice closer than the stitch distance, its copies joined face to
+    face, stays two layers: the union makes one body of them)."""
+    t = edge_topology(f)
+    if t.nonmanifold == 0:
+        return f
+    from repair.clean import split_copies
+
+    keep = unique_faces(f)
+    g = f[keep] if len(keep) < len(f) else f
+    halves = split_copies(v, g)
+    if halves.any():
+        g = g[~halves]
+    if g is f:
+        return f
+    tg = edge_topology(g)
+    return g if tg.boundary <= t.boundary and _unpaired(tg) < _unpaired(t) else f
 
 
 def without_caps(
