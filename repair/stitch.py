@@ -218,12 +218,12 @@ def _snap_rims(
 
 
 def _split_candidates(
-    v: np.ndarray, f: np.ndarray, gamma: float, topology: EdgeTopology
+    v: np.ndarray, f: np.ndarray, gamma: float, topology: EdgeTopology, own_only: bool = False
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(half-edge, vertex, t)``: boundary vertices within γ of the inside of a boundary
     edge of another patch, or on one of their own patch (T-junctions, see the module
-    docstring); each vertex with its nearest such edge, ``t`` in (0, 1) the position
-    along the half-edge."""
+    docstring; ``own_only``: those only); each vertex with its nearest such edge, ``t``
+    in (0, 1) the position along the half-edge."""
     bnd, patch = _boundary(f, topology)
     he = half_edges(f)
     none = np.zeros(0, dtype=np.int64)
@@ -243,7 +243,7 @@ def _split_candidates(
     other = bpatch[p] != patch[bnd[e] // 3]
     # Of its own patch only a vertex where the boundary runs straight on (most hits are
     # neighbours round the same hole): a T-junction's slit passes straight through it.
-    sel = other | _straight(v, he[bnd])[bv[p]]
+    sel = (other & (not own_only)) | _straight(v, he[bnd])[bv[p]]
     e, p, other = e[sel], p[sel], other[sel]
     ab = b[e] - a[e]
     t = np.einsum("ij,ij->i", v[bv[p]] - a[e], ab) / np.maximum(length[e] ** 2, 1e-300)
@@ -322,10 +322,41 @@ def stitch_cracks(
     if len(f) == 0 or gamma <= 0:
         return f, Stitched(gamma=float(gamma))
     topo = topology if topology is not None and topology.of(f) else edge_topology(f)
-    b0, nonmanifold, misoriented = topo.boundary, _unpaired(topo), topo.misoriented
-    if b0 == 0:
+    if topo.boundary == 0:
         return f, Stitched(gamma=float(gamma))
+    out = _stitched(v, f, gamma, topo, tees_first=False)
+    if out[1].declined:
+        # A body written twice within γ, each copy split differently at T-junctions:
+        # rims of one copy's slits match the other copy's, and joining them joins the
+        # copies. Each slit closed first (no crack: a face split at its neighbour's
+        # edge), the copies are closed shells, and what remains is stitched.
+        again = _stitched(v, f, gamma, topo, tees_first=True)
+        if not again[1].declined:
+            return again
+    return out
+
+
+def _stitched(
+    v: np.ndarray, f: np.ndarray, gamma: float, topo: EdgeTopology, tees_first: bool
+) -> tuple[np.ndarray, Stitched]:
+    """:func:`stitch_cracks` of ``f`` (``topo`` its topology, with a boundary); with
+    ``tees_first``, T-junctions inside one patch are split into their edges before
+    anything is snapped."""
+    b0, nonmanifold, misoriented = topo.boundary, _unpaired(topo), topo.misoriented
     original = f
+    inserted = 0
+    if tees_first:
+        for _ in range(_SPLIT_ROUNDS):
+            h, p, t = _split_candidates(v, f, gamma, topo, own_only=True)
+            if len(h) == 0:
+                break
+            n = len(f)
+            f = _split_faces(f, h, p, t)
+            inserted += len(f) - n
+        if f is original:
+            return f, Stitched(float(gamma), boundary_before=b0, boundary_after=b0,
+                               declined=True)  # fmt: skip
+        topo = edge_topology(f)
     # Where three or more patches meet at a corner (a cracked-off patch touching two
     # others), its copies are merged a mutual pair per round; the patches keep their
     # input labels, so a copy left over still finds the patch it was cut from.
@@ -340,7 +371,6 @@ def stitch_cracks(
             break
         became = to[became]
         topo_f = edge_topology(f)
-    inserted = 0
     for _ in range(_SPLIT_ROUNDS):
         h, p, t = _split_candidates(v, f, gamma, topo)
         if len(h) == 0:
