@@ -273,12 +273,21 @@ def _paired_halves(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     a, b = corner[h1 - h1 % 3 + (h1 % 3 + 2) % 3], corner[h2 - h2 % 3 + (h2 % 3 + 2) % 3]
     whole = np.sort(face_keys(f, n))
     v = np.asarray(vertices, dtype=np.float64)
+    alone = []  # (whole key, first face, second face) of pairs whose whole face is not
     for m, c in ((he[h1, 0], he[h1, 1]), (he[h1, 1], he[h1, 0])):
         on = (a != b) & needle_mask(v, np.stack([a, m, b], axis=1))
         on &= np.einsum("ij,ij->i", v[a] - v[m], v[b] - v[m]) < 0
         k = face_keys(np.stack([a, b, c], axis=1), n)
         hit = on & (whole[np.minimum(np.searchsorted(whole, k), len(whole) - 1)] == k)
         out[h1[hit] // 3] = out[h2[hit] // 3] = True
+        alone.append(np.c_[k, h1 // 3, h2 // 3][on & ~hit])
+    # A face written twice and each copy split at a different edge: two pairs of halves
+    # of one triangle; the pair of the earlier face stays.
+    k, g1, g2 = np.vstack(alone).T
+    if len(k) > 1:
+        order = np.lexsort((np.minimum(g1, g2), k))
+        again = order[1:][k[order][1:] == k[order][:-1]]
+        out[g1[again]] = out[g2[again]] = True
     return out
 
 
