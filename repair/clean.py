@@ -496,8 +496,14 @@ def clean_soup(vertices: np.ndarray, faces: np.ndarray, *, solid: bool = False) 
     f = f[~deg]
     # An input's needles only: a solid's own clean (a union's result and prisms) keeps
     # its faces as the union made them.
-    needles, split, repeated = np.zeros(len(f), dtype=bool), 0, 0
+    needles, split, repeated, halves = np.zeros(len(f), dtype=bool), 0, 0, 0
     if not solid:
+        # Halves of a face written whole too go before a needle's filler splits one of
+        # them again (a sliver written on a half's edge): then they are no pair.
+        one = unique_faces(f)
+        key = face_keys(f)
+        early = np.isin(key, key[one[split_copies(v, f[one])]])  # with their repeats
+        f, halves = f[~early], int(np.count_nonzero(early))
         flat = needle_mask(v, f)
         if np.any(flat):  # a needle written twice is one needle (a filler is one group)
             again = flat & ~np.isin(np.arange(len(f)), unique_ints(face_keys(f), True)[1])
@@ -507,7 +513,7 @@ def clean_soup(vertices: np.ndarray, faces: np.ndarray, *, solid: bool = False) 
         f, split = split_at_fillers(v, f, flat)
         f = orient_needles(v, f, needle_mask(v, f) if split else flat)[0]
     keep = cancel_opposite_faces(f) if solid else unique_faces(f)
-    dup = len(f) - len(keep) + repeated
+    dup = len(f) - len(keep) + repeated + halves
     f = f[keep]
     if not solid:  # a face written whole and split too: one layer
         halves = split_copies(v, f)

@@ -501,3 +501,19 @@ def test_a_face_written_twice_each_copy_split_at_another_edge_is_kept_once(
     v, f, expected = swept(model, kinds, seed)
     assert written_solid(v, f, tmp_path) == pytest.approx(expected, rel=2e-3)
     assert repair_mesh(v, f, 0.4).report["deviation"] < 0.01
+
+
+@pytest.mark.parametrize(
+    ("model", "seed"), [("part", 0), ("part", 2), ("step", 7), ("multibody", 1)]
+)  # fmt: skip
+def test_a_sliver_on_a_half_of_a_face_written_again_split_does_not_hide_the_copy(
+    model, seed, tmp_path
+):
+    # CAD fault sweep, split_copy + slivers: a face written whole and again as two
+    # halves, then a sliver (a, midpoint, b) written on a half's edge: the sliver is a
+    # T-junction's filler, the half was split again at its point, the halves were no
+    # pair any more and both layers stayed; a 2 mm² sheet thickened (D 0.2 mm; the
+    # multibody 101 % of the volume). The halves go before the fillers split anything.
+    v, f, expected = swept(model, "split_copy slivers", seed)
+    assert written_solid(v, f, tmp_path) == pytest.approx(expected, rel=2e-3)
+    assert repair_mesh(v, f, 0.4).report["deviation"] < 0.01
