@@ -232,3 +232,16 @@ def needles_split_and_copied(v: np.ndarray, f: np.ndarray) -> Mesh:
     flip = rng.random(len(copies)) < 0.5
     copies[flip] = copies[flip][:, ::-1]
     return v, np.vstack([f, copies])
+
+
+def swept(model: str, kinds: str, seed: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """A case of the CAD fault sweep (lanes/tools/cadfaults.py): the faults ``kinds``
+    applied to ``model`` in that order, drawing from ``seed`` (three kinds: the combo
+    sweep's draw for ``seed``, which must be these), and the intact volume (mm³)."""
+    name, scale = MODELS[model]
+    rng = np.random.default_rng(seed)
+    if len(kinds.split()) == 3:
+        rng, drawn = combo_kinds(seed)
+        if drawn != kinds.split():
+            raise ValueError(f"combo seed {seed} draws {drawn}, not {kinds}")
+    return *faulted(*real_model(name, scale), kinds.split(), rng), intact_volume(name, scale)
