@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from repair.check import Printability, degenerate_face_mask
+from repair.halves import split_copies
 from repair.rows import unique_ints, unique_rows
 from repair.topology import (
     connected_labels,
@@ -228,48 +229,6 @@ def _chains(
     return chain[keep], s[keep], fan_ok
 
 
-def split_copies(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Faces that are halves of a face also written whole (bool per face): two faces
-    ``(a, m, c)`` and ``(m, b, c)`` sharing the edge ``m-c``, ``m`` between ``a`` and
-    ``b`` on their line at float32 resolution (:func:`needle_mask` of ``(a, m, b)``),
-    while a face on ``a, b, c`` exists -- a patch written twice, one copy of a face
-    split at a point of its edge (each half then shares ``a-c`` or ``b-c`` with the
-    whole face and its neighbour: an edge of three or more faces). They cover that
-    face: the surface written twice, of which one layer is kept (the whole face, which
-    its neighbour across ``a-b`` shares an edge with)."""
-    f = np.asarray(faces, dtype=np.int64)
-    out = np.zeros(len(f), dtype=bool)
-    if len(f) < 3:
-        return out
-    n = int(f.max()) + 1
-    he = half_edges(f)
-    key = np.sort(he, axis=1) @ np.array([n, 1])
-    order = np.argsort(key, kind="stable")
-    sk = key[order]
-    start = np.r_[0, np.flatnonzero(sk[1:] != sk[:-1]) + 1]
-    uses = np.diff(np.r_[start, len(sk)])
-    many = np.zeros(len(f), dtype=bool)
-    many[order[np.repeat(uses, uses) > 2] // 3] = True
-    pair = np.flatnonzero(sk[1:] == sk[:-1])
-    h1, h2 = order[pair], order[pair + 1]
-    sel = many[h1 // 3] & many[h2 // 3]
-    h1, h2 = h1[sel], h2[sel]
-    if len(h1) == 0:
-        return out
-    # The corner opposite each half-edge: the next corner after its end.
-    corner = f.reshape(-1)
-    a, b = corner[h1 - h1 % 3 + (h1 % 3 + 2) % 3], corner[h2 - h2 % 3 + (h2 % 3 + 2) % 3]
-    whole = np.sort(face_keys(f, n))
-    v = np.asarray(vertices, dtype=np.float64)
-    for m, c in ((he[h1, 0], he[h1, 1]), (he[h1, 1], he[h1, 0])):
-        on = (a != b) & needle_mask(v, np.stack([a, m, b], axis=1))
-        on &= np.einsum("ij,ij->i", v[a] - v[m], v[b] - v[m]) < 0
-        k = face_keys(np.stack([a, b, c], axis=1), n)
-        hit = on & (whole[np.minimum(np.searchsorted(whole, k), len(whole) - 1)] == k)
-        out[h1[hit] // 3] = out[h2[hit] // 3] = True
-    return out
-
-
 def orient_needles(
     vertices: np.ndarray, faces: np.ndarray, flat: np.ndarray | None = None
 ) -> tuple[np.ndarray, int]:
@@ -433,8 +392,14 @@ def clean_soup(vertices: np.ndarray, faces: np.ndarray, *, solid: bool = False) 
     f = f[~deg]
     # An input's needles only: a solid's own clean (a union's result and prisms) keeps
     # its faces as the union made them.
-    needles, split, repeated = np.zeros(len(f), dtype=bool), 0, 0
+    needles, split, repeated, halves = np.zeros(len(f), dtype=bool), 0, 0, 0
     if not solid:
+        # Halves of a face written whole too go before a needle's filler splits one of
+        # them again (a sliver written on a half's edge): then they are no pair.
+        one = unique_faces(f)
+        key = face_keys(f)
+        early = np.isin(key, key[one[split_copies(v, f[one])]])  # with their repeats
+        f, halves = f[~early], int(np.count_nonzero(early))
         flat = needle_mask(v, f)
         if np.any(flat):  # a needle written twice is one needle (a filler is one group)
             again = flat & ~np.isin(np.arange(len(f)), unique_ints(face_keys(f), True)[1])
@@ -444,7 +409,7 @@ def clean_soup(vertices: np.ndarray, faces: np.ndarray, *, solid: bool = False) 
         f, split = split_at_fillers(v, f, flat)
         f = orient_needles(v, f, needle_mask(v, f) if split else flat)[0]
     keep = cancel_opposite_faces(f) if solid else unique_faces(f)
-    dup = len(f) - len(keep) + repeated
+    dup = len(f) - len(keep) + repeated + halves
     f = f[keep]
     if not solid:  # a face written whole and split too: one layer
         halves = split_copies(v, f)

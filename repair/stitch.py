@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from repair.stitch_layers import one_layer, unpaired_edges, without_caps, without_flaps
 from repair.topology import (
     EdgeTopology,
     connected_labels,
@@ -217,12 +218,12 @@ def _snap_rims(
 
 
 def _split_candidates(
-    v: np.ndarray, f: np.ndarray, gamma: float, topology: EdgeTopology
+    v: np.ndarray, f: np.ndarray, gamma: float, topology: EdgeTopology, own_only: bool = False
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(half-edge, vertex, t)``: boundary vertices within γ of the inside of a boundary
     edge of another patch, or on one of their own patch (T-junctions, see the module
-    docstring); each vertex with its nearest such edge, ``t`` in (0, 1) the position
-    along the half-edge."""
+    docstring; ``own_only``: those only); each vertex with its nearest such edge, ``t``
+    in (0, 1) the position along the half-edge."""
     bnd, patch = _boundary(f, topology)
     he = half_edges(f)
     none = np.zeros(0, dtype=np.int64)
@@ -242,7 +243,7 @@ def _split_candidates(
     other = bpatch[p] != patch[bnd[e] // 3]
     # Of its own patch only a vertex where the boundary runs straight on (most hits are
     # neighbours round the same hole): a T-junction's slit passes straight through it.
-    sel = other | _straight(v, he[bnd])[bv[p]]
+    sel = (other & (not own_only)) | _straight(v, he[bnd])[bv[p]]
     e, p, other = e[sel], p[sel], other[sel]
     ab = b[e] - a[e]
     t = np.einsum("ij,ij->i", v[bv[p]] - a[e], ab) / np.maximum(length[e] ** 2, 1e-300)
@@ -321,10 +322,41 @@ def stitch_cracks(
     if len(f) == 0 or gamma <= 0:
         return f, Stitched(gamma=float(gamma))
     topo = topology if topology is not None and topology.of(f) else edge_topology(f)
-    b0, nonmanifold, misoriented = topo.boundary, _unpaired(topo), topo.misoriented
-    if b0 == 0:
+    if topo.boundary == 0:
         return f, Stitched(gamma=float(gamma))
+    out = _stitched(v, f, gamma, topo, tees_first=False)
+    if out[1].declined:
+        # A body written twice within γ, each copy split differently at T-junctions:
+        # rims of one copy's slits match the other copy's, and joining them joins the
+        # copies. Each slit closed first (no crack: a face split at its neighbour's
+        # edge), the copies are closed shells, and what remains is stitched.
+        again = _stitched(v, f, gamma, topo, tees_first=True)
+        if not again[1].declined:
+            return again
+    return out
+
+
+def _stitched(
+    v: np.ndarray, f: np.ndarray, gamma: float, topo: EdgeTopology, tees_first: bool
+) -> tuple[np.ndarray, Stitched]:
+    """:func:`stitch_cracks` of ``f`` (``topo`` its topology, with a boundary); with
+    ``tees_first``, T-junctions inside one patch are split into their edges before
+    anything is snapped."""
+    b0, nonmanifold, misoriented = topo.boundary, unpaired_edges(topo), topo.misoriented
     original = f
+    inserted = 0
+    if tees_first:
+        for _ in range(_SPLIT_ROUNDS):
+            h, p, t = _split_candidates(v, f, gamma, topo, own_only=True)
+            if len(h) == 0:
+                break
+            n = len(f)
+            f = _split_faces(f, h, p, t)
+            inserted += len(f) - n
+        if f is original:
+            return f, Stitched(float(gamma), boundary_before=b0, boundary_after=b0,
+                               declined=True)  # fmt: skip
+        topo = edge_topology(f)
     # Where three or more patches meet at a corner (a cracked-off patch touching two
     # others), its copies are merged a mutual pair per round; the patches keep their
     # input labels, so a copy left over still finds the patch it was cut from.
@@ -339,7 +371,6 @@ def stitch_cracks(
             break
         became = to[became]
         topo_f = edge_topology(f)
-    inserted = 0
     for _ in range(_SPLIT_ROUNDS):
         h, p, t = _split_candidates(v, f, gamma, topo)
         if len(h) == 0:
@@ -348,10 +379,10 @@ def stitch_cracks(
         f = _split_faces(f, h, p, t)
         inserted += len(f) - n
     if f is not original:
-        f = _without_flaps(v, f, gamma)
+        f = one_layer(v, without_flaps(v, f, gamma))
     after = topo if topo.of(f) else edge_topology(f)
     b1, nonmanifold_after, misoriented_after = (
-        after.boundary, _unpaired(after), after.misoriented
+        after.boundary, unpaired_edges(after), after.misoriented
     )
     if misoriented_after > misoriented and nonmanifold_after <= nonmanifold and misoriented:
         # An export with faces flipped (STL normals ignored): its patches meet
@@ -368,69 +399,6 @@ def stitch_cracks(
     moved = np.flatnonzero(became != np.arange(len(v)))
     return f, Stitched(float(gamma), snapped, inserted, b0, b1,
                        moved=np.column_stack([moved, became[moved]]))  # fmt: skip
-
-
-def _unpaired(t: EdgeTopology) -> int:
-    """Edges of more than two faces that are not used as often one way as the other: an
-    edge two solids share (two cubes touching along it, four faces, two each way) is a
-    closed surface's edge, and a crack along it is stitched back into one."""
-    if t.nonmanifold == 0:
-        return 0
-    he = half_edges(t.faces)
-    way = np.bincount(t.eid, weights=np.where(he[:, 0] < he[:, 1], 1.0, -1.0),
-                      minlength=len(t.counts))  # fmt: skip
-    return int(np.count_nonzero((t.counts > 2) & (way != 0)))
-
-
-def _without_flaps(v: np.ndarray, f: np.ndarray, gamma: float) -> np.ndarray:
-    """``f`` without its flaps: faces with two boundary edges and the third on more than
-    two faces, no wider than ``gamma`` mm (the apex's distance from the line of the
-    longest edge) -- an exporter's sliver on an edge (its apex on the edge, its other two
-    edges the slit of a T-junction) that a stitch has joined to both sides of the edge.
-    Its apex lies within ``gamma`` of the edge, as far as the stitch moves a point: a
-    sliver cracked off with its patch (each corner moved by noise, cgal_cubes' shared
-    edge 2e-5 mm wide) is one as much as a sliver up to the rounding of its coordinates."""
-    t = edge_topology(f)
-    count = t.counts[t.eid].reshape(-1, 3)
-    cand = np.flatnonzero(((count == 1).sum(axis=1) == 2) & (count > 2).any(axis=1))
-    if len(cand) == 0:
-        return f
-    p = v[f[cand]]
-    twice_area = np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
-    longest = np.linalg.norm(p - p[:, [1, 2, 0]], axis=2).max(axis=1)
-    flap = cand[twice_area <= gamma * longest]
-    return np.delete(f, flap, axis=0) if len(flap) else f
-
-
-def without_caps(
-    v: np.ndarray, f: np.ndarray, gamma: float, topology: EdgeTopology | None = None
-) -> np.ndarray:
-    """``f`` without its loose caps: faces no wider than ``gamma`` mm (the apex's
-    distance from the longest edge) whose two shorter edges are open and each longer
-    than ``gamma``, the apex a point of no other face -- an exporter's sliver (a,
-    midpoint, b) on an edge, cracked off with its patch: its corners moved by noise
-    made it a needle, no longer of zero area, hanging off its patch by the edge a-b.
-    It made the patch one face more than its copy's (cgal_part written twice, slivers,
-    a crack: no copy seen, 14 % of the volume). Dropping it moves no surface farther
-    than ``gamma``. A needle with a short edge (a CAD step's genuine sliver face,
-    3e-5 mm wide) is not a cap; nor is a face whose apex other faces use. ``topology``:
-    that of ``f`` if known."""
-    t = topology if topology is not None and topology.of(f) else edge_topology(f)
-    open_edge = (t.counts[t.eid] == 1).reshape(-1, 3)
-    cand = np.flatnonzero(open_edge.sum(axis=1) == 2)
-    if len(cand) == 0:
-        return f
-    k = np.argmin(open_edge[cand], axis=1)  # the closed edge (k, k + 1); apex k + 2
-    apex = f[cand, (k + 2) % 3]
-    p = v[f[cand]]
-    edge = np.linalg.norm(p - p[:, [1, 2, 0]], axis=2)  # edge i: corners (i, i + 1)
-    row = np.arange(len(cand))
-    base = edge[row, k]
-    short = np.minimum(edge[row, (k + 1) % 3], edge[row, (k + 2) % 3])
-    twice_area = np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
-    alone = np.bincount(f.reshape(-1), minlength=len(v))[apex] == 1
-    cap = alone & (short > gamma) & (base >= edge.max(axis=1)) & (twice_area <= gamma * base)
-    return np.delete(f, cand[cap], axis=0) if cap.any() else f
 
 
 def _worse_oriented(v: np.ndarray, f: np.ndarray, original: np.ndarray, gamma: float) -> int:
