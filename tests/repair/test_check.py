@@ -308,3 +308,22 @@ def test_slab_cuts_give_every_slab_about_as_many_faces(k):
     assert np.logical_or.reduce(inside).all()  # every face is tested somewhere
     counts = [int(s.sum()) for s in inside]
     assert max(counts) - min(counts) <= 0.02 * max(counts)
+
+
+@pytest.mark.parametrize("k", [2, 3])
+def test_slab_cuts_leave_the_first_slab_lighter_by_its_process_other_work(k):
+    # head: the process testing slab 0 has other work worth 10 % of the faces (the
+    # finish's test of the faces apart): slab 0 holds that many fewer, the others
+    # about as many each, and every face is still tested somewhere.
+    from repair.intersections import _even_cuts
+
+    rng = np.random.default_rng(10 + k)
+    lo = rng.normal(size=3000) * 10.0
+    hi = lo + np.abs(rng.normal(size=3000)) * rng.uniform(0.0, 4.0, size=3000)
+    e = np.r_[-np.inf, _even_cuts(lo, hi, k, 0.1), np.inf]
+    inside = [(lo < e[i + 1]) & (hi >= e[i]) for i in range(k)]
+    assert np.logical_or.reduce(inside).all()
+    counts = [int(s.sum()) for s in inside]
+    rest = counts[1:]
+    assert max(rest) - min(rest) <= 0.02 * max(rest)
+    assert abs(min(rest) - counts[0] - 300) <= 0.02 * max(rest)
