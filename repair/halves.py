@@ -52,12 +52,16 @@ def _paired_halves(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     sk = key[order]
     start = np.r_[0, np.flatnonzero(sk[1:] != sk[:-1]) + 1]
     uses = np.diff(np.r_[start, len(sk)])
+    # A face of an edge of three or more faces: the surface written twice there. So is
+    # a face of an open edge, once its pair covers the same triangle as another pair.
     many = np.zeros(len(f), dtype=bool)
     many[order[np.repeat(uses, uses) > 2] // 3] = True
+    rim = np.zeros(len(f), dtype=bool)
+    rim[order[np.repeat(uses, uses) == 1] // 3] = True
     pair = np.flatnonzero(sk[1:] == sk[:-1])
     h1, h2 = order[pair], order[pair + 1]
-    sel = many[h1 // 3] | many[h2 // 3]
-    h1, h2 = h1[sel], h2[sel]
+    sel = many[h1 // 3] | many[h2 // 3] | (rim[h1 // 3] & rim[h2 // 3])
+    h1, h2, many = h1[sel], h2[sel], many[h1[sel] // 3] | many[h2[sel] // 3]
     if len(h1) == 0:
         return out
     # The corner opposite each half-edge: the next corner after its end.
@@ -70,17 +74,44 @@ def _paired_halves(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
         on = (a != b) & _needle_mask(v, np.stack([a, m, b], axis=1))
         on &= np.einsum("ij,ij->i", v[a] - v[m], v[b] - v[m]) < 0
         k = face_keys(np.stack([a, b, c], axis=1), n)
-        hit = on & (whole[np.minimum(np.searchsorted(whole, k), len(whole) - 1)] == k)
+        hit = on & many & (whole[np.minimum(np.searchsorted(whole, k), len(whole) - 1)] == k)
         out[h1[hit] // 3] = out[h2[hit] // 3] = True
         alone.append(np.c_[k, h1 // 3, h2 // 3][on & ~hit])
     # A face written twice and each copy split at a different edge: two pairs of halves
-    # of one triangle; the pair of the earlier face stays.
+    # of one triangle; the pair facing as its neighbours do stays, else the earlier.
     k, g1, g2 = np.vstack(alone).T
     if len(k) > 1:
-        order = np.lexsort((np.minimum(g1, g2), k))
+        score = _facing(f, k, g1, g2, n)
+        order = np.lexsort((np.minimum(g1, g2), -score, k))
         again = order[1:][k[order][1:] == k[order][:-1]]
         out[g1[again]] = out[g2[again]] = True
     return out
+
+
+def _facing(f: np.ndarray, k: np.ndarray, g1: np.ndarray, g2: np.ndarray, n: int) -> np.ndarray:
+    """How well each pair of halves ``(g1, g2)`` of a triangle ``k`` written twice
+    faces as the surface around it does: its half-edges the other faces use the other
+    way minus those they use the same way (a copy written the wrong way round, split at
+    a different edge, scores below its twin). The pairs of a triangle with more than
+    one pair do not count for each other."""
+    doubled = _repeated(k)
+    mine = np.zeros(len(f), dtype=bool)
+    mine[g1[doubled]] = mine[g2[doubled]] = True
+    he = half_edges(f)
+    others = np.sort((he[:, 0] * n + he[:, 1])[np.repeat(~mine, 3)])
+
+    def used(key: np.ndarray) -> np.ndarray:
+        return np.searchsorted(others, key, "right") - np.searchsorted(others, key, "left")
+
+    own = half_edges(f[np.stack([g1, g2], axis=1).reshape(-1)])
+    per = used(own[:, 1] * n + own[:, 0]) - used(own[:, 0] * n + own[:, 1])
+    return per.reshape(len(k), 6).sum(axis=1)
+
+
+def _repeated(k: np.ndarray) -> np.ndarray:
+    """Whether each key occurs more than once in ``k`` (bool per entry)."""
+    _, inv, cnt = np.unique(k, return_inverse=True, return_counts=True)
+    return cnt[inv.reshape(-1)] > 1
 
 
 def _lone_halves(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
