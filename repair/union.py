@@ -19,6 +19,7 @@ import numpy as np
 from repair.clean import drop_unreferenced
 from repair.intersections import intersecting_face_pairs
 from repair.meshes import shell_volumes
+from repair.patch_copies import covered, two_bodies
 from repair.rows import ranges, unique_ints
 from repair.topology import (
     EdgeTopology,
@@ -204,6 +205,10 @@ def _face_copies(v: np.ndarray, f: np.ndarray, topology: EdgeTopology, gamma: fl
     gone = full & all_full & (first < np.arange(n)) & is_open
     if not gone[labels[pairs]].any(axis=1).all():
         gone[:] = False  # a copy would be left: only some of its patches were copies
+    if gone.any() and not covered(pairs, labels, gone):
+        # A patch's faces also written again within its own body (coplanar copies the
+        # crack cut apart) made a later copy's patch look first: the two bodies apart.
+        gone = two_bodies(pairs, labels, is_open)
     return gone
 
 

@@ -131,3 +131,17 @@ def test_a_turned_copy_split_at_another_edge_gives_way_to_the_face_facing_right(
     v, f, expected = swept(model, kinds, seed)
     assert written_solid(v, f, tmp_path) == pytest.approx(expected, rel=2e-3)
     assert repair_mesh(v, f, 0.4).report["deviation"] < 0.01
+
+
+def test_a_body_written_twice_with_faces_written_again_then_cracked_comes_out_once(tmp_path):
+    # CAD fault sweep, combo seed 5: faces written again (half of them turned), the
+    # whole body written twice, then a patch cracked off each copy, cut differently.
+    # A face of the first copy's patch also written again in its main patch made that
+    # patch look like a later copy's, so it was dropped with the second copy: a hole
+    # where the patch was, and a face written again cracked off alone (its apex not on
+    # any rim) stayed beside its twin, an edge of three faces that made the stitch
+    # decline. The part came out a 0.4 mm skin, 14 % of its volume, D 0.2 mm. The
+    # patches are split into two bodies by the faces they share; the lone repeat goes.
+    v, f, expected = swept("part", "copies dup_shell crack", 5)
+    assert written_solid(v, f, tmp_path) == pytest.approx(expected, rel=2e-3)
+    assert repair_mesh(v, f, 0.4).report["deviation"] < 0.01
