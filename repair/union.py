@@ -239,6 +239,15 @@ def _orphaned(
     hit = np.isfinite(d_drop)
     own = np.zeros(len(kept), dtype=bool)
     own[hit] = twin[pts[drop][near[hit]]] == kept[hit]
+    # A point of the copy kept is matched as _is_copy matches: its twin nearest once the
+    # copy's mean shift is taken out (a CAD step's sliver 3e-5 mm wide, the copy moved
+    # farther, has the twin of its other corner nearer).
+    moved = np.flatnonzero(twin != np.arange(len(twin)))
+    if len(moved):
+        shift = (v[moved] - v[twin[moved]]).mean(axis=0)
+        back = cKDTree(v[pts[drop]] - shift).query(v[kept], distance_upper_bound=gamma)[1]
+        ok = hit & np.isin(kept, twin[moved]) & (back < np.count_nonzero(drop))
+        own[ok] |= twin[pts[drop][back[ok]]] == kept[ok]
     return bool(np.any(hit & ~own & (d_drop < d_keep)))
 
 
