@@ -1,6 +1,7 @@
 """Which open patches of a cracked body written twice are the copy to drop, when the
 faces copied between patches (corners within the stitch distance, turned the same way)
-do not say it by patch order alone (:func:`repair.union.duplicate_shells`). Patches
+do not say it by patch order alone, and whether dropping them orphans a piece of the
+copy (:func:`repair.union.duplicate_shells`). Patches
 are labels of edge-connected faces; vectorised numpy but for a loop over the few
 patches linked by copies.
 """
@@ -9,7 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["covered", "two_bodies"]
+from repair.topology import EdgeTopology, half_edges
+
+__all__ = ["covered", "orphaned", "two_bodies"]
 
 #: At most this many patches are split into two bodies (:func:`two_bodies`).
 MAX_BODY_PATCHES = 64
@@ -51,3 +54,42 @@ def two_bodies(pairs: np.ndarray, labels: np.ndarray, is_open: np.ndarray) -> np
     once = np.count_nonzero(gone[links[:, 0]] != gone[links[:, 1]])
     ok = is_open[gone].all() and twice < once and covered(pairs, labels, gone)
     return gone if ok else none
+
+
+def orphaned(
+    v: np.ndarray, topology: EdgeTopology, gone: np.ndarray, twin: np.ndarray, gamma: float
+) -> bool:
+    """Whether dropping the patches ``gone`` (per label of ``topology``) would leave a
+    piece of their copy behind: a kept patch with a rim point nearer (within ``gamma``
+    mm) a dropped patch's rim point than any other kept patch's rim, and not that
+    point's ``twin`` (its own point in the copy kept). A body cracked after it was
+    written twice has cracks that cut its copies differently; only some of the copy's
+    patches are copies, and the rest, stitched to the kept body, would fold over it."""
+    from scipy.spatial import cKDTree
+
+    bnd = np.flatnonzero(topology.counts[topology.eid] == 1)
+    pts, first = np.unique(half_edges(topology.faces)[bnd].reshape(-1), return_index=True)
+    lab = topology.shells[np.repeat(bnd, 2)[first] // 3]
+    drop = gone[lab]
+    if not drop.any() or drop.all():
+        return False
+    kept, lab_k = pts[~drop], lab[~drop]
+    d_drop, near = cKDTree(v[pts[drop]]).query(v[kept], distance_upper_bound=gamma)
+    k = min(16, len(kept))
+    dk, nk = cKDTree(v[kept]).query(v[kept], k=k, distance_upper_bound=gamma)
+    dk, nk = dk.reshape(len(kept), k), nk.reshape(len(kept), k)
+    other = np.isfinite(dk) & (lab_k[np.minimum(nk, len(kept) - 1)] != lab_k[:, None])
+    d_keep = np.where(other, dk, np.inf).min(axis=1)
+    hit = np.isfinite(d_drop)
+    own = np.zeros(len(kept), dtype=bool)
+    own[hit] = twin[pts[drop][near[hit]]] == kept[hit]
+    # A point of the copy kept is matched as _is_copy matches: its twin nearest once the
+    # copy's mean shift is taken out (a CAD step's sliver 3e-5 mm wide, the copy moved
+    # farther, has the twin of its other corner nearer).
+    moved = np.flatnonzero(twin != np.arange(len(twin)))
+    if len(moved):
+        shift = (v[moved] - v[twin[moved]]).mean(axis=0)
+        back = cKDTree(v[pts[drop]] - shift).query(v[kept], distance_upper_bound=gamma)[1]
+        ok = hit & np.isin(kept, twin[moved]) & (back < np.count_nonzero(drop))
+        own[ok] |= twin[pts[drop][back[ok]]] == kept[ok]
+    return bool(np.any(hit & ~own & (d_drop < d_keep)))
