@@ -25,7 +25,7 @@ def _needle_mask(v: np.ndarray, f: np.ndarray) -> np.ndarray:
 _INSIDE = 0.01
 
 
-def split_copies(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+def split_copies(vertices: np.ndarray, faces: np.ndarray, gamma: float = 0.0) -> np.ndarray:
     """Faces that are halves of a face also written whole (bool per face): two faces
     ``(a, m, c)`` and ``(m, b, c)`` sharing the edge ``m-c``, ``m`` between ``a`` and
     ``b`` on their line at float32 resolution (:func:`repair.clean.needle_mask` of ``(a, m, b)``),
@@ -34,12 +34,14 @@ def split_copies(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     whole face and its neighbour: an edge of three or more faces). They cover that
     face: the surface written twice, of which one layer is kept (the whole face, which
     its neighbour across ``a-b`` shares an edge with). So is a half whose twin is
-    missing (:func:`_lone_halves`)."""
+    missing (:func:`_lone_halves`). With ``gamma`` (mm), ``m`` may lie up to ``gamma``
+    off the line ``a-b``: a stitched crack's halves, whose midpoint moved by the crack
+    had nothing to snap to."""
     v = np.asarray(vertices, dtype=np.float64)
-    return _paired_halves(v, faces) | _lone_halves(v, faces)
+    return _paired_halves(v, faces, gamma) | _lone_halves(v, faces)
 
 
-def _paired_halves(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+def _paired_halves(vertices: np.ndarray, faces: np.ndarray, gamma: float = 0.0) -> np.ndarray:
     """The pairs of halves of :func:`split_copies` (bool per face)."""
     f = np.asarray(faces, dtype=np.int64)
     out = np.zeros(len(f), dtype=bool)
@@ -71,7 +73,9 @@ def _paired_halves(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     v = np.asarray(vertices, dtype=np.float64)
     alone = []  # (whole key, first face, second face) of pairs whose whole face is not
     for m, c in ((he[h1, 0], he[h1, 1]), (he[h1, 1], he[h1, 0])):
-        on = (a != b) & _needle_mask(v, np.stack([a, m, b], axis=1))
+        on = (a != b) & (
+            _needle_mask(v, np.stack([a, m, b], axis=1)) | _near_line(v, a, m, b, gamma)
+        )
         on &= np.einsum("ij,ij->i", v[a] - v[m], v[b] - v[m]) < 0
         k = face_keys(np.stack([a, b, c], axis=1), n)
         hit = on & many & (whole[np.minimum(np.searchsorted(whole, k), len(whole) - 1)] == k)
@@ -86,6 +90,17 @@ def _paired_halves(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
         again = order[1:][k[order][1:] == k[order][:-1]]
         out[g1[again]] = out[g2[again]] = True
     return out
+
+
+def _near_line(
+    v: np.ndarray, a: np.ndarray, m: np.ndarray, b: np.ndarray, gamma: float
+) -> np.ndarray:
+    """Whether each point ``m`` lies within ``gamma`` (mm) of the line ``a-b`` (bool)."""
+    if gamma <= 0:
+        return np.zeros(len(m), dtype=bool)
+    ab, am = v[b] - v[a], v[m] - v[a]
+    cross = np.linalg.norm(np.cross(ab, am), axis=1)
+    return cross <= gamma * np.linalg.norm(ab, axis=1)
 
 
 def _facing(f: np.ndarray, k: np.ndarray, g1: np.ndarray, g2: np.ndarray, n: int) -> np.ndarray:

@@ -66,7 +66,7 @@ def one_layer(v: np.ndarray, f: np.ndarray, gamma: float = 0.0) -> np.ndarray:
         loose = _loose_repeats(v, g, gamma)
         if loose.any():
             g = g[~loose]
-    halves = split_copies(v, g)
+    halves = split_copies(v, g, gamma)
     if halves.any():
         g = g[~halves]
     if g is f:
