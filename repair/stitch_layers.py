@@ -77,9 +77,9 @@ def one_layer(v: np.ndarray, f: np.ndarray, gamma: float = 0.0) -> np.ndarray:
 
 def _loose_repeats(v: np.ndarray, f: np.ndarray, gamma: float) -> np.ndarray:
     """Faces that repeat another but for their apex (bool per face): two open edges,
-    the third shared, the same way round, with a face whose opposite corner lies
-    within ``gamma`` mm of the apex -- a face written again, cracked off alone with
-    its own apex, which no rim of the surface met to snap it to."""
+    the third shared, either way round, with a face whose opposite corner lies within
+    ``gamma`` mm of the apex -- a face written again (or turned), cracked off alone
+    with its own apex, which no rim of the surface met to snap it to."""
     t = edge_topology(f)
     count = t.counts[t.eid].reshape(-1, 3)
     out = np.zeros(len(f), dtype=bool)
@@ -91,9 +91,9 @@ def _loose_repeats(v: np.ndarray, f: np.ndarray, gamma: float) -> np.ndarray:
     apex = f[cand, (k + 2) % 3]
     n = int(f.max()) + 1
     he = np.stack([f, np.roll(f, -1, axis=1)], axis=2).reshape(-1, 2)
-    key = he[:, 0] * n + he[:, 1]
+    key = he.min(axis=1) * n + he.max(axis=1)
     order = np.argsort(key, kind="stable")
-    want = a * n + b
+    want = np.minimum(a, b) * n + np.maximum(a, b)
     lo = np.searchsorted(key[order], want, "left")
     hi = np.searchsorted(key[order], want, "right")
     for j in range(int((hi - lo).max(initial=0))):  # the few faces on each edge
