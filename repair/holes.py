@@ -64,6 +64,9 @@ MAX_PERIMETER_FRACTION = 0.5
 #: perimeter longer than the part's diagonal, yet its lid is a sliver of the surface.
 #: An open-topped box's top is 20 % of it, a bowl's 50 %, a sheet's 100 %.
 MAX_LID_AREA_FRACTION = 0.02
+#: A hole's lid is a sliver when its area is at most this share of its perimeter squared
+#: (an equilateral triangle's is 0.048): a CAD step's sliver face 3e-5 mm wide, a slit.
+SLIVER_LID = 1e-3
 #: See :data:`MAX_LID_AREA_FRACTION`: a shell pierced by many small holes (a perforated
 #: lampshade) stays a sheet.
 MAX_LIDS_AREA_FRACTION = 0.05
@@ -265,8 +268,9 @@ def _closed(
     ok = small | facet
     sizes = np.array([len(lp) for lp in loops], dtype=np.float64)
     if not ok.all():
-        slivers, thin = _lids_are_slivers(v, f, comp, loops, labels)
+        slivers, lid_area = _lids_are_slivers(v, f, comp, loops, labels)
         ok |= slivers[labels]
+        thin = lid_area <= SLIVER_LID * perims**2
         ok |= _missing_triangles(sizes, labels, n_faces, thin)[labels]
     covered = np.bincount(labels[ok], weights=sizes[ok], minlength=len(diag))
     closable = (covered == n_bnd) & (n_bnd > 0)
@@ -368,8 +372,8 @@ def _lids_are_slivers(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per shell: whether a centroid-fan lid over each of its holes (``loops``, of shells
     ``labels``) adds at most :data:`MAX_LID_AREA_FRACTION` of its area (mm²), and all of
-    them at most :data:`MAX_LIDS_AREA_FRACTION` (shells of three faces or more); and per
-    loop, whether its own lid does (a sliver)."""
+    them at most :data:`MAX_LIDS_AREA_FRACTION` (shells of three faces or more); and the
+    area of each loop's lid (mm²)."""
     n = int(comp.max()) + 1
     p = v[f]
     area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
@@ -384,8 +388,7 @@ def _lids_are_slivers(
     np.maximum.at(largest, labels, lid)
     return ((largest <= MAX_LID_AREA_FRACTION * shell_area)
             & (total <= MAX_LIDS_AREA_FRACTION * shell_area)
-            & (np.bincount(comp, minlength=n) >= 3),
-            lid <= MAX_LID_AREA_FRACTION * shell_area[labels])  # fmt: skip
+            & (np.bincount(comp, minlength=n) >= 3), lid)  # fmt: skip
 
 
 def _missing_triangles(

@@ -212,6 +212,7 @@ def test_a_missing_face_beside_a_sliver_hole_gets_its_lid(model, kinds, seed, tm
     # A missing triangle gets its lid whatever its size only when it is the shell's
     # one missing triangle (or they are few against its faces): the sliver hole
     # counted as a second, no hole was closed, and the step came out a 0.4 mm skin (23 %
-    # of the volume), the cubes 55 %. A hole whose own lid is a sliver counts as none.
+    # of the volume), the cubes 55 %. A hole whose own lid is a sliver (its area at most
+    # 1e-3 of its perimeter squared; not a perforation's round hole) counts as none.
     v, f, expected = swept(model, kinds, seed)
     assert written_solid(v, f, tmp_path) == pytest.approx(expected, rel=2e-3)
