@@ -25,7 +25,7 @@ def _needle_mask(v: np.ndarray, f: np.ndarray) -> np.ndarray:
 _INSIDE = 0.01
 
 
-def split_copies(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+def split_copies(vertices: np.ndarray, faces: np.ndarray, gamma: float = 0.0) -> np.ndarray:
     """Faces that are halves of a face also written whole (bool per face): two faces
     ``(a, m, c)`` and ``(m, b, c)`` sharing the edge ``m-c``, ``m`` between ``a`` and
     ``b`` on their line at float32 resolution (:func:`repair.clean.needle_mask` of ``(a, m, b)``),
@@ -34,12 +34,14 @@ def split_copies(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     whole face and its neighbour: an edge of three or more faces). They cover that
     face: the surface written twice, of which one layer is kept (the whole face, which
     its neighbour across ``a-b`` shares an edge with). So is a half whose twin is
-    missing (:func:`_lone_halves`)."""
+    missing (:func:`_lone_halves`). With ``gamma`` (mm), ``m`` may lie up to ``gamma``
+    off the line ``a-b``: a stitched crack's halves, whose midpoint moved by the crack
+    had nothing to snap to."""
     v = np.asarray(vertices, dtype=np.float64)
-    return _paired_halves(v, faces) | _lone_halves(v, faces)
+    return _paired_halves(v, faces, gamma) | _lone_halves(v, faces)
 
 
-def _paired_halves(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+def _paired_halves(vertices: np.ndarray, faces: np.ndarray, gamma: float = 0.0) -> np.ndarray:
     """The pairs of halves of :func:`split_copies` (bool per face)."""
     f = np.asarray(faces, dtype=np.int64)
     out = np.zeros(len(f), dtype=bool)
@@ -52,12 +54,16 @@ def _paired_halves(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     sk = key[order]
     start = np.r_[0, np.flatnonzero(sk[1:] != sk[:-1]) + 1]
     uses = np.diff(np.r_[start, len(sk)])
+    # A face of an edge of three or more faces: the surface written twice there. So is
+    # a face of an open edge, once its pair covers the same triangle as another pair.
     many = np.zeros(len(f), dtype=bool)
     many[order[np.repeat(uses, uses) > 2] // 3] = True
+    rim = np.zeros(len(f), dtype=bool)
+    rim[order[np.repeat(uses, uses) == 1] // 3] = True
     pair = np.flatnonzero(sk[1:] == sk[:-1])
     h1, h2 = order[pair], order[pair + 1]
-    sel = many[h1 // 3] | many[h2 // 3]
-    h1, h2 = h1[sel], h2[sel]
+    sel = many[h1 // 3] | many[h2 // 3] | (rim[h1 // 3] & rim[h2 // 3])
+    h1, h2, many = h1[sel], h2[sel], many[h1[sel] // 3] | many[h2[sel] // 3]
     if len(h1) == 0:
         return out
     # The corner opposite each half-edge: the next corner after its end.
@@ -67,20 +73,60 @@ def _paired_halves(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     v = np.asarray(vertices, dtype=np.float64)
     alone = []  # (whole key, first face, second face) of pairs whose whole face is not
     for m, c in ((he[h1, 0], he[h1, 1]), (he[h1, 1], he[h1, 0])):
-        on = (a != b) & _needle_mask(v, np.stack([a, m, b], axis=1))
+        on = (a != b) & (
+            _needle_mask(v, np.stack([a, m, b], axis=1)) | _near_line(v, a, m, b, gamma)
+        )
         on &= np.einsum("ij,ij->i", v[a] - v[m], v[b] - v[m]) < 0
         k = face_keys(np.stack([a, b, c], axis=1), n)
-        hit = on & (whole[np.minimum(np.searchsorted(whole, k), len(whole) - 1)] == k)
+        hit = on & many & (whole[np.minimum(np.searchsorted(whole, k), len(whole) - 1)] == k)
         out[h1[hit] // 3] = out[h2[hit] // 3] = True
         alone.append(np.c_[k, h1 // 3, h2 // 3][on & ~hit])
     # A face written twice and each copy split at a different edge: two pairs of halves
-    # of one triangle; the pair of the earlier face stays.
+    # of one triangle; the pair facing as its neighbours do stays, else the earlier.
     k, g1, g2 = np.vstack(alone).T
     if len(k) > 1:
-        order = np.lexsort((np.minimum(g1, g2), k))
+        score = _facing(f, k, g1, g2, n)
+        order = np.lexsort((np.minimum(g1, g2), -score, k))
         again = order[1:][k[order][1:] == k[order][:-1]]
         out[g1[again]] = out[g2[again]] = True
     return out
+
+
+def _near_line(
+    v: np.ndarray, a: np.ndarray, m: np.ndarray, b: np.ndarray, gamma: float
+) -> np.ndarray:
+    """Whether each point ``m`` lies within ``gamma`` (mm) of the line ``a-b`` (bool)."""
+    if gamma <= 0:
+        return np.zeros(len(m), dtype=bool)
+    ab, am = v[b] - v[a], v[m] - v[a]
+    cross = np.linalg.norm(np.cross(ab, am), axis=1)
+    return cross <= gamma * np.linalg.norm(ab, axis=1)
+
+
+def _facing(f: np.ndarray, k: np.ndarray, g1: np.ndarray, g2: np.ndarray, n: int) -> np.ndarray:
+    """How well each pair of halves ``(g1, g2)`` of a triangle ``k`` written twice
+    faces as the surface around it does: its half-edges the other faces use the other
+    way minus those they use the same way (a copy written the wrong way round, split at
+    a different edge, scores below its twin). The pairs of a triangle with more than
+    one pair do not count for each other."""
+    doubled = _repeated(k)
+    mine = np.zeros(len(f), dtype=bool)
+    mine[g1[doubled]] = mine[g2[doubled]] = True
+    he = half_edges(f)
+    others = np.sort((he[:, 0] * n + he[:, 1])[np.repeat(~mine, 3)])
+
+    def used(key: np.ndarray) -> np.ndarray:
+        return np.searchsorted(others, key, "right") - np.searchsorted(others, key, "left")
+
+    own = half_edges(f[np.stack([g1, g2], axis=1).reshape(-1)])
+    per = used(own[:, 1] * n + own[:, 0]) - used(own[:, 0] * n + own[:, 1])
+    return per.reshape(len(k), 6).sum(axis=1)
+
+
+def _repeated(k: np.ndarray) -> np.ndarray:
+    """Whether each key occurs more than once in ``k`` (bool per entry)."""
+    _, inv, cnt = np.unique(k, return_inverse=True, return_counts=True)
+    return cnt[inv.reshape(-1)] > 1
 
 
 def _lone_halves(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:

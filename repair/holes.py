@@ -64,6 +64,9 @@ MAX_PERIMETER_FRACTION = 0.5
 #: perimeter longer than the part's diagonal, yet its lid is a sliver of the surface.
 #: An open-topped box's top is 20 % of it, a bowl's 50 %, a sheet's 100 %.
 MAX_LID_AREA_FRACTION = 0.02
+#: A hole's lid is a sliver when its area is at most this share of its perimeter squared
+#: (an equilateral triangle's is 0.048): a CAD step's sliver face 3e-5 mm wide, a slit.
+SLIVER_LID = 1e-3
 #: See :data:`MAX_LID_AREA_FRACTION`: a shell pierced by many small holes (a perforated
 #: lampshade) stays a sheet.
 MAX_LIDS_AREA_FRACTION = 0.05
@@ -265,8 +268,10 @@ def _closed(
     ok = small | facet
     sizes = np.array([len(lp) for lp in loops], dtype=np.float64)
     if not ok.all():
-        ok |= _lids_are_slivers(v, f, comp, loops, labels)[labels]
-        ok |= _missing_triangles(sizes, labels, n_faces)[labels]
+        slivers, lid_area = _lids_are_slivers(v, f, comp, loops, labels)
+        ok |= slivers[labels]
+        thin = lid_area <= SLIVER_LID * perims**2
+        ok |= _missing_triangles(sizes, labels, n_faces, thin)[labels]
     covered = np.bincount(labels[ok], weights=sizes[ok], minlength=len(diag))
     closable = (covered == n_bnd) & (n_bnd > 0)
 
@@ -364,10 +369,11 @@ def _perimeters(v: np.ndarray, loops: list[np.ndarray]) -> np.ndarray:
 
 def _lids_are_slivers(
     v: np.ndarray, f: np.ndarray, comp: np.ndarray, loops: list[np.ndarray], labels: np.ndarray
-) -> np.ndarray:
+) -> tuple[np.ndarray, np.ndarray]:
     """Per shell: whether a centroid-fan lid over each of its holes (``loops``, of shells
     ``labels``) adds at most :data:`MAX_LID_AREA_FRACTION` of its area (mm²), and all of
-    them at most :data:`MAX_LIDS_AREA_FRACTION` (shells of three faces or more)."""
+    them at most :data:`MAX_LIDS_AREA_FRACTION` (shells of three faces or more); and the
+    area of each loop's lid (mm²)."""
     n = int(comp.max()) + 1
     p = v[f]
     area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
@@ -382,10 +388,12 @@ def _lids_are_slivers(
     np.maximum.at(largest, labels, lid)
     return ((largest <= MAX_LID_AREA_FRACTION * shell_area)
             & (total <= MAX_LIDS_AREA_FRACTION * shell_area)
-            & (np.bincount(comp, minlength=n) >= 3))  # fmt: skip
+            & (np.bincount(comp, minlength=n) >= 3), lid)  # fmt: skip
 
 
-def _missing_triangles(sizes: np.ndarray, labels: np.ndarray, n_faces: np.ndarray) -> np.ndarray:
+def _missing_triangles(
+    sizes: np.ndarray, labels: np.ndarray, n_faces: np.ndarray, thin: np.ndarray
+) -> np.ndarray:
     """Per shell: whether its holes (loops of ``sizes`` edges, of shells ``labels``) are
     all one or two missing triangles (3 or 4 edges; a loop of k edges takes k - 2), at
     most :data:`MAX_MISSING_TRIANGLES` of its ``n_faces`` faces. Such a lid is the
@@ -393,11 +401,12 @@ def _missing_triangles(sizes: np.ndarray, labels: np.ndarray, n_faces: np.ndarra
     export missing a long face gets it back instead of being thickened into a hollow
     skin. A single missing triangle is closed whatever the shell's size (three faces or
     more: a lone triangle's own rim is no hole); an open-topped box (two missing, a loop
-    of four) stays a sheet."""
+    of four) stays a sheet. A hole whose lid is a sliver (``thin``, per loop: a CAD
+    step's sliver face dropped as a crack's cap) counts as none."""
     n = len(n_faces)
     loops = np.bincount(labels, minlength=n)
     few = np.bincount(labels, weights=sizes <= 4, minlength=n)
-    missing = np.bincount(labels, weights=sizes - 2, minlength=n)
+    missing = np.bincount(labels, weights=np.where(thin, 0, sizes - 2), minlength=n)
     one = (missing == 1) & (n_faces >= 3)
     return (loops > 0) & (few == loops) & ((missing <= MAX_MISSING_TRIANGLES * n_faces) | one)
 

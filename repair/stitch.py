@@ -379,7 +379,7 @@ def _stitched(
         f = _split_faces(f, h, p, t)
         inserted += len(f) - n
     if f is not original:
-        f = one_layer(v, without_flaps(v, f, gamma))
+        f = one_layer(v, without_flaps(v, f, gamma), gamma)
     after = topo if topo.of(f) else edge_topology(f)
     b1, nonmanifold_after, misoriented_after = (
         after.boundary, unpaired_edges(after), after.misoriented

@@ -47,7 +47,7 @@ def without_flaps(v: np.ndarray, f: np.ndarray, gamma: float) -> np.ndarray:
     return np.delete(f, flap, axis=0) if len(flap) else f
 
 
-def one_layer(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+def one_layer(v: np.ndarray, f: np.ndarray, gamma: float = 0.0) -> np.ndarray:
     """``f`` with one layer where the stitch made faces copies of others: a patch
     written twice, then cracked, has its copies on different vertices until stitched;
     on the same ones, a face's repeat (same vertex set, either way round) and the
@@ -55,19 +55,54 @@ def one_layer(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     clean drops them from an uncracked soup -- when that leaves fewer edges of more
     than two faces not used as often one way as the other, and no more open edges (a
     body written twice closer than the stitch distance, its copies joined face to
-    face, stays two layers: the union makes one body of them)."""
+    face, stays two layers: the union makes one body of them). With ``gamma`` (mm), so
+    does a repeat whose apex the stitch left apart (:func:`_loose_repeats`)."""
     t = edge_topology(f)
     if t.nonmanifold == 0:
         return f
     keep = unique_faces(f)
     g = f[keep] if len(keep) < len(f) else f
-    halves = split_copies(v, g)
+    if gamma > 0:
+        loose = _loose_repeats(v, g, gamma)
+        if loose.any():
+            g = g[~loose]
+    halves = split_copies(v, g, gamma)
     if halves.any():
         g = g[~halves]
     if g is f:
         return f
     tg = edge_topology(g)
     return g if tg.boundary <= t.boundary and unpaired_edges(tg) < unpaired_edges(t) else f
+
+
+def _loose_repeats(v: np.ndarray, f: np.ndarray, gamma: float) -> np.ndarray:
+    """Faces that repeat another but for their apex (bool per face): two open edges,
+    the third shared, either way round, with a face whose opposite corner lies within
+    ``gamma`` mm of the apex -- a face written again (or turned), cracked off alone
+    with its own apex, which no rim of the surface met to snap it to."""
+    t = edge_topology(f)
+    count = t.counts[t.eid].reshape(-1, 3)
+    out = np.zeros(len(f), dtype=bool)
+    cand = np.flatnonzero(((count == 1).sum(axis=1) == 2) & (count > 2).any(axis=1))
+    if len(cand) == 0:
+        return out
+    k = np.argmax(count[cand] > 2, axis=1)  # the shared edge's slot: from k to k+1
+    a, b = f[cand, k], f[cand, (k + 1) % 3]
+    apex = f[cand, (k + 2) % 3]
+    n = int(f.max()) + 1
+    he = np.stack([f, np.roll(f, -1, axis=1)], axis=2).reshape(-1, 2)
+    key = he.min(axis=1) * n + he.max(axis=1)
+    order = np.argsort(key, kind="stable")
+    want = np.minimum(a, b) * n + np.maximum(a, b)
+    lo = np.searchsorted(key[order], want, "left")
+    hi = np.searchsorted(key[order], want, "right")
+    for j in range(int((hi - lo).max(initial=0))):  # the few faces on each edge
+        has = lo + j < hi
+        other = order[np.minimum(lo + j, len(order) - 1)] // 3
+        opp = f[other, (order[np.minimum(lo + j, len(order) - 1)] % 3 + 2) % 3]
+        near = np.linalg.norm(v[opp] - v[apex], axis=1) <= gamma
+        out[cand[has & (other != cand) & near & ~out[other]]] = True
+    return out
 
 
 def without_caps(

@@ -19,13 +19,13 @@ import numpy as np
 from repair.clean import drop_unreferenced
 from repair.intersections import intersecting_face_pairs
 from repair.meshes import shell_volumes
+from repair.patch_copies import covered, orphaned, two_bodies
 from repair.rows import ranges, unique_ints
 from repair.topology import (
     EdgeTopology,
     edge_components,
     edge_stats,
     edge_topology,
-    half_edges,
     weld_exact,
 )
 
@@ -157,7 +157,7 @@ def duplicate_shells(
             if match is not None:
                 gone[b] = True
                 twin[match[0]] = match[1]
-    if patches and gone.any() and _orphaned(v, topology, gone, twin, gamma):
+    if patches and gone.any() and orphaned(v, topology, gone, twin, gamma):
         gone[:] = False
     if patches and not gone.any():
         gone = _face_copies(v, f, topology, gamma)
@@ -204,37 +204,11 @@ def _face_copies(v: np.ndarray, f: np.ndarray, topology: EdgeTopology, gamma: fl
     gone = full & all_full & (first < np.arange(n)) & is_open
     if not gone[labels[pairs]].any(axis=1).all():
         gone[:] = False  # a copy would be left: only some of its patches were copies
+    if gone.any() and not covered(pairs, labels, gone):
+        # A patch's faces also written again within its own body (coplanar copies the
+        # crack cut apart) made a later copy's patch look first: the two bodies apart.
+        gone = two_bodies(pairs, labels, is_open)
     return gone
-
-
-def _orphaned(
-    v: np.ndarray, topology: EdgeTopology, gone: np.ndarray, twin: np.ndarray, gamma: float
-) -> bool:
-    """Whether dropping the patches ``gone`` (per label of ``topology``) would leave a
-    piece of their copy behind: a kept patch with a rim point nearer (within ``gamma``
-    mm) a dropped patch's rim point than any other kept patch's rim, and not that
-    point's ``twin`` (its own point in the copy kept). A body cracked after it was
-    written twice has cracks that cut its copies differently; only some of the copy's
-    patches are copies, and the rest, stitched to the kept body, would fold over it."""
-    from scipy.spatial import cKDTree
-
-    bnd = np.flatnonzero(topology.counts[topology.eid] == 1)
-    pts, first = np.unique(half_edges(topology.faces)[bnd].reshape(-1), return_index=True)
-    lab = topology.shells[np.repeat(bnd, 2)[first] // 3]
-    drop = gone[lab]
-    if not drop.any() or drop.all():
-        return False
-    kept, lab_k = pts[~drop], lab[~drop]
-    d_drop, near = cKDTree(v[pts[drop]]).query(v[kept], distance_upper_bound=gamma)
-    k = min(16, len(kept))
-    dk, nk = cKDTree(v[kept]).query(v[kept], k=k, distance_upper_bound=gamma)
-    dk, nk = dk.reshape(len(kept), k), nk.reshape(len(kept), k)
-    other = np.isfinite(dk) & (lab_k[np.minimum(nk, len(kept) - 1)] != lab_k[:, None])
-    d_keep = np.where(other, dk, np.inf).min(axis=1)
-    hit = np.isfinite(d_drop)
-    own = np.zeros(len(kept), dtype=bool)
-    own[hit] = twin[pts[drop][near[hit]]] == kept[hit]
-    return bool(np.any(hit & ~own & (d_drop < d_keep)))
 
 
 def without_copies(
