@@ -1,5 +1,5 @@
 """Real CAD models of tests/data and the faults CAD exporters leave in them (issue 18),
-shared by tests/repair/test_cad_faults.py and the fault sweep tool (cadfaults.py).
+shared by tests/repair/test_cad_faults.py and the fault sweep (bench/bench_cad_faults.py).
 
 Every fault generator takes ``(v, f, seed)`` -- vertices (mm, float (n, 3)), faces
 (int (m, 3)) and a seed or a :class:`numpy.random.Generator` (a generator is used as
@@ -235,7 +235,7 @@ def needles_split_and_copied(v: np.ndarray, f: np.ndarray) -> Mesh:
 
 
 def swept(model: str, kinds: str, seed: int) -> tuple[np.ndarray, np.ndarray, float]:
-    """A case of the CAD fault sweep (lanes/tools/cadfaults.py): the faults ``kinds``
+    """A case of the CAD fault sweep (bench/bench_cad_faults.py): the faults ``kinds``
     applied to ``model`` in that order, drawing from ``seed`` (three kinds: the combo
     sweep's draw for ``seed``, which must be these), and the intact volume (mm³)."""
     name, scale = MODELS[model]

@@ -1,4 +1,4 @@
-"""CAD fault sweep cases (lanes/tools/cadfaults.py; issue 18) that came out wrong: a
+"""CAD fault sweep cases (bench/bench_cad_faults.py; issue 18) that came out wrong: a
 body written twice, faces written again whole or split, T-junctions, slivers, holes
 and cracks, several at once. Each must come out the intact solid, printable as
 written (float32 STL); where no face was deleted, D stays within the copy's shift."""
